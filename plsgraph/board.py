@@ -1,0 +1,142 @@
+"""Calibration target definitions (YAML in data/boards/) and their 3-D point layouts.
+
+Asymmetric circle grid, OpenCV convention: ``cols`` circles per row (patternSize width), ``rows``
+rows; circle (row i, col j) sits at ((2 j + i mod 2) s, i s, 0) with s = ``square_size``. Points are
+ordered row-major, point index = i * cols + j, the order cv2.findCirclesGrid returns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .errors import InputError
+
+PATTERNS = ("asymmetric_circles", "aprilgrid")
+
+
+@dataclass(frozen=True)
+class Board:
+    """A planar target. ``points`` (N, 3) are the measurable points in the board frame (z = 0)."""
+
+    pattern: str
+    cols: int
+    rows: int
+    square_size: float = 0.0
+    circle_diameter: float = 0.0
+    tag_size: float = 0.0
+    tag_spacing: float = 0.0
+    tag_family: str = "tag36h11"
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        if self.pattern not in PATTERNS:
+            raise InputError(f"board: unknown pattern {self.pattern!r}; use one of {', '.join(PATTERNS)}")
+        if self.cols < 1 or self.rows < 1:
+            raise InputError(f"board: cols and rows must be positive, got {self.cols} x {self.rows}")
+        if self.pattern == "asymmetric_circles":
+            if self.square_size <= 0 or self.circle_diameter <= 0:
+                raise InputError("board: asymmetric_circles needs positive square_size and circle_diameter")
+            if self.circle_diameter >= np.sqrt(2) * self.square_size:
+                raise InputError(
+                    f"board: circle_diameter {self.circle_diameter} m makes neighbouring circles touch "
+                    f"(they are {np.sqrt(2) * self.square_size:.4f} m apart); check square_size"
+                )
+        elif self.tag_size <= 0 or self.tag_spacing < 0:
+            raise InputError("board: aprilgrid needs positive tag_size and non-negative tag_spacing")
+
+    @property
+    def pattern_size(self) -> tuple[int, int]:
+        """(cols, rows) as OpenCV's patternSize."""
+        return (self.cols, self.rows)
+
+    @property
+    def n_points(self) -> int:
+        return int(self.points.shape[0])
+
+    @property
+    def points(self) -> np.ndarray:
+        if self.pattern == "asymmetric_circles":
+            i, j = np.divmod(np.arange(self.rows * self.cols), self.cols)
+            s = self.square_size
+            return np.stack([(2 * j + i % 2) * s, i * s, np.zeros(i.size)], axis=-1)
+        return aprilgrid_points(self.cols, self.rows, self.tag_size, self.tag_spacing)
+
+    @property
+    def extent(self) -> tuple[float, float]:
+        """Width and height (m) of the region the points and circles cover."""
+        p = self.points
+        pad = self.circle_diameter if self.pattern == "asymmetric_circles" else 0.0
+        return float(np.ptp(p[:, 0]) + pad), float(np.ptp(p[:, 1]) + pad)
+
+    @classmethod
+    def from_dict(cls, d: dict, name: str = "") -> Board:
+        if not isinstance(d, dict) or "pattern" not in d:
+            raise InputError("board: definition must be a mapping with a 'pattern' field")
+        pattern = d["pattern"]
+        if pattern == "aprilgrid":
+            # Kalibr's keys (tagCols, tagRows, tagSize, tagSpacing) are accepted as they are.
+            return cls(
+                pattern="aprilgrid",
+                cols=int(d.get("cols", d.get("tagCols", 0))),
+                rows=int(d.get("rows", d.get("tagRows", 0))),
+                tag_size=float(d.get("tag_size", d.get("tagSize", 0.0))),
+                tag_spacing=float(d.get("tag_spacing", d.get("tagSpacing", 0.0))),
+                tag_family=str(d.get("tag_family", "tag36h11")),
+                name=name,
+            )
+        try:
+            return cls(
+                pattern=str(pattern),
+                cols=int(d["cols"]),
+                rows=int(d["rows"]),
+                square_size=float(d["square_size"]),
+                circle_diameter=float(d["circle_diameter"]),
+                name=name,
+            )
+        except KeyError as exc:
+            raise InputError(f"board: missing field {exc} (needs cols, rows, square_size, circle_diameter)") from exc
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> Board:
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"board file {path} does not exist (bundled boards are in data/boards/)")
+        with open(path) as f:
+            d = yaml.safe_load(f)
+        if isinstance(d, dict) and d.get("target_type") == "aprilgrid":  # a Kalibr target file
+            d = dict(d, pattern="aprilgrid")
+        return cls.from_dict(d, name=path.stem)
+
+
+def aprilgrid_points(cols: int, rows: int, tag_size: float, spacing_ratio: float) -> np.ndarray:
+    """Kalibr AprilGrid corner positions, (4 * rows * cols, 3).
+
+    Kalibr numbers the corners on a (2 rows) x (2 cols) grid, row-major from the board origin
+    (corner of tag 0): point (r, c) lies at x = (c // 2) (1 + spacing) size + (c % 2) size, same for y.
+    Tag id k (row k // cols, column k % cols) owns grid points (2 r, 2 c), (2 r, 2 c + 1),
+    (2 r + 1, 2 c + 1), (2 r + 1, 2 c): its corners in counter-clockwise order from the origin side.
+    """
+    nr, nc = 2 * rows, 2 * cols
+    r, c = np.divmod(np.arange(nr * nc), nc)
+    pitch = (1.0 + spacing_ratio) * tag_size
+    x = (c // 2) * pitch + (c % 2) * tag_size
+    y = (r // 2) * pitch + (r % 2) * tag_size
+    return np.stack([x, y, np.zeros(x.size)], axis=-1)
+
+
+def load_board(name_or_path: str | Path) -> Board:
+    """A board from a YAML path, or by bundled name (e.g. ``acircles_4x11``)."""
+    from .paths import BOARDS_DIR
+
+    p = Path(name_or_path)
+    if p.is_file():
+        return Board.from_yaml(p)
+    bundled = BOARDS_DIR / f"{p.stem}.yaml"
+    if bundled.is_file():
+        return Board.from_yaml(bundled)
+    have = ", ".join(sorted(q.stem for q in BOARDS_DIR.glob("*.yaml")))
+    raise InputError(f"board {name_or_path!r} not found; give a YAML path or one of: {have}")
