@@ -1,34 +1,220 @@
-"""The ``plsgraph`` command. Library code raises typed errors; only this module prints."""
+"""The ``plsgraph`` command. Library code raises typed errors; only this module prints.
+
+Exit codes: 0 success, 1 the job ran but its result is flagged (degenerate / not converged / failed
+items in a batch), 2 user error (bad flags, unreadable input, refused overwrite), 130 interrupted.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
+from pathlib import Path
 
 from . import __version__
 from .errors import PlsgraphError
 
+EPILOG = """\
+typical session:
+  plsgraph inspect run.mcap                       what is in the recording
+  plsgraph diagnose run.mcap --board acircles_4x11  is the motion good enough?
+  plsgraph calibrate run.mcap --board acircles_4x11 --out calib/
+  plsgraph compare run.mcap --board acircles_4x11 --truth run.truth.yaml
+
+BOARD is a YAML file or the name of a bundled board in data/boards/ (e.g. acircles_4x11).
+Conventions: T_base_cam maps camera points into the robot base frame; t_odom = t_cam + time_offset_s.
+"""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that exits with code 2 and a one-line hint instead of a usage dump on errors."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.print_usage(sys.stderr)
+        print(f"{self.prog}: error: {message}\n(see '{self.prog} --help')", file=sys.stderr)
+        sys.exit(2)
+
+
+def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
+    p.add_argument("log", type=Path, help="recording: .mcap, ROS 2 .db3 folder/file or ROS 1 .bag")
+    p.add_argument(
+        "--board", default="acircles_4x11", help="board YAML or bundled name (default: %(default)s)"
+    )
+    p.add_argument("--camera-info", type=Path, help="camera intrinsics YAML (default: CameraInfo in the recording)")
+    p.add_argument("--wheel-radius", type=float, default=0.098, help="wheel radius r in m (default: %(default)s)")
+    p.add_argument("--track-width", type=float, default=0.37, help="wheel separation b in m (default: %(default)s)")
+    p.add_argument("--events-topic", help="event topic (default: detected by message type)")
+    p.add_argument("--joints-topic", help="sensor_msgs/JointState topic (default: detected)")
+    p.add_argument("--odom-topic", help="nav_msgs/Odometry topic, used when there are no joint states")
+    p.add_argument("--left-joint", help="name of the left wheel joint (default: picked by name)")
+    p.add_argument("--right-joint", help="name of the right wheel joint (default: picked by name)")
+    p.add_argument(
+        "--surface",
+        default="polarity",
+        choices=["polarity", "time", "count"],
+        help="event representation for detection (default: %(default)s, the paper's polarity-aware surface)",
+    )
+    p.add_argument("--rate", type=float, default=30.0, help="detection rate in Hz (default: %(default)s)")
+    p.add_argument(
+        "--td-range", type=float, default=0.5, help="search the time offset in +-this many seconds (default: 0.5)"
+    )
+    p.add_argument(
+        "--method",
+        default="pls",
+        choices=["pls", "cca", "procrustes"],
+        help="closed form that seeds the refinement (default: %(default)s)",
+    )
+    p.add_argument("--truth", type=Path, help="truth YAML (from 'plsgraph simulate') to report errors against")
+    if need_out:
+        p.add_argument("--out", type=Path, required=True, help="output folder (must not exist unless --force)")
+        p.add_argument("--force", action="store_true", help="write into an existing output folder")
+
 
 def _build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="plsgraph",
-        description="Calibrate an event camera against wheel odometry on a ground robot.",
+        description="Calibrate an event camera against the wheel odometry of a ground robot: "
+        "extrinsic T_base_cam, clock offset, and what the motion made observable.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--version", action="version", version=f"plsgraph {__version__}")
     p.add_argument("-v", "--verbose", action="store_true", help="log progress details")
-    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
+
+    s = sub.add_parser("inspect", help="list topics, message counts, time spans and event statistics")
+    s.add_argument("log", type=Path)
+    s.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    s.set_defaults(func=_cmd_inspect)
+
+    s = sub.add_parser("simulate", help="write a simulated recording (MCAP) with its truth beside it")
+    s.add_argument("--motion", choices=["rich", "straight", "spin"], default="rich")
+    s.add_argument("--duration", type=float, default=10.0, help="seconds (default: %(default)s)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--td", type=float, default=0.03, help="true time offset in s (default: %(default)s)")
+    s.add_argument("--event-format", choices=["dvs", "libcaer_cmp", "evt3"], default="dvs")
+    s.add_argument("--out", type=Path, required=True, help="output .mcap path")
+    s.add_argument("--force", action="store_true", help="overwrite an existing file")
+    s.set_defaults(func=_cmd_simulate)
+
+    s = sub.add_parser("calibrate", help="run the whole pipeline and write calibration.yaml, report.json/html")
+    _add_recording_options(s, need_out=True)
+    s.add_argument("--no-refine", action="store_true", help="stop after the closed form (no GTSAM refinement)")
+    s.set_defaults(func=_cmd_calibrate)
+
+    s = sub.add_parser("diagnose", help="is the recording good enough? excitation and observability only")
+    _add_recording_options(s, need_out=False)
+    s.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    s.set_defaults(func=_cmd_diagnose)
+
+    s = sub.add_parser("compare", help="every closed-form solver and the refinement side by side")
+    _add_recording_options(s, need_out=False)
+    s.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    s.set_defaults(func=_cmd_compare)
+
+    s = sub.add_parser("reproduce-paper", help="the paper's synthetic Tables I and II next to ours")
+    s.add_argument("--out", type=Path, required=True, help="output folder")
+    s.add_argument("--trials", type=int, default=200, help="trials per cell (default: %(default)s, the paper's)")
+    s.add_argument("--quick", action="store_true", help="few trials, a few seconds")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--force", action="store_true", help="overwrite existing tables")
+    s.set_defaults(func=_cmd_reproduce)
+
+    s = sub.add_parser("batch", help="calibrate many recordings in parallel; one summary table")
+    s.add_argument("inputs", nargs="+", type=Path, help="recordings, or folders holding them")
+    s.add_argument("--out", type=Path, required=True, help="output folder (one sub-folder per recording)")
+    s.add_argument("--board", default="acircles_4x11")
+    s.add_argument("--camera-info", type=Path)
+    s.add_argument("--wheel-radius", type=float, default=0.098)
+    s.add_argument("--track-width", type=float, default=0.37)
+    s.add_argument("--jobs", type=int, default=None, help="local worker processes (default: CPU count)")
+    s.add_argument("--scheduler", help="Dask scheduler address (tcp://host:port) instead of local processes")
+    s.add_argument("--force", action="store_true")
+    s.set_defaults(func=_cmd_batch)
     return p
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from .paper import reproduce_paper
+    from .progress import ProgressBar
+
+    trials = 20 if args.quick and args.trials == 200 else args.trials
+    with ProgressBar("reproduce-paper") as bar:
+        res = reproduce_paper(args.out, trials=trials, quick=args.quick, seed=args.seed, overwrite=args.force,
+                              progress=bar)
+    print(res["markdown"])
+    print(f"\nwritten: {Path(args.out) / 'paper_tables.md'}, {Path(args.out) / 'paper_tables.json'}")
+    return 0
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    from .io.inspect import format_inspection, inspect_recording
+
+    info = inspect_recording(args.log)
+    print(json.dumps(info, indent=2) if args.json else format_inspection(info))
+    return 0
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .app import simulate_to_file
+
+    paths = simulate_to_file(args.out, motion=args.motion, duration=args.duration, seed=args.seed, td=args.td,
+                             event_format=args.event_format, overwrite=args.force)
+    for p in paths:
+        print(f"written: {p}")
+    return 0
+
+
+def _options(args: argparse.Namespace):
+    from .app import PipelineOptions
+
+    return PipelineOptions.from_namespace(args)
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from .app import calibrate_to_dir
+
+    summary = calibrate_to_dir(args.log, args.out, _options(args), refine=not args.no_refine, force=args.force)
+    print(summary["text"])
+    return 0 if summary["ok"] else 1
+
+
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    from .app import diagnose
+
+    res = diagnose(args.log, _options(args))
+    print(json.dumps(res["json"], indent=2) if args.json else res["text"])
+    return 0 if res["ok"] else 1
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from .app import compare
+
+    res = compare(args.log, _options(args))
+    print(json.dumps(res["json"], indent=2) if args.json else res["text"])
+    return 0
+
+
+def _cmd_batch(args: argparse.Namespace) -> int:
+    from .app import run_batch
+
+    res = run_batch(args)
+    print(res["text"])
+    return 0 if res["ok"] else 1
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = _build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
     try:
         return int(args.func(args) or 0)
     except PlsgraphError as exc:
+        print(f"plsgraph: error: {exc}", file=sys.stderr)
+        return 2
+    except FileNotFoundError as exc:
         print(f"plsgraph: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

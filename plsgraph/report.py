@@ -1,0 +1,192 @@
+"""Result files: calibration.yaml (for people and robots), report.json (for scripts), report.html (+ PNGs).
+
+Everything is written atomically (temporary file, then rename) into an output folder that must not
+exist yet unless the caller passes ``force=True``: a previous result is never overwritten silently.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+import os
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+from .errors import InputError
+
+COVARIANCE_ORDER = ["rot_x", "rot_y", "rot_z", "trans_x", "trans_y", "trans_z", "td"]
+COVARIANCE_NOTE = (
+    "7 x 7 covariance of (rotation vector of a right perturbation of R_base_cam [rad], translation of a right "
+    "perturbation of T_base_cam [m], time offset [s]), GTSAM Pose3 tangent convention; for small angles "
+    "rot_x/y/z are rotations about the camera's own x (right), y (down), z (forward) axes."
+)
+
+
+def to_jsonable(obj: Any) -> Any:
+    """Recursively convert numpy types to plain Python; non-finite floats become None (valid JSON)."""
+    if isinstance(obj, Mapping):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, np.bool_ | bool):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.floating | float):
+        f = float(obj)
+        return f if math.isfinite(f) else None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def ros_static_transform(T_base_cam: np.ndarray, parent: str = "base_link", child: str = "event_camera") -> str:
+    """A ready-to-paste ROS 2 static transform publisher line for T_base_cam."""
+    T = np.asarray(T_base_cam, dtype=float)
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    x, y, z = T[:3, 3]
+    return (
+        "ros2 run tf2_ros static_transform_publisher "
+        f"--x {x:.6f} --y {y:.6f} --z {z:.6f} "
+        f"--qx {q[0]:.9f} --qy {q[1]:.9f} --qz {q[2]:.9f} --qw {q[3]:.9f} "
+        f"--frame-id {parent} --child-frame-id {child}"
+    )
+
+
+def calibration_dict(
+    T_base_cam: np.ndarray,
+    time_offset_s: float,
+    covariance: np.ndarray | None,
+    observability: list[dict] | None,
+    parent_frame: str = "base_link",
+    child_frame: str = "event_camera",
+    extra: Mapping[str, Any] | None = None,
+) -> dict:
+    """The content of calibration.yaml (also embedded in report.json under ``calibration``)."""
+    T = np.asarray(T_base_cam, dtype=float)
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    d: dict[str, Any] = {
+        "T_base_cam": T.tolist(),
+        "quaternion_xyzw": q.tolist(),
+        "translation_m": T[:3, 3].tolist(),
+        "rpy_deg": Rotation.from_matrix(T[:3, :3]).as_euler("xyz", degrees=True).tolist(),
+        "time_offset_s": float(time_offset_s),
+        "time_offset_convention": "t_odom = t_cam + time_offset_s",
+        "parent_frame": parent_frame,
+        "child_frame": child_frame,
+        "covariance": {
+            "order": COVARIANCE_ORDER,
+            "note": COVARIANCE_NOTE,
+            "matrix": None if covariance is None else np.asarray(covariance, dtype=float).tolist(),
+        },
+        "observability": list(observability or []),
+        "ros_static_transform": ros_static_transform(T, parent_frame, child_frame),
+    }
+    if extra:
+        d.update(extra)
+    return to_jsonable(d)
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def prepare_output_dir(out_dir: str | Path, force: bool = False) -> Path:
+    """Create ``out_dir``; refuse (InputError) if it exists and is not empty unless ``force``."""
+    out = Path(out_dir)
+    if out.exists():
+        if not out.is_dir():
+            raise InputError(f"output path {out} exists and is not a folder")
+        if any(out.iterdir()) and not force:
+            raise InputError(f"output folder {out} already holds results; choose another --out or pass --force")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def write_yaml(path: Path, data: Mapping) -> None:
+    text = yaml.safe_dump(to_jsonable(data), sort_keys=False, default_flow_style=None, width=120)
+    _atomic_write(Path(path), text.encode())
+
+
+def write_json(path: Path, data: Mapping) -> None:
+    _atomic_write(Path(path), (json.dumps(to_jsonable(data), indent=2, allow_nan=False) + "\n").encode())
+
+
+def write_text(path: Path, text: str) -> None:
+    _atomic_write(Path(path), text.encode())
+
+
+def markdown_table(rows: list[dict], columns: list[str], floatfmt: str = "{:.3f}") -> str:
+    """A GitHub markdown table of ``rows`` (dicts) restricted to ``columns``; None prints as '-'."""
+
+    def fmt(v: Any) -> str:
+        if v is None:
+            return "-"
+        if isinstance(v, float | np.floating):
+            return floatfmt.format(v) if math.isfinite(v) else "-"
+        return str(v)
+
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    lines += ["| " + " | ".join(fmt(r.get(c)) for c in columns) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+_STATUS_COLOUR = {"observable": "#2e7d32", "weak": "#f9a825", "unobservable": "#c62828"}
+
+
+def html_report(title: str, sections: list[tuple[str, str]], images: list[tuple[str, str]]) -> str:
+    """A self-contained page: ``sections`` are (heading, pre-escaped HTML) pairs, ``images`` (caption, file)."""
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'>",
+        f"<title>{html.escape(title)}</title>",
+        "<style>body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
+        "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}"
+        "th{background:#f3f3f3}figure{display:inline-block;margin:8px}img{max-width:520px}"
+        ".warn{color:#a15c00}.st{color:#fff;padding:1px 6px;border-radius:3px}</style></head><body>",
+        f"<h1>{html.escape(title)}</h1>",
+    ]
+    for head, body in sections:
+        parts.append(f"<h2>{html.escape(head)}</h2>{body}")
+    if images:
+        parts.append("<h2>Figures</h2>")
+        for cap, fname in images:
+            parts.append(
+                f"<figure><img src='{html.escape(fname)}' alt='{html.escape(cap)}'>"
+                f"<figcaption>{html.escape(cap)}</figcaption></figure>"
+            )
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def html_table(rows: list[dict], columns: list[str], floatfmt: str = "{:.4g}") -> str:
+    def cell(c: str, v: Any) -> str:
+        if c == "status" and isinstance(v, str):
+            col = _STATUS_COLOUR.get(v, "#555")
+            return f"<td><span class='st' style='background:{col}'>{html.escape(v)}</span></td>"
+        if isinstance(v, float | np.floating):
+            return f"<td>{floatfmt.format(v) if math.isfinite(v) else '-'}</td>"
+        return f"<td>{html.escape('-' if v is None else str(v))}</td>"
+
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in columns)
+    body = "".join("<tr>" + "".join(cell(c, r.get(c)) for c in columns) + "</tr>" for r in rows)
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def status_colour(status: str) -> str:
+    return _STATUS_COLOUR.get(status, "#555")

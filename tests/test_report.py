@@ -1,0 +1,68 @@
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from plsgraph.errors import InputError
+from plsgraph.geometry import make_T, so3_exp
+from plsgraph.report import (
+    calibration_dict,
+    html_report,
+    html_table,
+    prepare_output_dir,
+    ros_static_transform,
+    write_json,
+    write_yaml,
+)
+
+
+def _T():
+    return make_T(so3_exp([0.1, -0.2, 0.3]), [0.15, 0.02, 0.25])
+
+
+def test_calibration_dict_round_trips_through_yaml_and_json(tmp_path):
+    cov = np.diag([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1.0, 1e-6])
+    obs = [{"direction": "translation z (camera height)", "status": "unobservable", "sigma": 1.0, "note": "prior"}]
+    d = calibration_dict(_T(), 0.031, cov, obs)
+    write_yaml(tmp_path / "c.yaml", d)
+    write_json(tmp_path / "c.json", d)
+    y = yaml.safe_load((tmp_path / "c.yaml").read_text())
+    j = json.loads((tmp_path / "c.json").read_text())
+    for loaded in (y, j):
+        T = np.array(loaded["T_base_cam"])
+        assert np.allclose(T, _T())
+        q = np.array(loaded["quaternion_xyzw"])
+        assert np.isclose(np.linalg.norm(q), 1.0)
+        assert loaded["time_offset_s"] == pytest.approx(0.031)
+        assert np.allclose(loaded["covariance"]["matrix"], cov)
+        assert loaded["covariance"]["order"][-1] == "td"
+        assert loaded["observability"][0]["status"] == "unobservable"
+
+
+def test_nan_becomes_null_not_invalid_json(tmp_path):
+    write_json(tmp_path / "r.json", {"a": float("nan"), "b": np.array([1.0, np.inf])})
+    assert json.loads((tmp_path / "r.json").read_text()) == {"a": None, "b": [1.0, None]}
+
+
+def test_static_transform_line_encodes_the_pose():
+    line = ros_static_transform(_T())
+    tok = line.split()
+    vals = dict(zip(tok[4::2], tok[5::2], strict=True))
+    assert float(vals["--x"]) == pytest.approx(0.15) and float(vals["--z"]) == pytest.approx(0.25)
+    q = np.array([float(vals[k]) for k in ("--qx", "--qy", "--qz", "--qw")])
+    assert np.isclose(np.linalg.norm(q), 1.0, atol=1e-8)
+
+
+def test_output_dir_refuses_to_overwrite(tmp_path):
+    out = prepare_output_dir(tmp_path / "o")
+    (out / "calibration.yaml").write_text("old")
+    with pytest.raises(InputError, match="--force"):
+        prepare_output_dir(out)
+    assert prepare_output_dir(out, force=True) == out
+    assert (out / "calibration.yaml").read_text() == "old"
+
+
+def test_html_escapes_text():
+    page = html_report("<t>", [("s", html_table([{"status": "weak", "x": "<b>"}], ["status", "x"]))], [])
+    assert "&lt;b&gt;" in page and "<b>" not in page.split("<h2>s</h2>")[1]
