@@ -1,0 +1,148 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from plsgraph.errors import InputError, InsufficientDataError
+from plsgraph.geometry import rotation_error_deg, yaw_of
+from plsgraph.odometry import (
+    base_track_from_odometry,
+    base_track_from_wheels,
+    diff_drive,
+    in_gap,
+    integrate_planar,
+    resample,
+    velocity_at,
+)
+from plsgraph.sim.robot import simulate_robot
+
+R, B = 0.098, 0.37
+
+
+def wheels_for(t, v, w):
+    """Wheel angles for constant forward speed v and turn rate w."""
+    return (v - w * B / 2) / R * t, (v + w * B / 2) / R * t
+
+
+def test_constant_twist_gives_exact_circle():
+    t = np.linspace(0.0, 7.0, 36)  # coarse steps: the arc integration must still be exact
+    v, w = 0.4, 0.6
+    left, right = wheels_for(t, v, w)
+    track = base_track_from_wheels(t, left, right, R, B)
+    p = track.T_world_base[:, :3, 3]
+    assert np.allclose(p[:, 0], v / w * np.sin(w * t), atol=1e-12)
+    assert np.allclose(p[:, 1], v / w * (1 - np.cos(w * t)), atol=1e-12)
+    assert np.allclose(np.unwrap(yaw_of(track.T_world_base[:, :3, :3])), w * t)
+    assert np.allclose(track.v[:, 0], v) and np.allclose(track.omega[:, 2], w)
+    assert track.info["warnings"] == []
+
+
+def test_straight_line_and_spin_in_place():
+    t = np.linspace(0.0, 2.0, 11)
+    track = base_track_from_wheels(t, *wheels_for(t, -0.5, 0.0), R, B)
+    assert np.allclose(track.T_world_base[:, 0, 3], -0.5 * t) and np.allclose(track.T_world_base[:, 1, 3], 0.0)
+    spin = base_track_from_wheels(t, *wheels_for(t, 0.0, 1.0), R, B)
+    assert np.allclose(spin.T_world_base[:, :3, 3], 0.0) and np.allclose(spin.omega[:, 2], 1.0)
+
+
+def test_diff_drive_equations():
+    v, w = diff_drive(np.array([1.0]), np.array([3.0]), R, B)
+    assert v[0] == pytest.approx(R * 2.0) and w[0] == pytest.approx(R * 2.0 / B)
+
+
+def test_integration_matches_simulated_truth():
+    rec = simulate_robot("rich", duration=20.0, seed=2, slip=0.0, encoder_ticks_per_rev=0)
+    track = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius, rec.track_width)
+    T_true = rec.truth_base.poses_at(rec.wheel_t)
+    assert np.max(np.linalg.norm(track.T_world_base[:, :3, 3] - T_true[:, :3, 3], axis=1)) < 2e-3
+    assert np.max(rotation_error_deg(track.T_world_base[:, :3, :3], T_true[:, :3, :3])) < 1e-5
+    v_true, w_true = velocity_at(rec.truth_base, rec.wheel_t)
+    assert np.max(np.abs(track.v[:, 0] - v_true[:, 0])) < 5e-3
+    assert np.max(np.abs(track.omega[:, 2] - w_true[:, 2])) < 5e-3
+
+
+def test_velocity_input_matches_position_input():
+    rec = simulate_robot("rich", duration=10.0, seed=1, slip=0.0, encoder_ticks_per_rev=0)
+    t = rec.wheel_t
+    rates = [np.gradient(a, t) for a in (rec.wheel_left, rec.wheel_right)]
+    by_rate = base_track_from_wheels(t, *rates, R, B, kind="velocity")
+    by_pos = base_track_from_wheels(t, rec.wheel_left, rec.wheel_right, R, B)
+    assert np.max(np.abs(by_rate.T_world_base[:, :3, 3] - by_pos.T_world_base[:, :3, 3])) < 5e-3
+
+
+def test_gyro_heading_beats_slipping_wheels():
+    rec = simulate_robot("rich", duration=20.0, seed=4, slip=0.03)
+    wheels = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, R, B)
+    gyro = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, R, B, gyro=rec.gyro(noise_rad_s=0.002))
+    T_true = rec.truth_base.poses_at(rec.wheel_t)
+    err_w = rotation_error_deg(wheels.T_world_base[:, :3, :3], T_true[:, :3, :3])
+    err_g = rotation_error_deg(gyro.T_world_base[:, :3, :3], T_true[:, :3, :3])
+    assert err_g.max() < 0.2 < err_w.max()
+    assert "gyro" in gyro.info["source"]
+
+
+def test_bad_streams_are_rejected():
+    t = np.array([0.0, 0.1, 0.05, 0.2])
+    with pytest.raises(InputError, match="sorted"):
+        base_track_from_wheels(t, np.zeros(4), np.zeros(4))
+    with pytest.raises(InputError, match="duplicated"):
+        base_track_from_wheels(np.array([0.0, 0.1, 0.1]), np.zeros(3), np.zeros(3))
+    with pytest.raises(InputError, match="NaN"):
+        base_track_from_wheels(np.arange(3.0), np.array([0, np.nan, 0]), np.zeros(3))
+    with pytest.raises(InsufficientDataError):
+        base_track_from_wheels(np.zeros(1), np.zeros(1), np.zeros(1))
+    with pytest.raises(InputError):
+        base_track_from_wheels(np.arange(3.0), np.zeros(3), np.zeros(3), kind="ticks")
+
+
+def test_gaps_and_jumps_are_reported():
+    t = np.r_[np.arange(0, 5, 0.02), np.arange(6.0, 8.0, 0.02)]  # a 1 s gap
+    left, right = wheels_for(t, 0.3, 0.2)
+    right = right.copy()
+    right[300:] += 50.0  # encoder reset / jump
+    track = base_track_from_wheels(t, left, right, R, B)
+    assert len(track.info["gaps"]) == 1 and track.info["gaps"][0, 1] - track.info["gaps"][0, 0] > 0.9
+    assert track.info["jumps"].size == 1 and len(track.info["warnings"]) == 2
+    # The jump adds no motion: the heading keeps following the true turn rate except over the jump step.
+    assert float(yaw_of(track.T_world_base[-1, :3, :3])) == pytest.approx(0.2 * (t[-1] - 0.02), abs=1e-9)
+    mask = in_gap(track, np.array([2.0, 5.5, t[300], 7.5]))
+    assert mask.tolist() == [False, True, True, False]
+
+
+def test_odometry_messages_round_trip_and_jump():
+    rec = simulate_robot("rich", duration=10.0, seed=5)
+    t = rec.wheel_t
+    T = rec.truth_base.poses_at(t)
+    q = Rotation.from_matrix(T[:, :3, :3]).as_quat()
+    v, w = velocity_at(rec.truth_base, t)
+    track = base_track_from_odometry(t, T[:, :3, 3], q, v, w)
+    assert np.allclose(track.T_world_base, T) and track.info["warnings"] == []
+    derived = base_track_from_odometry(t, T[:, :3, 3], q)  # no twist: differentiated poses
+    assert np.max(np.abs(derived.v[:, 0] - v[:, 0])) < 5e-3
+    assert np.max(np.abs(derived.omega[:, 2] - w[:, 2])) < 5e-3
+    p = T[:, :3, 3].copy()
+    p[200:, 0] += 0.5
+    jumped = base_track_from_odometry(t, p, q, v, w)
+    assert jumped.info["jumps"].size == 1 and np.isclose(jumped.info["jumps"][0], t[200])
+    with pytest.raises(InputError, match="quaternion"):
+        base_track_from_odometry(t, T[:, :3, 3], 2 * q)
+
+
+def test_resample_and_velocity_at():
+    t = np.linspace(0.0, 4.0, 81)
+    track = base_track_from_wheels(t, *wheels_for(t, 0.4, 0.5), R, B)
+    tq = np.linspace(0.1, 3.9, 17)
+    res = resample(track, tq)
+    assert np.allclose(res.T_world_base[:, 0, 3], 0.4 / 0.5 * np.sin(0.5 * tq), atol=2e-4)
+    assert np.allclose(res.v[:, 0], 0.4) and np.allclose(res.omega[:, 2], 0.5)
+    with pytest.raises(InputError):
+        velocity_at(track, np.array([5.0]))
+    with pytest.raises(InputError):
+        resample(track, np.array([-1.0]))
+
+
+def test_integrate_planar_matches_small_step_limit():
+    ds = np.full(1000, 0.001)
+    dth = np.full(1000, 0.002)
+    x, y, th = integrate_planar(ds, dth)
+    assert th[-1] == pytest.approx(2.0)
+    assert x[-1] == pytest.approx(0.5 * np.sin(2.0), abs=1e-12) and y[-1] == pytest.approx(0.5 * (1 - np.cos(2.0)))
