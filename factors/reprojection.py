@@ -1,0 +1,334 @@
+"""Circle-grid reprojection factor: one factor per detection frame, all board points stacked.
+
+Variables of the factor for frame i (camera time t_i):
+
+* ``X_a``, ``X_b``: the base poses ``T_world_base`` at the two knots bracketing ``t_i + td``,
+* ``C`` = ``T_base_cam``, ``B`` = ``T_world_board``,
+* ``td`` (a 1-vector): the camera sample at ``t_i`` belongs to odometry time ``t_i + td``.
+
+The base pose at ``tau = t_i + td`` is ``X(tau) = Y(s) * K_i`` with ``s = (tau - t_a) / (t_b - t_a)``,
+``Y(s)`` = slerp of the rotations and linear interpolation of the positions of ``X_a`` and ``X_b`` (the
+same scheme as :func:`plsgraph.geometry.interpolate_poses`), and ``K_i`` a constant correction that puts
+back the detail of the full-rate odometry between two knots when the knots are decimated (identity when
+they are not). ``td`` acts only through ``s``: the frame slides along the base motion.
+
+A board point P is predicted at ``project(C^-1 X(tau)^-1 B P)``; the residual is predicted minus
+measured pixels, (u, v) per visible point. Points with NaN pixels are dropped when the factor is built.
+
+Speed: GTSAM calls one Python callback per factor. All frames share one :class:`FrameBatch` that, on the
+first call with a new set of variable values, evaluates every frame at once with numpy and then serves
+each factor its slice. A factor only uses the batch result after checking that the batch was computed
+from exactly the values it is asked about, so the shortcut cannot return a stale residual.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from plsgraph.camera import CameraModel
+from plsgraph.errors import InputError
+from plsgraph.geometry import hat, inv_T, so3_exp, so3_log
+
+from ._lie import pose_adjoint, so3_right_jacobian, so3_right_jacobian_inv
+
+log = logging.getLogger(__name__)
+
+# Points closer than this to the camera plane are clamped: the residual then is huge (the robust loss
+# or the outlier rejection deals with it) instead of a division by zero.
+_MIN_DEPTH = 1e-3
+
+
+@dataclass(frozen=True)
+class ReprojectionFrames:
+    """Static data of m detection frames sharing one board and one camera.
+
+    ``t`` (m,) camera times; ``t_a``, ``t_b`` (m,) odometry times of the bracketing knots;
+    ``uv`` (m, N, 2) measured pixels (NaN = not seen); ``board_points`` (N, 3);
+    ``T_corr`` (m, 4, 4) the decimation correction K_i (identity if None).
+    """
+
+    t: np.ndarray
+    t_a: np.ndarray
+    t_b: np.ndarray
+    uv: np.ndarray
+    board_points: np.ndarray
+    camera: CameraModel
+    T_corr: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.t, dtype=float).ravel()
+        m = t.size
+        t_a = np.asarray(self.t_a, dtype=float).ravel()
+        t_b = np.asarray(self.t_b, dtype=float).ravel()
+        uv = np.asarray(self.uv, dtype=float)
+        pts = np.asarray(self.board_points, dtype=float)
+        if t_a.size != m or t_b.size != m or uv.shape[:1] != (m,) or uv.ndim != 3 or uv.shape[1:] != (len(pts), 2):
+            raise InputError(f"reprojection frames: inconsistent shapes t {t.shape}, uv {uv.shape}, points {pts.shape}")
+        if np.any(t_b - t_a <= 0):
+            raise InputError("reprojection frames: each bracket needs t_b > t_a")
+        T_corr = np.broadcast_to(np.eye(4), (m, 4, 4)) if self.T_corr is None else np.asarray(self.T_corr, float)
+        if T_corr.shape != (m, 4, 4):
+            raise InputError(f"reprojection frames: T_corr must be ({m}, 4, 4), got {T_corr.shape}")
+        for name, v in (("t", t), ("t_a", t_a), ("t_b", t_b), ("uv", uv), ("board_points", pts), ("T_corr", T_corr)):
+            object.__setattr__(self, name, v)
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(m, N) True where the point was detected."""
+        return np.all(np.isfinite(self.uv), axis=-1)
+
+    def take(self, idx) -> ReprojectionFrames:
+        idx = np.atleast_1d(idx)
+        return ReprojectionFrames(
+            self.t[idx], self.t_a[idx], self.t_b[idx], self.uv[idx], self.board_points, self.camera, self.T_corr[idx]
+        )
+
+
+@dataclass(frozen=True)
+class FrameEvaluation:
+    """Residuals (m, N, 2) and, if asked, Jacobians (m, N, 2, 6) / (m, N, 2, 1) of m frames."""
+
+    residual: np.ndarray
+    J_a: np.ndarray | None = None
+    J_b: np.ndarray | None = None
+    J_cam: np.ndarray | None = None
+    J_board: np.ndarray | None = None
+    J_td: np.ndarray | None = None
+
+
+def interpolation_jacobians(
+    Xa: np.ndarray, Xb: np.ndarray, s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Interpolated poses Y(s) (m, 4, 4) and their right-perturbation Jacobians.
+
+    Returns ``Y``, ``A_a`` (m, 6, 6), ``A_b`` (m, 6, 6), ``a_s`` (m, 6) with
+    ``Y' = Y Exp(A_a e_a + A_b e_b + a_s ds)`` to first order for ``X_a' = X_a Exp(e_a)``, same for b.
+    """
+    Ra, pa = Xa[:, :3, :3], Xa[:, :3, 3]
+    Rb, pb = Xb[:, :3, :3], Xb[:, :3, 3]
+    D = np.swapaxes(Ra, 1, 2) @ Rb
+    phi = so3_log(D).reshape(-1, 3)
+    sphi = s[:, None] * phi
+    E = so3_exp(sphi).reshape(-1, 3, 3)
+    RY = Ra @ E
+    pY = (1.0 - s)[:, None] * pa + s[:, None] * pb
+    Y = np.zeros_like(Xa)
+    Y[:, :3, :3] = RY
+    Y[:, :3, 3] = pY
+    Y[:, 3, 3] = 1.0
+    JJ = so3_right_jacobian(sphi) @ so3_right_jacobian_inv(phi)  # d(rotation of Y) / d(rotation of X_b), over s
+    RYt = np.swapaxes(RY, 1, 2)
+    m = Xa.shape[0]
+    A_a = np.zeros((m, 6, 6))
+    A_b = np.zeros((m, 6, 6))
+    A_a[:, :3, :3] = np.swapaxes(E, 1, 2) - s[:, None, None] * (JJ @ np.swapaxes(D, 1, 2))
+    A_a[:, 3:, 3:] = (1.0 - s)[:, None, None] * (RYt @ Ra)
+    A_b[:, :3, :3] = s[:, None, None] * JJ
+    A_b[:, 3:, 3:] = s[:, None, None] * (RYt @ Rb)
+    a_s = np.concatenate([phi, np.einsum("mij,mj->mi", RYt, pb - pa)], axis=-1)
+    return Y, A_a, A_b, a_s
+
+
+def evaluate_frames(
+    frames: ReprojectionFrames,
+    Xa: np.ndarray,
+    Xb: np.ndarray,
+    T_base_cam: np.ndarray,
+    T_world_board: np.ndarray,
+    td: float,
+    jacobians: bool = True,
+) -> FrameEvaluation:
+    """Residuals (predicted - measured pixels) of every point of every frame; NaN where not detected.
+
+    ``Xa``, ``Xb`` (m, 4, 4) are the bracketing knot poses of each frame. Vectorized over frames and points.
+    """
+    h = frames.t_b - frames.t_a
+    s = (frames.t + td - frames.t_a) / h
+    Y, A_a, A_b, a_s = interpolation_jacobians(np.asarray(Xa, float), np.asarray(Xb, float), s)
+    X = Y @ frames.T_corr
+    RX, pX = X[:, :3, :3], X[:, :3, 3]
+    RC, pC = T_base_cam[:3, :3], T_base_cam[:3, 3]
+    RB, pB = T_world_board[:3, :3], T_world_board[:3, 3]
+    P = frames.board_points
+    Pw = P @ RB.T + pB  # (N, 3) board points in the world
+    q = np.einsum("mji,mnj->mni", RX, Pw[None, :, :] - pX[:, None, :])  # in the base frame
+    pc = (q - pC) @ RC  # in the camera frame: RC^T (q - pC)
+    m, n = q.shape[:2]
+    pc_flat = pc.reshape(-1, 3)
+    if np.any(pc_flat[:, 2] < _MIN_DEPTH):
+        pc_flat = pc_flat.copy()
+        pc_flat[:, 2] = np.maximum(pc_flat[:, 2], _MIN_DEPTH)
+    if not jacobians:
+        uv = frames.camera.project(pc_flat).reshape(m, n, 2)
+        return FrameEvaluation(uv - frames.uv)
+    uv, Jp = frames.camera.project(pc_flat, with_jacobian=True)
+    uv = uv.reshape(m, n, 2)
+    Jp = Jp.reshape(m, n, 2, 3)
+
+    # d pc / d(C perturbation) = [hat(pc), -I]
+    J_cam = np.concatenate([Jp @ hat(pc), -Jp], axis=-1)
+    # d pc / d(B perturbation) = R_M [-hat(P), I], R_M = RC^T RX^T RB
+    RM = RC.T @ np.swapaxes(RX, 1, 2) @ RB  # (m, 3, 3)
+    JpRM = Jp @ RM[:, None, :, :]  # (m, n, 2, 3)
+    J_board = np.concatenate([-JpRM @ hat(P)[None], JpRM], axis=-1)
+    # d pc / d(X perturbation) = RC^T [hat(q), -I]; X = Y K, so eta_X = Ad(K^-1) eta_Y
+    JpRC = Jp @ RC.T
+    J_X = np.concatenate([JpRC @ hat(q), -np.broadcast_to(JpRC, (m, n, 2, 3))], axis=-1)
+    AdKi = pose_adjoint(inv_T(frames.T_corr))
+    J_a = J_X @ (AdKi @ A_a)[:, None]
+    J_b = J_X @ (AdKi @ A_b)[:, None]
+    g_td = np.einsum("mij,mj->mi", AdKi, a_s) / h[:, None]  # d eta_X / d td
+    J_td = np.einsum("mnij,mj->mni", J_X, g_td)[..., None]
+    return FrameEvaluation(uv - frames.uv, J_a, J_b, J_cam, J_board, J_td)
+
+
+class FrameBatch:
+    """Evaluates all reprojection factors of a graph at once and serves them one by one.
+
+    ``knot_index`` (m, 2) gives, per frame, the indices into ``knot_keys`` of its two bracketing knots.
+    """
+
+    def __init__(
+        self,
+        frames: ReprojectionFrames,
+        knot_keys: np.ndarray,
+        knot_index: np.ndarray,
+        cam_key: int,
+        board_key: int,
+        td_key: int,
+    ) -> None:
+        self.frames = frames
+        self.knot_keys = np.asarray(knot_keys, dtype=np.int64)
+        self.knot_index = np.asarray(knot_index, dtype=np.int64).reshape(len(frames), 2)
+        self.cam_key, self.board_key, self.td_key = int(cam_key), int(board_key), int(td_key)
+        valid = frames.valid
+        self._rows = [np.flatnonzero(v) for v in valid]
+        self._all = [r.size == valid.shape[1] for r in self._rows]
+        # Knots some frame needs; only those are read from the Values.
+        self._used = np.unique(self.knot_index)
+        self._state: tuple | None = None  # (knot poses, C, B, td) the cached evaluation was made from
+        self._eval: FrameEvaluation | None = None
+        self._hits = 0
+        self._solo = 0
+        self.n_batch = 0  # statistics, for the benchmark
+        self.n_single = 0
+
+    def keys_of(self, i: int) -> list[int]:
+        a, b = self.knot_index[i]
+        return [int(self.knot_keys[a]), int(self.knot_keys[b]), self.cam_key, self.board_key, self.td_key]
+
+    def n_valid(self, i: int) -> int:
+        return int(self._rows[i].size)
+
+    def _read_all(self, values: gtsam.Values) -> tuple:
+        knots = np.zeros((self.knot_keys.size, 4, 4))
+        for j in self._used:
+            knots[j] = values.atPose3(int(self.knot_keys[j])).matrix()
+        C = values.atPose3(self.cam_key).matrix()
+        B = values.atPose3(self.board_key).matrix()
+        td = float(values.atVector(self.td_key)[0])
+        return knots, C, B, td
+
+    def evaluate_all(self, values: gtsam.Values, jacobians: bool = True) -> FrameEvaluation:
+        """Every frame evaluated at ``values`` (cached)."""
+        state = self._read_all(values)
+        knots, C, B, td = state
+        ki = self.knot_index
+        self._eval = evaluate_frames(self.frames, knots[ki[:, 0]], knots[ki[:, 1]], C, B, td, jacobians)
+        self._state = state
+        self._hits = 0
+        self.n_batch += 1
+        return self._eval
+
+    def _matches(self, i: int, Xa: np.ndarray, Xb: np.ndarray, C: np.ndarray, B: np.ndarray, td: float) -> bool:
+        if self._state is None:
+            return False
+        knots, C0, B0, td0 = self._state
+        a, b = self.knot_index[i]
+        return (
+            td == td0
+            and np.array_equal(C, C0)
+            and np.array_equal(B, B0)
+            and np.array_equal(Xa, knots[a])
+            and np.array_equal(Xb, knots[b])
+        )
+
+    def __call__(self, i: int, values: gtsam.Values, H) -> np.ndarray:
+        """The GTSAM error function of frame i's factor."""
+        a, b = self.knot_index[i]
+        Xa = values.atPose3(int(self.knot_keys[a])).matrix()
+        Xb = values.atPose3(int(self.knot_keys[b])).matrix()
+        C = values.atPose3(self.cam_key).matrix()
+        B = values.atPose3(self.board_key).matrix()
+        td = float(values.atVector(self.td_key)[0])
+        need_jac = H is not None
+        ev = self._eval
+        if self._matches(i, Xa, Xb, C, B, td) and (not need_jac or ev.J_a is not None):
+            self._hits += 1
+            j = i
+        elif self._state is None or self._hits > 0 or self._solo >= 8:
+            # A new set of values: evaluate every frame now, the other factors will ask next.
+            ev = self.evaluate_all(values, need_jac)
+            self._solo = 0
+            j = i
+        else:
+            # The last batch was never used: GTSAM is asking about values one factor at a time
+            # (e.g. a numerical check); evaluating just this frame is cheaper.
+            self._solo += 1
+            self.n_single += 1
+            ev = evaluate_frames(self.frames.take(i), Xa[None], Xb[None], C, B, td, need_jac)
+            j = 0
+        rows = slice(None) if self._all[i] else self._rows[i]
+        if need_jac:
+            H[0] = np.ascontiguousarray(ev.J_a[j, rows].reshape(-1, 6))
+            H[1] = np.ascontiguousarray(ev.J_b[j, rows].reshape(-1, 6))
+            H[2] = np.ascontiguousarray(ev.J_cam[j, rows].reshape(-1, 6))
+            H[3] = np.ascontiguousarray(ev.J_board[j, rows].reshape(-1, 6))
+            H[4] = np.ascontiguousarray(ev.J_td[j, rows].reshape(-1, 1))
+        return np.ascontiguousarray(ev.residual[j, rows].reshape(-1))
+
+
+def reprojection_noise(n_points: int, sigma_px: float, robust: str | None, robust_k: float) -> gtsam.noiseModel.Base:
+    """Isotropic pixel noise for a frame of ``n_points`` points, optionally wrapped in a robust loss.
+
+    GTSAM applies the robust loss to the whitened norm of the whole stacked residual, so the loss acts
+    per frame. An inlier frame of n points has a whitened norm near sqrt(2 n); the threshold is therefore
+    ``robust_k * sqrt(2 n)`` so that ordinary frames keep full weight and only outlier frames are
+    down-weighted.
+    """
+    dim = 2 * n_points
+    base = gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma_px))
+    if robust is None or robust == "none":
+        return base
+    k = float(robust_k) * np.sqrt(dim)
+    if robust == "huber":
+        est = gtsam.noiseModel.mEstimator.Huber.Create(k)
+    elif robust == "cauchy":
+        est = gtsam.noiseModel.mEstimator.Cauchy.Create(k)
+    else:
+        raise InputError(f"unknown robust loss {robust!r}; use 'huber', 'cauchy' or None")
+    return gtsam.noiseModel.Robust.Create(est, base)
+
+
+def make_reprojection_factors(
+    batch: FrameBatch,
+    sigma_px: float = 0.5,
+    robust: str | None = "huber",
+    robust_k: float = 1.5,
+) -> list[gtsam.CustomFactor]:
+    """One :class:`gtsam.CustomFactor` per frame of ``batch`` (frames without points get none)."""
+    out = []
+    for i in range(len(batch.frames)):
+        n = batch.n_valid(i)
+        if n == 0:
+            continue
+        noise = reprojection_noise(n, sigma_px, robust, robust_k)
+        out.append(gtsam.CustomFactor(noise, batch.keys_of(i), lambda this, v, H, i=i: batch(i, v, H)))
+    return out
