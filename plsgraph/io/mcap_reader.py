@@ -1,0 +1,167 @@
+"""MCAP container access with the ``mcap`` library, tolerant of truncated and corrupt files.
+
+Messages are read in one forward pass (chunk by chunk, so memory is bounded by the chunk size). A corrupt
+chunk (bad CRC, bad compression) is skipped with a warning; a corrupt record header or a truncation ends
+the pass with a warning, keeping everything read before it. The summary (when the file has an intact one)
+gives the topic list and message counts cheaply and lets the reader say how many messages were lost.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from collections.abc import Iterator
+from pathlib import Path
+
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+
+from ..errors import RecordingError
+from .messages import normalize_type
+from .source import RawMessage, ReadLog, TopicInfo
+
+log = logging.getLogger(__name__)
+
+# A chunk claiming more than this when decompressed is treated as corrupt rather than allocated.
+_MAX_CHUNK_BYTES = 1 << 31
+
+
+class McapSource:
+    """One MCAP file. ``topics()`` uses the summary if readable, else a scan; ``iter_raw`` streams."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.log = ReadLog()
+        self.size = self.path.stat().st_size
+        with open(self.path, "rb") as f:
+            if f.read(8) != b"\x89MCAP0\r\n":
+                raise RecordingError(f"{self.path} is not an MCAP file (bad magic); is it a ROS 1 .bag or .db3?")
+        self._topics: dict[str, TopicInfo] | None = None
+        self._summary_ok = False
+        self._read_summary()
+
+    def _read_summary(self) -> None:
+        from mcap.reader import SeekingReader
+
+        try:
+            with open(self.path, "rb") as f:
+                summary = SeekingReader(f, record_size_limit=self.size).get_summary()
+        except Exception as exc:  # noqa: BLE001 - any parse failure of the footer means "no usable summary"
+            log.info("%s: no readable summary (%s); scanning the file instead", self.path, exc)
+            return
+        if summary is None or not summary.channels:
+            return
+        counts = summary.statistics.channel_message_counts if summary.statistics else {}
+        topics: dict[str, TopicInfo] = {}
+        for cid, ch in summary.channels.items():
+            sc = summary.schemas.get(ch.schema_id)
+            name = normalize_type(sc.name) if sc else ""
+            info = TopicInfo(
+                ch.topic,
+                name,
+                counts.get(cid) if counts else None,
+                sc.encoding if sc else "",
+                sc.data.decode("utf-8", errors="replace") if sc else "",
+                "cdr" if ch.message_encoding == "cdr" else ch.message_encoding,
+            )
+            if ch.topic in topics:  # the same topic on several channels: add up
+                old = topics[ch.topic]
+                if old.messages is not None and info.messages is not None:
+                    old.messages += info.messages
+                continue
+            topics[ch.topic] = info
+        self._topics = topics
+        self._summary_ok = True
+
+    def topics(self) -> dict[str, TopicInfo]:
+        if self._topics is None:
+            # No index: one pass over the file finds the channels and counts what is readable.
+            found: dict[str, TopicInfo] = {}
+            counts: Counter[str] = Counter()
+            for m in self._iter(None, found):
+                counts[m.topic] += 1
+            for t, info in found.items():
+                info.messages = counts.get(t, 0)
+            self._topics = found
+        return self._topics
+
+    def iter_raw(self, topics: set[str] | None = None) -> Iterator[RawMessage]:
+        return self._iter(topics, None)
+
+    def _iter(self, topics: set[str] | None, found: dict[str, TopicInfo] | None) -> Iterator[RawMessage]:
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, tuple[str, str, str]] = {}
+        read: Counter[str] = Counter()
+        lost_chunks = 0
+
+        def handle(rec) -> Iterator[RawMessage]:
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif isinstance(rec, Channel):
+                sc = schemas.get(rec.schema_id)
+                name = normalize_type(sc.name) if sc else ""
+                ser = "cdr" if rec.message_encoding == "cdr" else rec.message_encoding
+                channels[rec.id] = (rec.topic, name, ser)
+                if found is not None and rec.topic not in found:
+                    found[rec.topic] = TopicInfo(
+                        rec.topic,
+                        name,
+                        None,
+                        sc.encoding if sc else "",
+                        sc.data.decode("utf-8", errors="replace") if sc else "",
+                        ser,
+                    )
+            elif isinstance(rec, Message):
+                ch = channels.get(rec.channel_id)
+                if ch is None:
+                    return
+                if topics is None or ch[0] in topics:
+                    read[ch[0]] += 1
+                    yield RawMessage(ch[0], ch[1], rec.log_time, rec.data, ch[2])
+
+        with open(self.path, "rb") as f:
+            records = StreamReader(f, emit_chunks=True, validate_crcs=True, record_size_limit=self.size).records
+            while True:
+                try:
+                    rec = next(records)
+                except StopIteration:
+                    break
+                except Exception as exc:  # noqa: BLE001 - the mcap library raises many types on corrupt bytes
+                    self._stopped(exc, f.tell(), read, topics)
+                    break
+                if isinstance(rec, Chunk):
+                    try:
+                        if rec.uncompressed_size > _MAX_CHUNK_BYTES:
+                            raise RecordingError(f"chunk claims {rec.uncompressed_size} bytes uncompressed")
+                        inner = breakup_chunk(rec, validate_crc=True)
+                    except Exception as exc:  # noqa: BLE001
+                        lost_chunks += 1
+                        self.log.warn(
+                            f"{self.path.name}: skipped a corrupt chunk (messages logged "
+                            f"{rec.message_start_time} .. {rec.message_end_time} ns are lost): {exc}"
+                        )
+                        continue
+                    for r in inner:
+                        yield from handle(r)
+                else:
+                    yield from handle(rec)
+        for t, n in read.items():
+            self.log.messages_read[t] = self.log.messages_read.get(t, 0) + n
+        if lost_chunks or self.log.stopped_early:
+            self._report_lost(read, topics)
+
+    def _stopped(self, exc: Exception, pos: int, read: Counter, topics: set[str] | None) -> None:
+        self.log.stopped_early = True
+        self.log.warn(
+            f"{self.path.name}: file is truncated or corrupt near byte {pos} of {self.size} "
+            f"({type(exc).__name__}: {exc}); kept the {sum(read.values())} messages read before it"
+        )
+
+    def _report_lost(self, read: Counter, topics: set[str] | None) -> None:
+        if not self._summary_ok or self._topics is None:
+            self.log.warn(f"{self.path.name}: no intact summary, so the number of lost messages is unknown")
+            return
+        for t, info in self._topics.items():
+            if (topics is None or t in topics) and info.messages is not None and read.get(t, 0) < info.messages:
+                lost = info.messages - read.get(t, 0)
+                self.log.warn(f"{self.path.name}: topic {t}: {lost} of {info.messages} messages lost")

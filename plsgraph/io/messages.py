@@ -1,0 +1,159 @@
+"""Parsers of the event messages straight from their serialized bytes (CDR for ROS 2, ROS 1 serialization).
+
+Event messages carry millions of events, so they are never turned into per-event Python objects: the
+fixed header is read with a bounds-checked cursor and the event payload is viewed as a numpy array.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import RecordingError
+from .cdr import CdrError, CdrReader
+
+EVENT_PACKET_TYPES = ("event_camera_msgs/msg/EventPacket",)
+EVENT_ARRAY_TYPES = ("dvs_msgs/msg/EventArray",)
+EVENT_TYPES = EVENT_PACKET_TYPES + EVENT_ARRAY_TYPES
+JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
+IMU_TYPE = "sensor_msgs/msg/Imu"
+CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+
+
+def normalize_type(name: str) -> str:
+    """'dvs_msgs/EventArray' (ROS 1) and 'dvs_msgs/msg/EventArray' (ROS 2) -> the ROS 2 spelling."""
+    parts = name.strip().split("/")
+    if len(parts) == 2:
+        return f"{parts[0]}/msg/{parts[1]}"
+    return name.strip()
+
+
+@dataclass(frozen=True)
+class EventPacketHeader:
+    stamp_ns: int
+    frame_id: str
+    width: int
+    height: int
+    seq: int
+    time_base: int
+    encoding: str
+    is_bigendian: bool
+
+
+class _Ros1Reader:
+    """Bounds-checked cursor over ROS 1 serialized bytes (little endian, no alignment)."""
+
+    __slots__ = ("buf", "pos")
+
+    def __init__(self, data) -> None:
+        self.buf = data
+        self.pos = 0
+
+    def _need(self, n: int, what: str) -> None:
+        if n < 0 or self.pos + n > len(self.buf):
+            raise CdrError(
+                f"ROS 1 message truncated or corrupt: {what} needs {n} bytes at offset {self.pos}, "
+                f"only {max(len(self.buf) - self.pos, 0)} left"
+            )
+
+    def unpack(self, fmt: str, what: str):
+        n = struct.calcsize(fmt)
+        self._need(n, what)
+        v = struct.unpack_from("<" + fmt, self.buf, self.pos)
+        self.pos += n
+        return v
+
+    def string(self) -> str:
+        (n,) = self.unpack("I", "string length")
+        self._need(n, f"string of {n}")
+        s = bytes(self.buf[self.pos : self.pos + n]).decode("utf-8", errors="replace")
+        self.pos += n
+        return s
+
+    def header(self) -> tuple[int, str]:
+        _seq, sec, nsec = self.unpack("III", "header")
+        return sec * 1_000_000_000 + nsec, self.string()
+
+
+def parse_event_packet(data, serialization: str = "cdr") -> tuple[EventPacketHeader, memoryview]:
+    """Header fields and a zero-copy view of the ``events`` blob of an EventPacket."""
+    if serialization == "cdr":
+        r = CdrReader(data)
+        stamp, frame = r.header()
+        height = r.uint32()
+        width = r.uint32()
+        seq = r.uint64()
+        time_base = r.uint64()
+        enc = r.string()
+        big = bool(r.prim("uint8"))
+        blob = r.bytes_view()
+    else:
+        r1 = _Ros1Reader(memoryview(data).cast("B"))
+        stamp, frame = r1.header()
+        height, width, seq, time_base = r1.unpack("IIQQ", "geometry and time base")
+        enc = r1.string()
+        (big,) = r1.unpack("B", "is_bigendian")
+        (n,) = r1.unpack("I", "events length")
+        r1._need(n, f"events blob of {n}")
+        blob = r1.buf[r1.pos : r1.pos + n]
+    if big:
+        raise RecordingError(
+            "event packet declares big-endian event data, which no known driver writes; the file is corrupt "
+            "or from an unsupported source"
+        )
+    return EventPacketHeader(stamp, frame, int(width), int(height), int(seq), int(time_base), enc, big), blob
+
+
+# dvs_msgs/Event in ROS 2 CDR: uint16 x, uint16 y, Time ts (int32 sec, uint32 nanosec), bool polarity. The
+# first element starts 4-aligned (after the sequence length) and takes 14 bytes; every later element starts
+# 2 mod 4 and needs 2 bytes of padding before ts, so it takes 16 bytes.
+def _event_dtype(endian: str, x: int, y: int, sec: int, nsec: int, pol: int, size: int) -> np.dtype:
+    return np.dtype(
+        {
+            "names": ["x", "y", "sec", "nsec", "p"],
+            "formats": [endian + "u2", endian + "u2", endian + "i4", endian + "u4", "u1"],
+            "offsets": [x, y, sec, nsec, pol],
+            "itemsize": size,
+        }
+    )
+
+
+def parse_event_array(data, serialization: str = "cdr"):
+    """(stamp_ns, width, height, t_ns, x, y, p) of a dvs_msgs/EventArray, decoded without a per-event loop."""
+    if serialization == "cdr":
+        r = CdrReader(data)
+        stamp, _frame = r.header()
+        height = r.uint32()
+        width = r.uint32()
+        n = r.uint32()
+        e = "<" if r.little_endian else ">"
+        buf = r.buf
+        p0 = r.pos
+        need = 0 if n == 0 else 13 + 16 * (n - 1) + 2
+        if n and p0 + 13 + 16 * (n - 1) > len(buf):
+            raise CdrError(f"EventArray claims {n} events but the message holds fewer")
+        if n == 0:
+            empty = np.zeros(0, np.int64)
+            return stamp, width, height, empty, empty, empty, empty
+        # One padded copy of the payload lets every element use the same 16-byte structured view.
+        payload = bytes(buf[p0 : p0 + need]) + b"\x00" * 3
+        first = np.frombuffer(payload, _event_dtype(e, 0, 2, 4, 8, 12, 14), count=1)
+        rest = np.frombuffer(payload, _event_dtype(e, 0, 2, 6, 10, 14, 16), count=n - 1, offset=14)
+        x = np.concatenate([first["x"], rest["x"]]).astype(np.int64)
+        y = np.concatenate([first["y"], rest["y"]]).astype(np.int64)
+        sec = np.concatenate([first["sec"], rest["sec"]]).astype(np.int64)
+        nsec = np.concatenate([first["nsec"], rest["nsec"]]).astype(np.int64)
+        p = np.concatenate([first["p"], rest["p"]]).astype(np.int64)
+    else:
+        r1 = _Ros1Reader(memoryview(data).cast("B"))
+        stamp, _frame = r1.header()
+        height, width, n = r1.unpack("III", "geometry and event count")
+        r1._need(13 * n, f"{n} events")
+        a = np.frombuffer(r1.buf, _event_dtype("<", 0, 2, 4, 8, 12, 13), count=n, offset=r1.pos)
+        x, y = a["x"].astype(np.int64), a["y"].astype(np.int64)
+        sec, nsec, p = a["sec"].astype(np.int64), a["nsec"].astype(np.int64), a["p"].astype(np.int64)
+    t = sec * 1_000_000_000 + nsec
+    return stamp, int(width), int(height), t, x, y, p

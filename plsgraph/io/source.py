@@ -1,0 +1,83 @@
+"""Common view of a recording container: topics and a stream of raw (still serialized) messages."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+from ..errors import RecordingError
+
+
+@dataclass(frozen=True)
+class RawMessage:
+    """One message as stored: ``serialization`` is 'cdr' (ROS 2) or 'ros1'."""
+
+    topic: str
+    msgtype: str
+    log_time_ns: int
+    data: bytes | memoryview
+    serialization: str
+
+
+@dataclass
+class TopicInfo:
+    """A topic as the container declares it. ``messages`` is None when the file has no readable index."""
+
+    topic: str
+    msgtype: str
+    messages: int | None = None
+    schema_encoding: str = ""
+    schema_text: str = ""
+    serialization: str = "cdr"
+    t_first_ns: int | None = None
+    t_last_ns: int | None = None
+
+
+@dataclass
+class ReadLog:
+    """What went wrong while reading: human-readable warnings and messages known (or suspected) lost."""
+
+    warnings: list[str] = field(default_factory=list)
+    messages_read: dict[str, int] = field(default_factory=dict)
+    stopped_early: bool = False
+
+    def warn(self, msg: str) -> None:
+        import logging
+
+        logging.getLogger("plsgraph.io").warning(msg)
+        self.warnings.append(msg)
+
+
+class Source(Protocol):
+    path: Path
+    log: ReadLog
+
+    def topics(self) -> dict[str, TopicInfo]: ...
+
+    def iter_raw(self, topics: set[str] | None = None) -> Iterator[RawMessage]: ...
+
+
+def open_source(path: str | Path) -> Source:
+    """Open an MCAP file, a ROS 1 ``.bag``, a ROS 2 ``.db3`` or a ROS 2 bag directory."""
+    p = Path(path)
+    if not p.exists():
+        raise RecordingError(f"recording {p} does not exist")
+    if p.is_dir() or p.suffix in (".bag", ".db3"):
+        from .rosbags_reader import RosbagsSource
+
+        return RosbagsSource(p)
+    if p.suffix == ".mcap" or _looks_like_mcap(p):
+        from .mcap_reader import McapSource
+
+        return McapSource(p)
+    raise RecordingError(
+        f"cannot tell the container type of {p}: expected a .mcap file, a ROS 1 .bag, a ROS 2 .db3 "
+        "or a ROS 2 bag directory"
+    )
+
+
+def _looks_like_mcap(p: Path) -> bool:
+    with open(p, "rb") as f:
+        return f.read(8) == b"\x89MCAP0\r\n"
