@@ -280,8 +280,10 @@ def _cca(X, Y, w, center: bool, rel_tol: float) -> RotationResult:
     return RotationResult(R, "cca", diag, warns, R_raw=R_raw)
 
 
-def _pls_regression(Sxx: np.ndarray, Sxy: np.ndarray, K: int):
+def _pls_regression(Sxx: np.ndarray, Sxy: np.ndarray, K: int | None, rel_tol: float):
     """NIPALS PLS (Eqs. 13-19) on 3 x 3 Gram blocks of standardized data; returns R_std and diagnostics.
+
+    ``K`` None keeps the components whose covariance sqrt(lambda_k) exceeds ``rel_tol`` times the first one's.
 
     With E_k = X~ M_k every deflated block is a 3 x 3 map of X~, so t_k, p_k and E_k^T Y~ are all expressible
     through Sxx = X~^T X~ and Sxy = X~^T Y~: no n x K score matrix is ever formed.
@@ -289,7 +291,7 @@ def _pls_regression(Sxx: np.ndarray, Sxy: np.ndarray, K: int):
     M = np.eye(3)
     Ws, Ps, Rs, lams = [], [], [], []
     total = float(np.sum(Sxy**2))
-    for _ in range(K):
+    for _ in range(3 if K is None else K):
         G = M.T @ Sxy  # E_k^T Y~
         lam, vec = np.linalg.eigh(G @ G.T)  # Eq. 14: X~^T Y~ Y~^T X~ on the deflated block
         wk = vec[:, -1]
@@ -297,6 +299,8 @@ def _pls_regression(Sxx: np.ndarray, Sxy: np.ndarray, K: int):
         wk = wk * (np.sign(wk[np.argmax(np.abs(wk))]) or 1.0)
         if not (total > 0 and lam[-1] > 1e-20 * total):
             break  # nothing left to explain: a further component would be rounding noise
+        if K is None and lams and not np.sqrt(lam[-1]) > rel_tol * np.sqrt(lams[0]):
+            break  # the remaining covariance is at noise level: regressing it only tilts the rotation
         rk = M @ wk  # t_k = E_k w_k = X~ r_k
         tt = float(rk @ Sxx @ rk)
         if not tt > 1e-14 * np.trace(Sxx):
@@ -329,7 +333,9 @@ def _pls_regression(Sxx: np.ndarray, Sxy: np.ndarray, K: int):
     return R_std, diag
 
 
-def _pls(X, Y, w, n_components, center: bool, scale: str, eps: float, paper: bool, rel_tol: float) -> RotationResult:
+def _pls(
+    X, Y, w, n_components, center: bool, scale: str, eps: float, rotation: str, paper: bool, rel_tol: float
+) -> RotationResult:
     _, _, Sxx, Sxy, Syy = _moments(X, Y, w, center)
     ex, ey = _excitations(Sxx, Syy, rel_tol)
     warns = _require_two_axes(ex, ey, "pls", center)
@@ -347,15 +353,12 @@ def _pls(X, Y, w, n_components, center: bool, scale: str, eps: float, paper: boo
         raise InputError(f"pls: scale must be 'column', 'block' or 'none', got {scale!r}")
     Sxx_s = Sxx / np.outer(sx, sx)
     Sxy_s = Sxy / np.outer(sx, sy)
-    if n_components is None:
-        # Default K: one component per excited axis on both sides (3 for 3-D motion, 2 for planar); a component
-        # beyond that only regresses noise and tilts the rotation (measured in docs/closedform.md).
-        K = min(ex.rank, ey.rank)
-    else:
-        K = int(n_components)
-        if K not in (1, 2, 3):
-            raise InputError(f"pls: n_components must be 1, 2 or 3 (or None for automatic), got {n_components}")
-    R_std, diag = _pls_regression(Sxx_s, Sxy_s, K)
+    K = None if n_components is None else int(n_components)
+    if K is not None and K not in (1, 2, 3):
+        raise InputError(f"pls: n_components must be 1, 2 or 3 (or None for automatic), got {n_components}")
+    if rotation not in ("fitted", "polar", "rows"):
+        raise InputError(f"pls: rotation must be 'fitted', 'polar' or 'rows', got {rotation!r}")
+    R_std, diag = _pls_regression(Sxx_s, Sxy_s, K, rel_tol)
     R_reg = (R_std / sx[:, None]) * sy[None, :]  # undo the standardization: Y ~ X R_reg, R_reg ~ R_base_cam^T
     # Fraction of Y~ variance the regression explains, from the Gram blocks alone.
     Syy_s = Syy / np.outer(sy, sy)
@@ -369,10 +372,11 @@ def _pls(X, Y, w, n_components, center: bool, scale: str, eps: float, paper: boo
             "excitation_y": ey,
             "center": center,
             "scale": scale,
+            "rotation": rotation,
             "paper": paper,
         }
     )
-    if paper:
+    if rotation == "rows":
         # Eq. 20-21 verbatim: rows 1 and 2 of R (= columns 1, 2 of R_base_cam) normalized, third by cross product.
         r1, r2 = R_reg[0], R_reg[1]
         n1, n2 = np.linalg.norm(r1), np.linalg.norm(r2)
@@ -380,7 +384,7 @@ def _pls(X, Y, w, n_components, center: bool, scale: str, eps: float, paper: boo
         nc = np.linalg.norm(c)
         if not (n1 > 0 and n2 > 0 and nc > 1e-12):
             raise DegenerateMotionError(
-                "pls(paper=True): rows 1 and 2 of the regression matrix are zero or parallel, so the paper's "
+                "pls(rotation='rows'): rows 1 and 2 of the regression matrix are zero or parallel, so the paper's "
                 "cross-product frame (Eq. 20) is undefined; this happens when the degenerate axis is not the "
                 "camera's z. Use paper=False"
             )
@@ -390,19 +394,23 @@ def _pls(X, Y, w, n_components, center: bool, scale: str, eps: float, paper: boo
         diag["paper_r1_r2_cos"] = dot
         if dot > 1e-6:
             warns.append(
-                f"pls(paper=True): the paper's frame is not orthonormal (|cos(r1, r2)| = {dot:.2g}); R_base_cam is "
-                "its nearest rotation, R_raw keeps the paper's matrix"
+                f"pls(rotation='rows'): the paper's frame is not orthonormal (|cos(r1, r2)| = {dot:.2g}); "
+                "R_base_cam is its nearest rotation, R_raw keeps the paper's matrix"
             )
         return RotationResult(R, "pls", diag, warns, R_raw=R_raw)
-    # Default: nearest rotation of R_reg^T with the determinant fix. It uses every row, so it works whichever
-    # side and axis is degenerate: a rank-2 R_reg still fixes the third axis through det = +1.
-    R, s = _nearest_rotation(R_reg.T)
+    # Both remaining constructions take a nearest rotation with the determinant fix, which uses every row, so they
+    # work whichever side and axis is degenerate: a rank-2 matrix still fixes the third axis through det = +1.
+    # "polar" projects R_reg^T itself; "fitted" (default) is the rotation that best reproduces the PLS
+    # prediction Y^ = X R_reg, i.e. the polar factor of Y^T X = R_reg^T Sxx. It weights each direction by how much
+    # it was excited, where "polar" lets a barely excited, badly estimated row count as much as the others.
+    M = R_reg.T if rotation == "polar" else R_reg.T @ Sxx
+    R, s = _nearest_rotation(M)
     if not s[1] > rel_tol * s[0]:
         raise DegenerateMotionError(
             f"pls: the regression matrix has rank < 2 (singular values {np.array2string(s, precision=3)}); the "
             "motion determines only one axis. Add turns so the robot moves in two directions"
         )
-    return RotationResult(R, "pls", diag, warns, R_raw=R_reg.T)
+    return RotationResult(R, "pls", diag, warns, R_raw=M)
 
 
 _MIN_SAMPLES = {"pls": 3, "cca": 4, "procrustes": 2}
@@ -423,9 +431,13 @@ def solve(
     X: n x 3 camera motion (camera frame); Y: n x 3 odometry motion (base frame), row i paired with row i;
     weights: optional (n,) non-negative per-sample weights. ``method``:
 
-    - "pls" (options ``n_components`` in {1, 2, 3} or None = one per excited axis, ``scale`` in
-      {"block", "column", "none"}, ``eps`` = 1e-10, ``paper`` = False). ``paper=True`` is Eqs. 11-21 verbatim:
-      centring, column standardization, K = 3, rows 1-2 plus cross product.
+    - "pls", options: ``n_components`` 1, 2, 3 or None (default: keep components whose covariance exceeds
+      ``rel_tol`` of the first, i.e. 3 for 3-D motion, 2 for planar); ``scale`` "block" (default, one factor per
+      sensor, rotation-equivariant) | "column" (the paper's Eq. 11) | "none"; ``rotation`` "fitted" (default,
+      the rotation that best reproduces the PLS prediction) | "polar" (nearest rotation of the regression
+      matrix) | "rows" (the paper's Eq. 20, only valid when the camera's z is the unexcited axis); ``eps``
+      (1e-10); ``paper`` (False). ``paper=True`` is Eqs. 11-21 verbatim: centring, column standardization,
+      K = 3, rows 1-2 plus cross product; the raw (non-orthonormal) frame is in ``R_raw``.
     - "cca": whitened cross-covariance, canonical directions A, B, R = B A^-1 projected onto SO(3).
     - "procrustes": Wahba / Kabsch, SVD of sum w_i y_i x_i^T with the determinant fix.
 
@@ -445,15 +457,16 @@ def solve(
             raise InputError(f"cca takes no options, got {sorted(options)}")
         return _cca(X, Y, w, bool(center) if center is not None else False, rel_tol)
     paper = bool(options.pop("paper", False))
-    defaults = {"n_components": 3, "scale": "column", "eps": PAPER_EPS} if paper else {}
+    defaults = {"n_components": 3, "scale": "column", "rotation": "rows"} if paper else {}
     n_components = options.pop("n_components", defaults.get("n_components"))
     scale = options.pop("scale", defaults.get("scale", "block"))
+    rotation = options.pop("rotation", defaults.get("rotation", "fitted"))
     eps = float(options.pop("eps", PAPER_EPS))
     if options:
-        raise InputError(f"pls: unknown options {sorted(options)}; known: n_components, scale, eps, paper")
+        raise InputError(f"pls: unknown options {sorted(options)}; known: n_components, scale, rotation, eps, paper")
     if center is None:
         center = paper
-    return _pls(X, Y, w, n_components, bool(center), scale, eps, paper, rel_tol)
+    return _pls(X, Y, w, n_components, bool(center), scale, eps, rotation, paper, rel_tol)
 
 
 # --------------------------------------------------------------------------------------------------- hand-eye
