@@ -1,0 +1,342 @@
+"""Board detection in one image: asymmetric circle grids and Kalibr AprilGrids.
+
+Images are 2-D arrays (any dtype). For circle grids the caller says which way the circles show:
+``foreground="dark"`` for intensity images (black circles on white paper, inverted leaky surfaces)
+and ``foreground="bright"`` for event-activity images (count frames, time surfaces, the
+polarity-aware surface), where a moving circle shows as a bright rim on a dark background.
+
+A detection is only returned when its point order is verified: the image points must be the image
+of the board points under one homography (after undistortion, when a camera is given) with small
+residuals, and the board must be seen from its front (no mirrored labelling). A wrong order would
+give a wrong pose with a good-looking fit, so it is rejected here rather than handed to PnP.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .board import Board
+from .camera import CameraModel
+from .errors import InputError
+
+log = logging.getLogger(__name__)
+
+# Reasons a window yields no detection; the front end counts them in track.info.
+REASON_OK = "ok"
+REASON_EMPTY = "empty_image"
+REASON_NOT_FOUND = "grid_not_found"
+REASON_ORDER = "inconsistent_order"
+REASON_MIRRORED = "mirrored_order"
+REASON_TOO_FEW = "too_few_points"
+
+
+@dataclass(frozen=True)
+class GridDetection:
+    """One image's detection result.
+
+    ``uv`` (N, 2) pixel coordinates in board-point order, NaN for unseen points (all NaN when
+    ``ok`` is False); ``reason`` one of the ``REASON_*`` strings; ``homography_rms_px`` the
+    residual of the order check (NaN when it was not reached); ``n_seen`` the number of finite points.
+    """
+
+    uv: np.ndarray
+    ok: bool
+    reason: str
+    homography_rms_px: float = float("nan")
+
+    @property
+    def n_seen(self) -> int:
+        return int(np.count_nonzero(np.all(np.isfinite(self.uv), axis=1)))
+
+
+def _fail(n: int, reason: str, rms: float = float("nan")) -> GridDetection:
+    return GridDetection(np.full((n, 2), np.nan), False, reason, rms)
+
+
+def normalize_image(image: np.ndarray, foreground: str = "bright") -> np.ndarray | None:
+    """Float32 weight image in [0, 1] where the pattern's marks are bright and the paper is ~0.
+
+    Uses robust percentiles so a few hot pixels do not compress the range; returns None for an
+    image without contrast (no events in the window, a blank render).
+    """
+    if foreground not in ("bright", "dark"):
+        raise InputError(f"detect: foreground must be 'bright' or 'dark', got {foreground!r}")
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim != 2:
+        raise InputError(f"detect: expected a single-channel 2-D image, got shape {img.shape}")
+    if foreground == "dark":
+        img = -img
+    lo, hi = np.percentile(img, [50.0, 99.7]) if img.size else (0.0, 0.0)
+    if not np.isfinite(hi - lo) or hi - lo <= 1e-9:
+        hi = float(img.max(initial=0.0))
+        if hi - lo <= 1e-9:
+            return None
+    return np.clip((img - lo) / (hi - lo), 0.0, 1.0)
+
+
+def _blob_detector(image_shape: tuple[int, int], blob_color: int) -> cv2.SimpleBlobDetector:
+    """A SimpleBlobDetector for small, possibly smeared and noisy circles on a DAVIS-sized sensor."""
+    p = cv2.SimpleBlobDetector_Params()
+    p.blobColor = blob_color
+    p.filterByColor = True
+    p.minThreshold, p.maxThreshold, p.thresholdStep = 40, 220, 30
+    p.minRepeatability = 2
+    # Neighbouring circles of a distant board are only a few pixels apart.
+    p.minDistBetweenBlobs = 2.0
+    p.filterByArea = True
+    p.minArea = 3.0
+    p.maxArea = 0.05 * image_shape[0] * image_shape[1]
+    p.filterByCircularity = False  # motion smears circles into ellipses and crescents
+    p.filterByConvexity = True
+    p.minConvexity = 0.6
+    p.filterByInertia = True
+    p.minInertiaRatio = 0.15
+    return cv2.SimpleBlobDetector_create(p)
+
+
+def _neighbour_distance(uv: np.ndarray) -> np.ndarray:
+    """Distance from each point to its nearest other point (n,)."""
+    d = np.linalg.norm(uv[:, None, :] - uv[None, :, :], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    return d.min(axis=1)
+
+
+def refine_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, iterations: int = 4) -> np.ndarray:
+    """Weighted centroids of ``weight`` in disks of ``radius`` (n,) around ``uv`` (n, 2), iterated.
+
+    A filled circle and a symmetric rim both have their centroid at the centre; each iteration
+    re-centres the disk (mean shift), which converges in a few steps. Pixels are sampled at their
+    centres (pixel (x, y) covers [x - 0.5, x + 0.5]), OpenCV's convention. Points whose disk holds
+    no weight keep their input position.
+    """
+    uv = np.asarray(uv, dtype=float).copy()
+    radius = np.asarray(radius, dtype=float)
+    h, w = weight.shape
+    R = int(np.ceil(radius.max())) + 1
+    off = np.arange(-R, R + 1)
+    dy, dx = np.meshgrid(off, off, indexing="ij")
+    dx, dy = dx.ravel(), dy.ravel()
+    for _ in range(iterations):
+        cx, cy = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
+        px = cx[:, None] + dx[None, :]
+        py = cy[:, None] + dy[None, :]
+        inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
+        r2 = (px - uv[:, :1]) ** 2 + (py - uv[:, 1:]) ** 2
+        wt = np.where(inside & (r2 <= radius[:, None] ** 2), weight[np.clip(py, 0, h - 1), np.clip(px, 0, w - 1)], 0.0)
+        s = wt.sum(axis=1)
+        good = s > 1e-9
+        new = np.stack([(wt * px).sum(axis=1), (wt * py).sum(axis=1)], axis=-1) / np.where(good, s, 1.0)[:, None]
+        step = np.where(good[:, None], new - uv, 0.0)
+        uv += step
+        if np.max(np.abs(step), initial=0.0) < 1e-3:
+            break
+    return uv
+
+
+def check_grid_order(
+    uv: np.ndarray,
+    board: Board,
+    camera: CameraModel | None = None,
+    *,
+    max_rms_px: float = 1.0,
+    max_point_frac: float = 0.3,
+) -> tuple[str, float]:
+    """Verify that ``uv`` (N, 2; NaN allowed) lists the board points in the board's order.
+
+    Fits a homography from board (x, y) to the image points (undistorted with ``camera`` when
+    given, in pixel units via fx), and rejects when the RMS residual exceeds ``max_rms_px`` or any
+    point is off by more than ``max_point_frac`` of its nearest-neighbour spacing (a swap of two
+    neighbours moves each by a whole spacing while barely changing the RMS of a large board).
+    Also rejects a mirrored labelling: seen from the front, the board's (x, y) orientation in the
+    image is fixed by its convention (circle grids: x right, y down as printed; AprilGrids: y up).
+    Returns (reason, rms_px) with reason :data:`REASON_OK` when the order is consistent.
+    """
+    seen = np.all(np.isfinite(uv), axis=1)
+    if np.count_nonzero(seen) < 4:
+        return REASON_TOO_FEW, float("nan")
+    q = uv[seen]
+    scale = 1.0
+    if camera is not None:
+        q = camera.undistort_pixels(q)
+        scale = camera.fx
+        q = q * scale
+    P = board.points[seen, :2]
+    H, _ = cv2.findHomography(P, q, 0)
+    if H is None or not np.all(np.isfinite(H)):
+        return REASON_ORDER, float("nan")
+    ph = np.c_[P, np.ones(len(P))] @ H.T
+    if np.any(ph[:, 2] * np.sign(np.median(ph[:, 2])) <= 0):
+        return REASON_ORDER, float("nan")
+    pred = ph[:, :2] / ph[:, 2:]
+    err = np.linalg.norm(pred - q, axis=1)
+    rms = float(np.sqrt(np.mean(err**2)))
+    spacing = _neighbour_distance(pred) if len(pred) > 1 else np.full(1, np.inf)
+    if rms > max_rms_px or np.any(err > max_point_frac * spacing):
+        return REASON_ORDER, rms
+    # Orientation: sign of the Jacobian determinant of the homography at the board centroid.
+    c = P.mean(axis=0)
+    x, y, wgt = H @ np.r_[c, 1.0]
+    J = (H[:2, :2] * wgt - np.outer([x, y], H[2, :2])) / wgt**2
+    front = 1.0 if board.pattern == "asymmetric_circles" else -1.0
+    if np.sign(np.linalg.det(J)) != front:
+        return REASON_MIRRORED, rms
+    return REASON_OK, rms
+
+
+def board_is_symmetric(board: Board) -> bool:
+    """True when a 180-degree turn maps the board's point set onto itself with a different labelling.
+
+    Such a board (an asymmetric circle grid with an even number of rows) cannot be told from its
+    turned self in a single image; the front end must resolve it from continuity.
+    """
+    P = board.points[:, :2]
+    turned = P.min(axis=0) + P.max(axis=0) - P
+    d = np.linalg.norm(turned[:, None, :] - P[None, :, :], axis=-1)
+    return bool(np.all(d.min(axis=1) < 1e-9 * max(1.0, float(np.ptp(P)))))
+
+
+def detect_circle_grid(
+    image: np.ndarray,
+    board: Board,
+    camera: CameraModel | None = None,
+    *,
+    foreground: str = "bright",
+    blur_sigma: float = 0.0,
+    refine: bool = True,
+    max_homography_rms_px: float = 1.0,
+    exhaustive: bool = False,
+) -> GridDetection:
+    """Find an asymmetric circle grid and return its centres in ``board.points`` order.
+
+    Candidate blobs come from OpenCV's SimpleBlobDetector on the (optionally smoothed) weight
+    image and are ordered by ``cv2.findCirclesGrid``, first with its fast clustering grid finder,
+    then with the slower default one. With ``exhaustive`` the inside of rims (dark blobs) is tried
+    as well. With ``refine`` each centre becomes the weighted centroid of the weight image in a
+    disk of half the distance to its nearest neighbour (a rim, even smeared by motion, is centred
+    on the circle). The order check of :func:`check_grid_order` decides what is returned.
+    """
+    if board.pattern != "asymmetric_circles":
+        raise InputError(f"detect_circle_grid: board {board.name!r} is a {board.pattern}, not asymmetric_circles")
+    n = board.n_points
+    weight = normalize_image(image, foreground)
+    if weight is None:
+        return _fail(n, REASON_EMPTY)
+    smooth = cv2.GaussianBlur(weight, (0, 0), blur_sigma) if blur_sigma > 0 else weight
+    img8 = np.clip(smooth * (255.0 / max(float(smooth.max()), 1e-6)), 0, 255).astype(np.uint8)
+    attempts = [(255, True), (255, False)] + ([(0, True), (0, False)] if exhaustive else [])
+    last_reason, last_rms = REASON_NOT_FOUND, float("nan")
+    tried: set[tuple] = set()
+    for blob_color, clustering in attempts:
+        flags = cv2.CALIB_CB_ASYMMETRIC_GRID | (cv2.CALIB_CB_CLUSTERING if clustering else 0)
+        found, centres = cv2.findCirclesGrid(
+            img8, board.pattern_size, flags=flags, blobDetector=_blob_detector(img8.shape, blob_color)
+        )
+        if not found or centres is None:
+            continue
+        uv = centres.reshape(-1, 2).astype(float)
+        key = tuple(np.round(uv[[0, -1]].ravel(), 1))
+        if key in tried:  # the other grid finder returned the same grid; its verdict stands
+            continue
+        tried.add(key)
+        if refine:
+            uv = refine_centroids(weight if blob_color == 255 else smooth, uv, 0.5 * _neighbour_distance(uv))
+        reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_homography_rms_px)
+        if reason == REASON_OK:
+            return GridDetection(uv, True, REASON_OK, rms)
+        last_reason, last_rms = reason, rms
+        log.debug("circle grid rejected (%s, homography rms %.2f px)", reason, rms)
+    return _fail(n, last_reason, last_rms)
+
+
+# --- AprilGrid -------------------------------------------------------------------------------------
+
+
+def aprilgrid_corner_index(tag_ids: np.ndarray, cols: int) -> np.ndarray:
+    """Board point indices (n, 4) of OpenCV's four corners of each tag, in Kalibr's numbering.
+
+    Kalibr prints tag k upright in tag row k // cols counted from the bottom (board y axis up) and
+    numbers the corners on a (2 rows) x (2 cols) grid from the board origin. OpenCV's tag36h11
+    dictionary holds each code turned by 180 degrees with respect to Kalibr's print, so OpenCV's
+    corners 0, 1, 2, 3 ("top-left" clockwise in its own marker image) are the printed tag's
+    bottom-right, bottom-left, top-left and top-right: grid points (2r, 2c + 1), (2r, 2c),
+    (2r + 1, 2c), (2r + 1, 2c + 1). (Checked by rendering tags bit by bit as Kalibr's
+    target generator lays them out; see tests/test_detect.py.)
+    """
+    tag_ids = np.asarray(tag_ids, dtype=int)
+    r, c = np.divmod(tag_ids, cols)
+    nc = 2 * cols
+    base = 2 * r * nc + 2 * c  # grid point (2r, 2c): the tag's corner at its own board origin
+    return np.stack([base + 1, base, base + nc, base + nc + 1], axis=-1)
+
+
+def make_aruco_detector(border_bits: int = 2, refine: str = "subpix") -> cv2.aruco.ArucoDetector:
+    """An ArucoDetector for tag36h11. Kalibr's AprilGrids have a 2-bit black border; AprilTag's own
+    tag images have a 1-bit one. ``refine`` is ``"subpix"``, ``"apriltag"``, ``"contour"`` or ``"none"``."""
+    params = cv2.aruco.DetectorParameters()
+    params.markerBorderBits = int(border_bits)
+    methods = {
+        "none": cv2.aruco.CORNER_REFINE_NONE,
+        "subpix": cv2.aruco.CORNER_REFINE_SUBPIX,
+        "contour": cv2.aruco.CORNER_REFINE_CONTOUR,
+        "apriltag": cv2.aruco.CORNER_REFINE_APRILTAG,
+    }
+    if refine not in methods:
+        raise InputError(f"detect: refine must be one of {', '.join(methods)}, got {refine!r}")
+    params.cornerRefinementMethod = methods[refine]
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
+    return cv2.aruco.ArucoDetector(dictionary, params)
+
+
+@dataclass(frozen=True)
+class TagDetection:
+    """Raw tag36h11 detections of one image: ``ids`` (k,) and ``corners`` (k, 4, 2) in OpenCV order."""
+
+    ids: np.ndarray
+    corners: np.ndarray
+
+
+def detect_tags(image8: np.ndarray, detector: cv2.aruco.ArucoDetector) -> TagDetection:
+    """All tag36h11 markers in an 8-bit image (ids need not belong to any board)."""
+    corners, ids, _ = detector.detectMarkers(image8)
+    if ids is None or len(ids) == 0:
+        return TagDetection(np.zeros(0, dtype=int), np.zeros((0, 4, 2)))
+    return TagDetection(np.asarray(ids, dtype=int).ravel(), np.asarray(corners, dtype=float).reshape(-1, 4, 2))
+
+
+def detect_aprilgrid(
+    image8: np.ndarray,
+    board: Board,
+    camera: CameraModel | None = None,
+    *,
+    detector: cv2.aruco.ArucoDetector | None = None,
+    min_tags: int = 2,
+    max_homography_rms_px: float = 2.0,
+) -> GridDetection:
+    """Kalibr AprilGrid corners in ``board.points`` order, NaN for tags not seen (partial boards allowed).
+
+    Tags with ids outside the board and ids seen twice (stray tags in the scene) are ignored;
+    the remaining corners must pass :func:`check_grid_order` (one homography, front side).
+    """
+    if board.pattern != "aprilgrid":
+        raise InputError(f"detect_aprilgrid: board {board.name!r} is a {board.pattern}, not an aprilgrid")
+    img = np.asarray(image8)
+    if img.dtype != np.uint8:
+        raise InputError("detect_aprilgrid: give an 8-bit image (see plsgraph.surfaces.to_uint8)")
+    n = board.n_points
+    det = detect_tags(img, detector or make_aruco_detector())
+    n_tags = board.cols * board.rows
+    ids, counts = np.unique(det.ids, return_counts=True)
+    good_ids = ids[(counts == 1) & (ids < n_tags)]
+    keep = np.isin(det.ids, good_ids)
+    if np.count_nonzero(keep) < min_tags:
+        return _fail(n, REASON_NOT_FOUND if det.ids.size == 0 else REASON_TOO_FEW)
+    uv = np.full((n, 2), np.nan)
+    uv[aprilgrid_corner_index(det.ids[keep], board.cols).ravel()] = det.corners[keep].reshape(-1, 2)
+    reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_homography_rms_px, max_point_frac=0.5)
+    if reason != REASON_OK:
+        return _fail(n, reason, rms)
+    return GridDetection(uv, True, REASON_OK, rms)
