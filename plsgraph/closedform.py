@@ -215,14 +215,14 @@ def _procrustes(X, Y, w, center: bool, rel_tol: float) -> RotationResult:
     # Wahba: maximise tr(R^T sum w y x^T); M = Y^T W X = Sxy^T.
     M = Sxy.T
     R, s = _nearest_rotation(M)
-    if not s[1] > rel_tol * s[0]:
+    if not s[1] > rel_tol**2 * s[0]:  # s are covariances (amplitude squared), hence the squared tolerance
         raise DegenerateMotionError(
             f"procrustes: the camera and odometry motions share only one direction (cross-covariance singular "
             f"values {np.array2string(s, precision=3)}); check the pairing / time offset, then add turns"
         )
     diag = {
         "cross_cov_singular_values": s,
-        "cross_cov_rank": int(np.count_nonzero(s > rel_tol * s[0])),
+        "cross_cov_rank": int(np.count_nonzero(s > rel_tol**2 * s[0])),
         "excitation_x": ex,
         "excitation_y": ey,
         "center": center,
@@ -283,7 +283,8 @@ def _cca(X, Y, w, center: bool, rel_tol: float) -> RotationResult:
 def _pls_regression(Sxx: np.ndarray, Sxy: np.ndarray, K: int | None, rel_tol: float):
     """NIPALS PLS (Eqs. 13-19) on 3 x 3 Gram blocks of standardized data; returns R_std and diagnostics.
 
-    ``K`` None keeps the components whose covariance sqrt(lambda_k) exceeds ``rel_tol`` times the first one's.
+    ``K`` None keeps at least two components and a third one if its covariance sqrt(lambda_3) exceeds ``rel_tol``^2
+    times the first one's (covariances go as amplitude squared; ``rel_tol`` is an amplitude ratio).
 
     With E_k = X~ M_k every deflated block is a 3 x 3 map of X~, so t_k, p_k and E_k^T Y~ are all expressible
     through Sxx = X~^T X~ and Sxy = X~^T Y~: no n x K score matrix is ever formed.
@@ -299,7 +300,7 @@ def _pls_regression(Sxx: np.ndarray, Sxy: np.ndarray, K: int | None, rel_tol: fl
         wk = wk * (np.sign(wk[np.argmax(np.abs(wk))]) or 1.0)
         if not (total > 0 and lam[-1] > 1e-20 * total):
             break  # nothing left to explain: a further component would be rounding noise
-        if K is None and lams and not np.sqrt(lam[-1]) > rel_tol * np.sqrt(lams[0]):
+        if K is None and len(lams) >= 2 and not np.sqrt(lam[-1]) > rel_tol**2 * np.sqrt(lams[0]):
             break  # the remaining covariance is at noise level: regressing it only tilts the rotation
         rk = M @ wk  # t_k = E_k w_k = X~ r_k
         tt = float(rk @ Sxx @ rk)
@@ -354,8 +355,9 @@ def _pls(
     Sxx_s = Sxx / np.outer(sx, sx)
     Sxy_s = Sxy / np.outer(sx, sy)
     K = None if n_components is None else int(n_components)
-    if K is not None and K not in (1, 2, 3):
-        raise InputError(f"pls: n_components must be 1, 2 or 3 (or None for automatic), got {n_components}")
+    if K is not None and K not in (2, 3):
+        # One component gives a rank-1 regression, which cannot fix a rotation.
+        raise InputError(f"pls: n_components must be 2 or 3 (or None for automatic), got {n_components}")
     if rotation not in ("fitted", "polar", "rows"):
         raise InputError(f"pls: rotation must be 'fitted', 'polar' or 'rows', got {rotation!r}")
     R_std, diag = _pls_regression(Sxx_s, Sxy_s, K, rel_tol)
@@ -405,7 +407,7 @@ def _pls(
     # it was excited, where "polar" lets a barely excited, badly estimated row count as much as the others.
     M = R_reg.T if rotation == "polar" else R_reg.T @ Sxx
     R, s = _nearest_rotation(M)
-    if not s[1] > rel_tol * s[0]:
+    if not s[1] > rel_tol**2 * s[0]:
         raise DegenerateMotionError(
             f"pls: the regression matrix has rank < 2 (singular values {np.array2string(s, precision=3)}); the "
             "motion determines only one axis. Add turns so the robot moves in two directions"
@@ -431,8 +433,8 @@ def solve(
     X: n x 3 camera motion (camera frame); Y: n x 3 odometry motion (base frame), row i paired with row i;
     weights: optional (n,) non-negative per-sample weights. ``method``:
 
-    - "pls", options: ``n_components`` 1, 2, 3 or None (default: keep components whose covariance exceeds
-      ``rel_tol`` of the first, i.e. 3 for 3-D motion, 2 for planar); ``scale`` "block" (default, one factor per
+    - "pls", options: ``n_components`` 2, 3 or None (default: keep components whose covariance exceeds
+      ``rel_tol``^2 of the first, i.e. 3 for 3-D motion, 2 for planar); ``scale`` "block" (default, one factor per
       sensor, rotation-equivariant) | "column" (the paper's Eq. 11) | "none"; ``rotation`` "fitted" (default,
       the rotation that best reproduces the PLS prediction) | "polar" (nearest rotation of the regression
       matrix) | "rows" (the paper's Eq. 20, only valid when the camera's z is the unexcited axis); ``eps``
