@@ -88,7 +88,8 @@ class CdrReader:
     def fixed(self, kind: str, n: int) -> np.ndarray:
         """``n`` consecutive primitives (fixed-size array) as a numpy array (copy, native byte order)."""
         code, size = _PRIMS[kind]
-        self.align(size)
+        if n:  # an empty array adds no alignment padding (as Fast-CDR and rosbags write it)
+            self.align(size)
         self._need(n * size, f"{kind}[{n}]")
         dt = np.dtype(self._e + code) if kind != "bool" else np.dtype(bool)
         a = np.frombuffer(self.buf, dtype=dt, count=n, offset=self.pos)
@@ -99,8 +100,8 @@ class CdrReader:
         n = self.uint32()
         _, size = _PRIMS[kind]
         # Guard before allocating: a flipped bit in the length must not ask for gigabytes.
-        self.align(size)
-        self._need(n * size, f"sequence<{kind}> of {n}")
+        pad = (-(self.pos - 4)) % size if n else 0
+        self._need(pad + n * size, f"sequence<{kind}> of {n}")
         return self.fixed(kind, n)
 
     def bytes_view(self) -> memoryview:
@@ -155,9 +156,10 @@ class CdrWriter:
 
     def fixed(self, kind: str, a) -> None:
         code, size = _PRIMS[kind]
-        self.align(size)
-        dt = np.dtype("<" + code) if kind != "bool" else np.dtype(bool)
-        self.parts += np.ascontiguousarray(a, dtype=dt).tobytes()
+        a = np.ascontiguousarray(a, dtype=np.dtype("<" + code) if kind != "bool" else np.dtype(bool))
+        if a.size:
+            self.align(size)
+        self.parts += a.tobytes()
 
     def sequence(self, kind: str, a) -> None:
         a = np.asarray(a)

@@ -165,3 +165,52 @@ class McapSource:
             if (topics is None or t in topics) and info.messages is not None and read.get(t, 0) < info.messages:
                 lost = info.messages - read.get(t, 0)
                 self.log.warn(f"{self.path.name}: topic {t}: {lost} of {info.messages} messages lost")
+
+    def deserialize(self, m: RawMessage):
+        """A message object (rosbags dataclass) for a non-event message, from its CDR bytes.
+
+        Standard types use rosbags' ROS 2 definitions; others are registered from the file's own
+        ``ros2msg`` schema text.
+        """
+        ts = self._typestore()
+        if m.msgtype not in ts.types:
+            self._register(m)
+        return ts.deserialize_cdr(bytes(m.data), m.msgtype)
+
+    def _typestore(self):
+        if getattr(self, "_ts", None) is None:
+            # A private store: types registered from this file's schemas must not leak into other files.
+            from rosbags.typesys import Stores, get_typestore
+
+            self._ts = get_typestore(Stores.ROS2_HUMBLE)
+        return self._ts
+
+    def _register(self, m: RawMessage) -> None:
+        from rosbags.typesys import get_types_from_msg
+
+        info = self.topics().get(m.topic)
+        if info is None or info.schema_encoding != "ros2msg" or not info.schema_text:
+            raise RecordingError(
+                f"{self.path.name}: topic {m.topic} has type {m.msgtype} with a "
+                f"{info.schema_encoding if info else 'missing'} schema that plsgraph cannot parse"
+            )
+        types = {}
+        for name, text in split_msgdef(m.msgtype, info.schema_text):
+            types.update(get_types_from_msg(text, name))
+        self._typestore().register(types)
+
+
+def split_msgdef(name: str, text: str) -> list[tuple[str, str]]:
+    """Split a concatenated ROS 2 message definition (main type, then '====' / 'MSG: dep' blocks)."""
+    out: list[tuple[str, str]] = []
+    current, lines = name, []
+    for line in text.splitlines():
+        if line.startswith("=" * 10):
+            out.append((current, "\n".join(lines)))
+            current, lines = "", []
+        elif line.startswith("MSG: ") and not lines and not current:
+            current = normalize_type(line[5:].strip())
+        else:
+            lines.append(line)
+    out.append((current, "\n".join(lines)))
+    return [(n, t) for n, t in out if n]

@@ -14,13 +14,42 @@ import numpy as np
 from ..errors import RecordingError
 from .cdr import CdrError, CdrReader
 
-EVENT_PACKET_TYPES = ("event_camera_msgs/msg/EventPacket",)
+# event_array_msgs/EventArray is the predecessor of EventPacket with the same fields.
+EVENT_PACKET_TYPES = ("event_camera_msgs/msg/EventPacket", "event_array_msgs/msg/EventArray")
 EVENT_ARRAY_TYPES = ("dvs_msgs/msg/EventArray",)
 EVENT_TYPES = EVENT_PACKET_TYPES + EVENT_ARRAY_TYPES
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 IMU_TYPE = "sensor_msgs/msg/Imu"
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+
+
+# Message definitions of the two event packages (field lists as their .msg files declare them).
+EVENT_MSG_DEFINITIONS = {
+    "dvs_msgs/msg/Event": "uint16 x\nuint16 y\nbuiltin_interfaces/Time ts\nbool polarity\n",
+    "dvs_msgs/msg/EventArray": "std_msgs/Header header\nuint32 height\nuint32 width\nEvent[] events\n",
+    "event_camera_msgs/msg/EventPacket": (
+        "std_msgs/Header header\nuint32 height\nuint32 width\nuint64 seq\nuint64 time_base\n"
+        "string encoding\nbool is_bigendian\nuint8[] events\n"
+    ),
+}
+
+_TYPESTORE = []
+
+
+def typestore():
+    """A rosbags typestore with the ROS 2 (Humble) standard types plus the two event packages (cached)."""
+    if not _TYPESTORE:
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        ts = get_typestore(Stores.ROS2_HUMBLE)
+        types = {}
+        for name, text in EVENT_MSG_DEFINITIONS.items():
+            types.update(get_types_from_msg(text, name))
+        types.update(get_types_from_msg(EVENT_MSG_DEFINITIONS[EVENT_PACKET_TYPES[0]], EVENT_PACKET_TYPES[1]))
+        ts.register(types)
+        _TYPESTORE.append(ts)
+    return _TYPESTORE[0]
 
 
 def normalize_type(name: str) -> str:

@@ -1,0 +1,364 @@
+"""Containers for the non-event topics of a recording and ``read_recording``, which gathers everything.
+
+Times are the message header stamps (sensor time), int64 ns; a message with a zero stamp falls back to
+its log time and the fallback is reported in the warnings.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import CameraModel
+from ..errors import InputError, RecordingError
+from ..events import EventStream
+from .events_reader import _iter_chunks, _sort_join, _sorted_chunks, _TopicDecoder, pick_topic
+from .messages import (
+    CAMERA_INFO_TYPE,
+    EVENT_ARRAY_TYPES,
+    EVENT_TYPES,
+    IMU_TYPE,
+    JOINT_STATE_TYPE,
+    ODOMETRY_TYPE,
+)
+from .source import Source, TopicInfo, open_source
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class JointStates:
+    """``t`` (n,) int64 ns; ``names`` (k,); ``position``/``velocity`` (n, k), NaN where a message lacks a value."""
+
+    t: np.ndarray
+    names: tuple[str, ...]
+    position: np.ndarray
+    velocity: np.ndarray
+
+    def __post_init__(self) -> None:
+        n, k = len(self.t), len(self.names)
+        if self.position.shape != (n, k) or self.velocity.shape != (n, k):
+            raise InputError(
+                f"joint states: position {self.position.shape} and velocity {self.velocity.shape} must be ({n}, {k})"
+            )
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+    def wheel_columns(self, left: str | None = None, right: str | None = None) -> tuple[list[int], list[int]]:
+        """Columns of the left and right wheel joints: by exact name if given, else every joint whose name
+        has 'left' (or 'right') and 'wheel' in it (a four-wheel skid-steer base has two per side)."""
+
+        def pick(side: str, name: str | None) -> list[int]:
+            if name is not None:
+                if name not in self.names:
+                    raise InputError(f"joint states: no joint {name!r}; joints are {', '.join(self.names)}")
+                return [self.names.index(name)]
+            cols = [i for i, j in enumerate(self.names) if side in j.lower() and "wheel" in j.lower()]
+            if not cols:
+                cols = [i for i, j in enumerate(self.names) if side in j.lower()]
+            if not cols:
+                raise InputError(
+                    f"joint states: cannot tell the {side} wheel among joints {', '.join(self.names)}; "
+                    f"pass its name (left=..., right=...)"
+                )
+            return cols
+
+        return pick("left", left), pick("right", right)
+
+    def wheels(self, left: str | None = None, right: str | None = None) -> tuple[np.ndarray, ...]:
+        """(left angle, right angle, left rate, right rate) in rad and rad/s, averaged over each side's joints."""
+        lc, rc = self.wheel_columns(left, right)
+        return (
+            self.position[:, lc].mean(axis=1),
+            self.position[:, rc].mean(axis=1),
+            self.velocity[:, lc].mean(axis=1),
+            self.velocity[:, rc].mean(axis=1),
+        )
+
+
+@dataclass(frozen=True)
+class OdometryMsgs:
+    """nav_msgs/Odometry as arrays: pose of ``child_frame_id`` in ``frame_id``; twist in the child frame."""
+
+    t: np.ndarray
+    position: np.ndarray
+    orientation: np.ndarray  # x, y, z, w
+    linear: np.ndarray
+    angular: np.ndarray
+    frame_id: str = "odom"
+    child_frame_id: str = "base_link"
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        for name, a, k in (
+            ("position", self.position, 3),
+            ("orientation", self.orientation, 4),
+            ("linear", self.linear, 3),
+            ("angular", self.angular, 3),
+        ):
+            if np.shape(a) != (n, k):
+                raise InputError(f"odometry: {name} must be ({n}, {k}), got {np.shape(a)}")
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+
+@dataclass(frozen=True)
+class ImuMsgs:
+    """sensor_msgs/Imu as arrays: angular velocity (rad/s) and linear acceleration (m/s^2) in ``frame_id``."""
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    frame_id: str = "imu_link"
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+
+@dataclass(frozen=True)
+class Recording:
+    """Everything plsgraph reads from one recording, with what went wrong while reading it."""
+
+    path: Path
+    topics: dict[str, TopicInfo]
+    events: EventStream | None = None
+    event_topic: str | None = None
+    event_encoding: str | None = None
+    joints: JointStates | None = None
+    odometry: OdometryMsgs | None = None
+    imu: ImuMsgs | None = None
+    camera: CameraModel | None = None
+    used_topics: dict[str, str] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    lost: dict[str, int | None] = field(default_factory=dict)
+
+
+_ROLES = {
+    "events": (EVENT_TYPES, "event"),
+    "joints": ((JOINT_STATE_TYPE,), "joint state"),
+    "odometry": ((ODOMETRY_TYPE,), "odometry"),
+    "imu": ((IMU_TYPE,), "IMU"),
+    "camera_info": ((CAMERA_INFO_TYPE,), "camera info"),
+}
+
+
+def _stamp(obj, log_time: int) -> int:
+    st = obj.header.stamp
+    t = int(st.sec) * 1_000_000_000 + int(st.nanosec)
+    return t if t > 0 else -int(log_time) - 1  # negative marks "fell back to the log time"
+
+
+def _xyz(v) -> tuple[float, float, float]:
+    return (v.x, v.y, v.z)
+
+
+class _Collector:
+    """Accumulates one non-event topic's messages as rows, then builds the array container."""
+
+    def __init__(self, role: str, topic: str) -> None:
+        self.role, self.topic = role, topic
+        self.t: list[int] = []
+        self.rows: list = []
+        self.names: list[str] = []
+        self.frames: set[tuple[str, str]] = set()
+        self.bad = 0
+
+    def add(self, obj, log_time: int) -> None:
+        self.t.append(_stamp(obj, log_time))
+        if self.role == "joints":
+            self.rows.append((list(obj.name), np.asarray(obj.position, float), np.asarray(obj.velocity, float)))
+        elif self.role == "odometry":
+            p, q = obj.pose.pose.position, obj.pose.pose.orientation
+            tw = obj.twist.twist
+            self.rows.append((*_xyz(p), q.x, q.y, q.z, q.w, *_xyz(tw.linear), *_xyz(tw.angular)))
+            self.frames.add((obj.header.frame_id, obj.child_frame_id))
+        elif self.role == "imu":
+            self.rows.append((*_xyz(obj.angular_velocity), *_xyz(obj.linear_acceleration)))
+            self.frames.add((obj.header.frame_id, ""))
+        else:
+            self.rows.append(obj)
+
+    def times(self, warn) -> np.ndarray:
+        t = np.asarray(self.t, np.int64)
+        fell_back = t < 0
+        if np.any(fell_back):
+            warn(f"{self.topic}: {int(fell_back.sum())} messages have a zero header stamp; used their log time")
+            t = np.where(fell_back, -t - 1, t)
+        return t
+
+    def build(self, warn):
+        if not self.rows:
+            return None
+        t = self.times(warn)
+        order = np.argsort(t, kind="stable")
+        if np.any(np.diff(t) < 0):
+            warn(f"{self.topic}: header stamps go backwards {int(np.sum(np.diff(t) < 0))} times; sorted by stamp")
+        if self.role == "joints":
+            return self._joints(t, order, warn)
+        if self.role in ("odometry", "imu"):
+            a = np.asarray(self.rows, float)[order]
+            if not np.all(np.isfinite(a)):
+                warn(f"{self.topic}: {int(np.sum(~np.isfinite(a).all(axis=1)))} messages contain NaN or inf")
+            frames = sorted(self.frames)
+            if len(frames) > 1:
+                warn(f"{self.topic}: frame ids change during the recording: {frames}")
+            fr = frames[0] if frames else ("", "")
+            if self.role == "odometry":
+                return OdometryMsgs(t[order], a[:, 0:3], a[:, 3:7], a[:, 7:10], a[:, 10:13], fr[0], fr[1])
+            return ImuMsgs(t[order], a[:, 0:3], a[:, 3:6], fr[0])
+        return self._camera(warn)
+
+    def _joints(self, t, order, warn) -> JointStates:
+        names: list[str] = []
+        for nm, _, _ in self.rows:
+            for j in nm:
+                if j not in names:
+                    names.append(j)
+        col = {j: i for i, j in enumerate(names)}
+        n, k = len(self.rows), len(names)
+        pos = np.full((n, k), np.nan)
+        vel = np.full((n, k), np.nan)
+        short = 0
+        for i, (nm, p, v) in enumerate(self.rows):
+            idx = [col[j] for j in nm]
+            if p.size == len(nm):
+                pos[i, idx] = p
+            elif p.size:
+                short += 1
+            if v.size == len(nm):
+                vel[i, idx] = v
+            elif v.size:
+                short += 1
+        if short:
+            warn(f"{self.topic}: {short} messages have position/velocity arrays not matching their joint names")
+        return JointStates(t[order], tuple(names), pos[order], vel[order])
+
+    def _camera(self, warn) -> CameraModel | None:
+        msg = self.rows[0]
+        K = np.asarray(getattr(msg, "k", getattr(msg, "K", None)), float)
+        D = np.asarray(getattr(msg, "d", getattr(msg, "D", [])), float)
+        model = msg.distortion_model or "plumb_bob"
+        if model not in ("plumb_bob", "rational_polynomial") or D.size > 5 and np.any(D[5:] != 0):
+            warn(f"{self.topic}: distortion {model!r} with {D.size} coefficients is not plumb_bob; camera ignored")
+            return None
+        try:
+            return CameraModel(int(msg.width), int(msg.height), K.reshape(3, 3), D[:5])
+        except (InputError, ValueError) as exc:
+            warn(f"{self.topic}: camera info unusable ({exc}); camera ignored")
+            return None
+
+
+def read_recording(
+    path: str | Path | Source,
+    topics: dict[str, str] | None = None,
+    with_events: bool = True,
+) -> Recording:
+    """Read the events, wheel joints, odometry, IMU and camera info of a recording in one pass.
+
+    ``topics`` overrides auto-detection per role: keys ``events``, ``joints``, ``odometry``, ``imu``,
+    ``camera_info``. A role given explicitly must exist (else RecordingError listing the file's topics); a
+    role left to auto-detection is simply None when the file has no topic of that type.
+    """
+    src = path if hasattr(path, "iter_raw") else open_source(path)
+    topics = dict(topics or {})
+    unknown = set(topics) - set(_ROLES)
+    if unknown:
+        raise InputError(f"read_recording: unknown topic roles {sorted(unknown)}; use {sorted(_ROLES)}")
+    all_topics = src.topics()
+    used: dict[str, str] = {}
+    for role, (types, what) in _ROLES.items():
+        if role == "events" and not with_events:
+            continue
+        if role in topics:
+            used[role] = pick_topic(src, types, topics[role], what)
+        elif any(i.msgtype in types for i in all_topics.values()):
+            used[role] = pick_topic(src, types, None, what)
+    if not used:
+        from .events_reader import describe_topics
+
+        raise RecordingError(f"{src.path.name}: nothing plsgraph can use; {describe_topics(all_topics)}")
+    by_topic = {t: r for r, t in used.items()}
+    collectors = {t: _Collector(r, t) for r, t in used.items() if r != "events"}
+
+    ev_topic = used.get("events")
+    dec = _TopicDecoder(src.log, f"{src.path.name}:{ev_topic}") if ev_topic else None
+    chunks: list[EventStream] = []
+
+    def other_messages():
+        for m in src.iter_raw(set(by_topic)):
+            if m.topic == ev_topic:
+                yield m
+                continue
+            c = collectors[m.topic]
+            try:
+                c.add(src.deserialize(m), m.log_time_ns)
+            except Exception as exc:  # noqa: BLE001 - rosbags raises assorted errors on corrupt bytes
+                c.bad += 1
+                if c.bad <= 3:
+                    src.log.warn(f"{m.topic}: skipped an unreadable message at {m.log_time_ns} ns ({exc})")
+
+    # Events are decoded as they stream past; every other message is collected on the way.
+    msgs = other_messages()
+    if dec is not None:
+        chunks = list(_iter_chunks(_Forward(src, msgs), ev_topic, dec, 4_000_000, None, None))
+    else:
+        for _ in msgs:
+            pass
+
+    warn = src.log.warn
+    for c in collectors.values():
+        if c.bad:
+            warn(f"{c.topic}: {c.bad} messages could not be deserialized")
+    built = {c.role: c.build(warn) for c in collectors.values()}
+    events = None
+    enc = None
+    if ev_topic is not None:
+        if chunks:
+            ordered = _sorted_chunks(chunks)
+            events = EventStream.concatenate(chunks) if ordered else _sort_join(chunks, src.log, ev_topic)
+        elif dec is not None and dec.width:
+            events = EventStream.empty(dec.width, dec.height)
+        else:
+            warn(f"{ev_topic}: no readable events")
+        msgtype = all_topics[ev_topic].msgtype
+        enc = "dvs" if msgtype in EVENT_ARRAY_TYPES else dec.encoding
+    lost: dict[str, int | None] = {}
+    for t in by_topic:
+        want = all_topics[t].messages
+        got = src.log.messages_read.get(t, 0)
+        if want is not None and got < want:
+            lost[t] = want - got
+        elif src.log.stopped_early and want is None:
+            lost[t] = None
+    return Recording(
+        path=Path(src.path),
+        topics=all_topics,
+        events=events,
+        event_topic=ev_topic,
+        event_encoding=enc,
+        joints=built.get("joints"),
+        odometry=built.get("odometry"),
+        imu=built.get("imu"),
+        camera=built.get("camera_info"),
+        used_topics=used,
+        warnings=tuple(src.log.warnings),
+        lost=lost,
+    )
+
+
+class _Forward:
+    """Presents an already-running message iterator as a source to the event chunker."""
+
+    def __init__(self, src: Source, msgs) -> None:
+        self.path, self.log, self._src, self._msgs = src.path, src.log, src, msgs
+
+    def topics(self) -> dict[str, TopicInfo]:
+        return self._src.topics()
+
+    def iter_raw(self, topics: set[str] | None = None):
+        yield from self._msgs
