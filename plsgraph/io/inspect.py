@@ -1,0 +1,98 @@
+"""What a recording holds: topics, message counts, time spans, and event statistics per event topic."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .events_reader import _TopicDecoder
+from .messages import EVENT_TYPES
+from .source import Source, open_source
+
+
+def inspect_recording(path: str | Path | Source) -> dict:
+    """Summary of a recording in one streaming pass.
+
+    Returns ``{"path", "topics": [{"topic", "type", "messages", "t_first_ns", "t_last_ns"} ...], "warnings"}``;
+    event topics also have ``events``, ``events_on``, ``events_off``, ``width``, ``height`` and ``encoding``,
+    with times from the decoded events. Other topics' times are the container's log times.
+    """
+    src = path if hasattr(path, "iter_raw") else open_source(path)
+    topics = src.topics()
+    rows: dict[str, dict] = {}
+    decoders: dict[str, _TopicDecoder] = {}
+    for name, info in sorted(topics.items()):
+        row = {"topic": name, "type": info.msgtype, "messages": 0, "t_first_ns": None, "t_last_ns": None}
+        if info.msgtype in EVENT_TYPES:
+            row.update(events=0, events_on=0, events_off=0, width=None, height=None, encoding=None)
+            decoders[name] = _TopicDecoder(src.log, f"{src.path.name}:{name}")
+        rows[name] = row
+    for m in src.iter_raw(None):
+        row = rows.get(m.topic)
+        if row is None:  # a topic the scan found only now (file without summary)
+            row = rows[m.topic] = {"topic": m.topic, "type": m.msgtype, "messages": 0, "t_first_ns": None,
+                                   "t_last_ns": None}
+        row["messages"] += 1
+        dec = decoders.get(m.topic)
+        if dec is None:
+            t0 = t1 = int(m.log_time_ns)
+        else:
+            out = dec.decode(m)
+            if out is None or out[0].size == 0:
+                continue
+            t, _x, _y, p = out
+            on = int(np.count_nonzero(p > 0))
+            row["events"] += int(t.size)
+            row["events_on"] += on
+            row["events_off"] += int(t.size) - on
+            t0, t1 = int(t.min()), int(t.max())
+        row["t_first_ns"] = t0 if row["t_first_ns"] is None else min(row["t_first_ns"], t0)
+        row["t_last_ns"] = t1 if row["t_last_ns"] is None else max(row["t_last_ns"], t1)
+    for name, dec in decoders.items():
+        dec.finish()
+        rows[name].update(width=dec.width or None, height=dec.height or None, encoding=_encoding(dec, rows[name]))
+    return {"path": str(src.path), "topics": list(rows.values()), "warnings": list(src.log.warnings)}
+
+
+def _encoding(dec: _TopicDecoder, row: dict) -> str | None:
+    if row["type"] == "dvs_msgs/msg/EventArray":
+        return "dvs"
+    return dec.encoding
+
+
+def _fmt_time(t: int | None) -> str:
+    return "-" if t is None else f"{t * 1e-9:.3f}"
+
+
+def render_inspection(info: dict) -> str:
+    """A human-readable table of :func:`inspect_recording`'s result."""
+    head = ["topic", "type", "messages", "first [s]", "last [s]", "span [s]", "events", "on/off", "sensor", "encoding"]
+    lines = []
+    for r in info["topics"]:
+        span = (
+            "-" if r["t_first_ns"] is None else f"{(r['t_last_ns'] - r['t_first_ns']) * 1e-9:.3f}"
+        )
+        ev = "events" in r
+        lines.append(
+            [
+                r["topic"],
+                r["type"] or "?",
+                str(r["messages"]),
+                _fmt_time(r["t_first_ns"]),
+                _fmt_time(r["t_last_ns"]),
+                span,
+                f"{r['events']:,}" if ev else "",
+                f"{r['events_on']:,}/{r['events_off']:,}" if ev else "",
+                f"{r['width']}x{r['height']}" if ev and r["width"] else "",
+                r.get("encoding") or "",
+            ]
+        )
+    widths = [max(len(h), *(len(row[i]) for row in lines)) if lines else len(h) for i, h in enumerate(head)]
+    fmt = lambda row: "  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)).rstrip()
+    out = [f"recording: {info['path']}", fmt(head), fmt(["-" * w for w in widths])]
+    out += [fmt(r) for r in lines]
+    if info.get("warnings"):
+        out.append("warnings:")
+        out += [f"  - {w}" for w in info["warnings"]]
+    return "\n".join(out)
