@@ -131,6 +131,7 @@ def base_velocities_on_grid(
 class TimeOffsetResult:
     """Estimated ``td`` (s, t_odom = t_cam + td) with the curve it came from.
 
+    ``projected`` tells whether signed principal-axis components (rather than magnitudes) were correlated.
     ``score`` is the curve value at the peak (a correlation or an explained-covariance share in [0, 1]);
     ``shifts`` / ``values`` the fine-and-coarse curve for plotting (sorted by shift); ``sharpness`` the
     negative curvature of the parabola at the peak (1/s^2, larger = better determined); ``peak_width_s``
@@ -144,6 +145,7 @@ class TimeOffsetResult:
     score: float
     method: str
     signal: str
+    projected: bool
     shifts: np.ndarray
     values: np.ndarray
     sharpness: float
@@ -175,6 +177,14 @@ def _explained_cov_rows(Y: np.ndarray, X: np.ndarray) -> np.ndarray:
     nuc = np.linalg.svd(C, compute_uv=False).sum(axis=1)
     den = np.sqrt(np.sum(Xc * Xc) * np.sum(Yc * Yc, axis=(1, 2)))
     return np.where(den > 0, nuc / np.where(den > 0, den, 1.0), 0.0)
+
+
+def _principal_axis(A: np.ndarray) -> tuple[np.ndarray, float]:
+    """Dominant direction of samples A (n, 3) (second moment about zero) and the spread sqrt(l2 / l1) across it."""
+    evals, evecs = np.linalg.eigh(A.T @ A)
+    if not evals[-1] > 0:
+        return evecs[:, -1], 1.0
+    return evecs[:, -1], float(np.sqrt(max(evals[-2], 0.0) / evals[-1]))
 
 
 def _lobe_stats(shifts: np.ndarray, values: np.ndarray, i_peak: int) -> tuple[float, float]:
@@ -214,12 +224,15 @@ def estimate_time_offset(
     min_overlap_s: float = 3.0,
     min_score: float = 0.5,
     max_second_peak_ratio: float = 0.9,
+    project: bool | None = None,
 ) -> TimeOffsetResult:
     """Time offset td (t_odom = t_cam + td) searched in ``td_range`` (s).
 
     ``method``: "correlation" (Pearson correlation of the angular-rate or speed magnitudes) or
     "explained_covariance" (3-D angular velocities, rotation-invariant explained covariance).
-    ``signal``: "angular", "linear" or "auto" (angular unless the robot hardly turns). Steps default to
+    ``signal``: "angular", "linear" or "auto" (angular unless the robot hardly turns). ``project``: correlate
+    the signed components along each side's principal axis instead of magnitudes (default: when the base
+    signal is one-dimensional, as for a ground robot). Steps default to
     a third of the camera sample period (coarse) and a tenth of that (fine). The result is flagged not
     ``ok`` when the peak is weak (< ``min_score``), ambiguous (second peak ratio above
     ``max_second_peak_ratio``) or on the border of the range.
@@ -270,15 +283,25 @@ def estimate_time_offset(
             "the time offset is unobservable. Record while driving and turning"
         )
 
+    src_b, src_c = (wb_all, w_c) if used == "angular" else (vb_all, v_c)
+    ax_b, spread_b = _principal_axis(src_b)
+    projected = method == "correlation" and (project if project is not None else spread_b < 0.1)
+    if projected:
+        # The base moves along one axis (z for turning, x for driving), so the camera signal is one axis too,
+        # whatever the extrinsic: its principal direction. Correlating the signed components along those
+        # axes drops the camera noise across the axis and the |.| bias a magnitude carries.
+        ax_c, _ = _principal_axis(src_c)
+        sig_b, sig_c = src_b @ ax_b, src_c @ ax_c
+    else:
+        sig_b, sig_c = np.linalg.norm(src_b, axis=1), np.linalg.norm(src_c, axis=1)
+
     def curve(shifts: np.ndarray) -> np.ndarray:
         tq = (tc[None, :] + shifts[:, None]).ravel()
         if method == "explained_covariance":
             Y = np.stack([np.interp(tq, tb, wb_all[:, k]) for k in range(3)], axis=-1)
             return _explained_cov_rows(Y.reshape(shifts.size, tc.size, 3), w_c)
-        src_b, src_c = (wb_all, w_c) if used == "angular" else (vb_all, v_c)
-        mag_b = np.linalg.norm(src_b, axis=1)
-        B = np.interp(tq, tb, mag_b).reshape(shifts.size, tc.size)
-        return _pearson_rows(B, np.linalg.norm(src_c, axis=1))
+        B = np.interp(tq, tb, sig_b).reshape(shifts.size, tc.size)
+        return _pearson_rows(B, sig_c)
 
     dt_c = float(np.median(np.diff(cv.t)))
     coarse = coarse_step if coarse_step else min(dt_c / 3.0, (hi - lo) / 20.0)
@@ -286,6 +309,9 @@ def estimate_time_offset(
     s_coarse = np.arange(lo, hi + 0.5 * coarse, coarse)
     s_coarse = s_coarse[s_coarse <= hi + 1e-12]
     c_coarse = curve(s_coarse)
+    if projected and -c_coarse.min() > c_coarse.max():
+        sig_c = -sig_c  # the principal axes' signs are arbitrary: take the sign that makes the peak positive
+        c_coarse = -c_coarse
     i0 = int(np.argmax(c_coarse))
     s_fine = np.arange(max(lo, s_coarse[i0] - 2 * coarse), min(hi, s_coarse[i0] + 2 * coarse) + 0.5 * fine, fine)
     s_fine = s_fine[s_fine <= hi + 1e-12]
@@ -327,6 +353,7 @@ def estimate_time_offset(
         score=score,
         method=method,
         signal=used,
+        projected=bool(projected),
         shifts=shifts,
         values=values,
         sharpness=sharp,

@@ -1,0 +1,375 @@
+"""Closed-form calibration from a camera track and a base track: time offset, rotation, planar translation.
+
+What planar motion can determine (frames: base x forward, y left, z up; ``R = R_base_cam``)
+
+* Angular velocity. The base turns about its z axis only, so omega_cam = R^T (0, 0, w): turning fixes where
+  the base's vertical axis lies in the camera frame, i.e. the camera's roll and pitch relative to the floor,
+  and nothing about its yaw (any rotation about base z maps (0, 0, w) to itself).
+* Linear velocity. The camera moves with v_cam = R^T (v_base + omega_base x t), t = t_base_cam. Without
+  turning this is R^T (v, 0, 0): driving fixes where the base's forward axis lies in the camera frame (yaw and
+  pitch), not the roll about it. The lever-arm term w (-t_y, t_x, 0) lies in the floor plane; it is not known
+  before t is, so it is estimated and removed in a few alternations (rotation, then translation, repeat).
+* Together, turning while driving fixes two different base axes and so all three angles. Spinning in place
+  (no forward speed) leaves the yaw unknown: the linear velocity is then the lever-arm term alone, whose base
+  direction depends on the unknown t. Driving straight leaves the roll unknown.
+* Translation. Relative motions A (base) and B (camera) over ~1 s satisfy A X = X B; with planar A the
+  equations (R_A - I) t = R t_B - t_A have a zero third row (after Guo et al. 2012, CamOdoCal): t_x and t_y
+  follow by least squares once there is turning, the camera height t_z never does (the translation along the
+  rotation axis of every motion is invisible). The result reports t_z as NaN and says so.
+* Constant-curvature driving (v proportional to w, e.g. one steady circle) confounds yaw with the sideways
+  lever arm in the velocity equations; it is detected and reported.
+
+The default rotation solver is PLS (``plsgraph.closedform.solve``) on the stacked angular and linear velocity
+rows, the linear rows scaled to the same RMS as the angular ones so that both axes weigh alike.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import closedform
+from .align import (
+    CameraVelocities,
+    PairedSamples,
+    TimeOffsetResult,
+    camera_velocities,
+    estimate_time_offset,
+    pair_samples,
+)
+from .errors import DegenerateMotionError, InputError, PlsgraphError
+from .geometry import inv_T
+from .odometry import in_gap
+from .tracks import BaseTrack, CameraTrack
+
+log = logging.getLogger(__name__)
+
+#: RMS turn rate (rad/s) below which the angular velocity says nothing about roll and pitch.
+MIN_TURN_RATE = 0.05
+#: RMS forward speed (m/s) below which the linear velocity says nothing about yaw.
+MIN_SPEED = 0.05
+#: |cosine| between forward speed and turn rate above which the driving is constant-curvature.
+MAX_SPEED_TURN_COSINE = 0.98
+
+
+@dataclass(frozen=True)
+class MethodResult:
+    """One solver's answer, or why it gave none (``error``)."""
+
+    R_base_cam: np.ndarray | None
+    t_base_cam: np.ndarray | None = None
+    error: str | None = None
+    warnings: list[str] = field(default_factory=list)
+    diagnostics: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ClosedFormResult:
+    """Closed-form calibration.
+
+    ``R_base_cam`` (3, 3) from ``method`` (None if the motion did not determine it); ``t_xy`` (2,) the camera
+    position in the floor plane (None if unobservable) and ``t_base_cam`` (3,) with z = NaN (the height is not
+    observable from planar motion); ``td`` (s, t_odom = t_cam + td) with the search in ``time_offset``;
+    ``methods`` every solver's answer (pls, pls_paper, cca, procrustes, hand_eye_*); ``vertical_axis_cam`` the
+    base's up axis seen in the camera frame (from turning alone, available even when the yaw is not);
+    ``observable`` per axis (roll, pitch, yaw, x, y, z, td); ``n_pairs`` paired samples used and
+    ``discarded`` counts of what was dropped; ``degenerate`` with ``degenerate_reasons`` when a quantity the
+    result reports could not be determined; ``warnings`` everything else worth a look.
+    """
+
+    R_base_cam: np.ndarray | None
+    t_xy: np.ndarray | None
+    t_base_cam: np.ndarray | None
+    td: float
+    method: str
+    time_offset: TimeOffsetResult | None
+    methods: dict[str, MethodResult]
+    vertical_axis_cam: np.ndarray | None
+    observable: dict[str, bool]
+    excitation: dict[str, float]
+    n_pairs: int
+    discarded: dict[str, int]
+    degenerate: bool
+    degenerate_reasons: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    t_xy_velocity: np.ndarray | None = None
+
+
+def _stack_rows(pairs: PairedSamples, t_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Stacked camera (X) and base (Y) rows: angular velocities, then lever-arm-corrected linear velocities.
+
+    The linear rows are scaled by RMS(omega) / RMS(v) so both blocks carry the same weight.
+    """
+    t3 = np.r_[t_xy, 0.0]
+    v_eff = pairs.v_base + np.cross(pairs.omega_base, t3)
+    rms_w = np.sqrt(np.mean(np.sum(pairs.omega_base**2, axis=1)))
+    rms_v = np.sqrt(np.mean(np.sum(v_eff**2, axis=1)))
+    k = rms_w / rms_v if rms_v > 0 and rms_w > 0 else 1.0
+    X = np.vstack([pairs.omega_cam, k * pairs.v_cam])
+    Y = np.vstack([pairs.omega_base, k * v_eff])
+    return X, Y, float(k)
+
+
+def lever_arm_from_velocities(pairs: PairedSamples, R_base_cam: np.ndarray) -> np.ndarray:
+    """t_xy by least squares on R v_cam - v_base = w (-t_y, t_x) (the camera's speed due to turning)."""
+    r = pairs.v_cam @ R_base_cam.T - pairs.v_base
+    w = pairs.omega_base[:, 2]
+    ww = float(w @ w)
+    if not ww > 0:
+        raise DegenerateMotionError("lever arm: the base never turns, so the camera position is unobservable")
+    return np.array([w @ r[:, 1], -(w @ r[:, 0])]) / ww
+
+
+def planar_hand_eye_translation(
+    T_world_base: np.ndarray, T_board_cam: np.ndarray, R_base_cam: np.ndarray, min_angle_deg: float = 2.0
+) -> tuple[np.ndarray, dict]:
+    """t_xy from relative motion pairs: (R_A - I)[:2, :2] t_xy = (R t_B - t_A)[:2].
+
+    ``T_world_base`` (m, 2, 4, 4) and ``T_board_cam`` (m, 2, 4, 4) hold the start and end pose of each pair.
+    Pairs turning less than ``min_angle_deg`` carry no information and are skipped. Returns t_xy and
+    diagnostics (pairs used, residual RMS, smallest singular value of the system, out-of-plane residual).
+    """
+    A = inv_T(T_world_base[:, 0]) @ T_world_base[:, 1]
+    B = inv_T(T_board_cam[:, 0]) @ T_board_cam[:, 1]
+    ang = np.arccos(np.clip(A[:, 0, 0], -1.0, 1.0))  # planar: the angle of R_A from its first column
+    use = ang > np.radians(min_angle_deg)
+    if np.count_nonzero(use) < 2:
+        raise DegenerateMotionError(
+            f"planar hand-eye: only {int(np.count_nonzero(use))} motion pair(s) turn by more than {min_angle_deg} "
+            "deg; the camera position needs turning (curves, spins)"
+        )
+    A, B = A[use], B[use]
+    M = (A[:, :3, :3] - np.eye(3))[:, :2, :2].reshape(-1, 2)
+    rhs_full = np.einsum("ij,nj->ni", R_base_cam, B[:, :3, 3]) - A[:, :3, 3]
+    rhs = rhs_full[:, :2].reshape(-1)
+    sol, *_ = np.linalg.lstsq(M, rhs, rcond=None)
+    resid = M @ sol - rhs
+    sv = np.linalg.svd(M, compute_uv=False)
+    diag = {
+        "pairs": int(use.sum()),
+        "residual_rms_m": float(np.sqrt(np.mean(resid**2))),
+        "min_singular_value": float(sv[-1] / np.sqrt(use.sum())),
+        # For planar motion the third row must vanish: (R t_B - t_A)_z = 0. Its size checks R and the planarity.
+        "out_of_plane_rms_m": float(np.sqrt(np.mean(rhs_full[:, 2] ** 2))),
+    }
+    return sol, diag
+
+
+def _motion_pairs(
+    camera_track: CameraTrack, base: BaseTrack, t_cam: np.ndarray, td: float, interval_s: float, max_pairs: int
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """Start/end poses (m, 2, 4, 4) of relative motions ~``interval_s`` apart; pairs across gaps are dropped."""
+    t0 = t_cam[(t_cam + interval_s <= camera_track.t[-1]) & (t_cam + interval_s + td <= base.t[-1])]
+    if t0.size > max_pairs:
+        t0 = t0[np.unique(np.linspace(0, t0.size - 1, max_pairs).round().astype(int))]
+    t1 = t0 + interval_s
+    # Camera holes: both ends must lie within a normal frame spacing of a real frame.
+    dt_c = float(np.median(np.diff(camera_track.t)))
+
+    def near_frame(tq: np.ndarray) -> np.ndarray:
+        i = np.clip(np.searchsorted(camera_track.t, tq), 1, camera_track.t.size - 1)
+        return np.minimum(np.abs(camera_track.t[i] - tq), np.abs(camera_track.t[i - 1] - tq)) <= dt_c
+
+    ok = near_frame(t0) & near_frame(t1)
+    # Odometry gaps or jumps anywhere inside the interval spoil the relative motion.
+    mid = np.linspace(0.0, 1.0, 9)
+    inside = (t0[:, None] + td) + interval_s * mid[None, :]
+    ok &= ~in_gap(base, inside).any(axis=1)
+    t0, t1 = t0[ok], t1[ok]
+    Tb = np.stack([base.poses_at(t0 + td), base.poses_at(t1 + td)], axis=1)
+    Tc = np.stack([camera_track.poses_at(t0), camera_track.poses_at(t1)], axis=1)
+    return Tb, Tc, int(np.count_nonzero(~ok))
+
+
+def _solve_rotation(X: np.ndarray, Y: np.ndarray, method: str) -> closedform.RotationResult:
+    if method == "pls_paper":
+        return closedform.solve(X, Y, "pls", paper=True)
+    return closedform.solve(X, Y, method)
+
+
+def calibrate_closed_form(
+    camera_track: CameraTrack,
+    base_track: BaseTrack,
+    method: str = "pls",
+    td_range: tuple[float, float] = (-0.5, 0.5),
+    td: float | None = None,
+    time_offset_method: str = "correlation",
+    window_s: float = 0.3,
+    iterations: int = 3,
+    hand_eye_interval_s: float = 1.0,
+    hand_eye_methods: tuple[str, ...] = closedform.HAND_EYE_METHODS,
+    compare: bool = True,
+    raise_on_degenerate: bool = False,
+) -> ClosedFormResult:
+    """Closed-form T_base_cam (rotation, floor-plane translation) and td from a camera and a base track.
+
+    ``method`` picks the rotation solver of the headline result: "pls" (default), "pls_paper" (the paper's
+    Eqs. 11-21 verbatim), "cca", "procrustes". ``td`` skips the time-offset search when the offset is known;
+    otherwise it is searched in ``td_range`` with ``time_offset_method``. ``iterations`` alternations of
+    rotation and lever arm; ``hand_eye_interval_s`` the span of the relative motions for the translation and
+    the OpenCV hand-eye comparison. ``compare`` also runs every other solver (results in ``methods``).
+    Input problems raise (InputError, InsufficientDataError); motion that leaves something undetermined gives
+    a result with ``degenerate`` set, or raises DegenerateMotionError with ``raise_on_degenerate``.
+    """
+    rot_methods = ("pls", "pls_paper", "cca", "procrustes")
+    if method not in rot_methods:
+        raise InputError(f"unknown method {method!r}; use one of {', '.join(rot_methods)}")
+    if not isinstance(camera_track, CameraTrack) or not isinstance(base_track, BaseTrack):
+        raise InputError("calibrate_closed_form needs a CameraTrack and a BaseTrack")
+    warnings: list[str] = list(base_track.info.get("warnings", []))
+    reasons: list[str] = []
+    cv: CameraVelocities = camera_velocities(camera_track, window_s=window_s)
+
+    # 1. Time offset.
+    to_res: TimeOffsetResult | None = None
+    if td is None:
+        to_res = estimate_time_offset(cv, base_track, td_range=td_range, method=time_offset_method)
+        td_est = to_res.td
+        warnings += to_res.warnings
+        if to_res.at_range_edge:
+            reasons.append(f"time offset at the border of the search range {td_range}: widen td_range")
+        elif not to_res.ok:
+            reasons.append("time offset poorly determined (weak or ambiguous correlation peak)")
+    else:
+        td_est = float(td)
+
+    # 2. Pairing and excitation.
+    pairs = pair_samples(cv, base_track, td_est)
+    discarded = dict(pairs.discarded)
+    n = pairs.t.size
+    w = pairs.omega_base[:, 2]
+    v = pairs.v_base[:, 0]
+    turn_rms = float(np.sqrt(np.mean(w**2)))
+    speed_rms = float(np.sqrt(np.mean(v**2)))
+    cos_vw = float(abs(v @ w) / np.sqrt((v @ v) * (w @ w))) if turn_rms > 0 and speed_rms > 0 else 0.0
+    turning = turn_rms >= MIN_TURN_RATE
+    driving = speed_rms >= MIN_SPEED
+    excitation = {"turn_rate_rms": turn_rms, "speed_rms": speed_rms, "speed_turn_cosine": cos_vw}
+    if not turning and not driving:
+        reasons.append(
+            f"the robot neither turns (RMS {turn_rms:.3f} rad/s) nor drives (RMS {speed_rms:.3f} m/s): nothing is "
+            "observable"
+        )
+    elif not turning:
+        reasons.append(
+            f"no turning (RMS turn rate {turn_rms:.3f} rad/s < {MIN_TURN_RATE}): the roll about the driving "
+            "direction and the camera position are unobservable; drive curves"
+        )
+    elif not driving:
+        reasons.append(
+            f"no driving (RMS speed {speed_rms:.3f} m/s < {MIN_SPEED}): the yaw is unobservable (spinning in place "
+            "fixes only the camera's tilt); drive forwards/backwards while turning"
+        )
+    elif cos_vw > MAX_SPEED_TURN_COSINE:
+        warnings.append(
+            f"speed and turn rate are nearly proportional (|cos| = {cos_vw:.3f}, constant-curvature driving): yaw "
+            "and sideways position are weakly separated; vary the curvature"
+        )
+    full_rotation = turning and driving
+    observable = {
+        "roll": full_rotation,
+        "pitch": turning or driving,
+        "yaw": full_rotation,
+        "x": full_rotation,
+        "y": full_rotation,
+        "z": False,
+        "td": bool(td is not None or (to_res is not None and to_res.ok)),
+    }
+
+    # Tilt from turning alone: the base's up axis in the camera frame is the direction of omega_cam.
+    vertical = None
+    if turning:
+        vertical = pairs.omega_cam.T @ w
+        vertical = vertical / np.linalg.norm(vertical)
+
+    # 3. Rotation and lever arm, alternating.
+    methods: dict[str, MethodResult] = {}
+    R = None
+    t_xy = np.zeros(2)
+    t_xy_vel = None
+    he_diag: dict = {}
+    if full_rotation:
+        try:
+            for _ in range(max(1, iterations)):
+                X, Y, _k = _stack_rows(pairs, t_xy)
+                R = _solve_rotation(X, Y, method).R_base_cam
+                t_xy = lever_arm_from_velocities(pairs, R)
+            t_xy_vel = t_xy.copy()
+        except PlsgraphError as exc:
+            reasons.append(f"{method}: {exc}")
+            R = None
+    t_final = None
+    Tb = Tc = None
+    if R is not None:
+        Tb, Tc, n_cross = _motion_pairs(camera_track, base_track, pairs.t, td_est, hand_eye_interval_s, 400)
+        discarded["motion_pairs_across_gaps"] = n_cross
+        try:
+            t_final, he_diag = planar_hand_eye_translation(Tb, Tc, R)
+        except DegenerateMotionError as exc:
+            reasons.append(str(exc))
+        if t_final is not None and t_xy_vel is not None and np.linalg.norm(t_final - t_xy_vel) > 0.05:
+            warnings.append(
+                f"the planar hand-eye position {np.round(t_final, 3)} m and the velocity lever arm "
+                f"{np.round(t_xy_vel, 3)} m disagree by more than 5 cm; check the time offset and the odometry scale"
+            )
+
+    # 4. Every solver for comparison, on the same rows (the headline method's entry carries its translation).
+    X, Y, _k = _stack_rows(pairs, t_xy if R is not None else np.zeros(2))
+    caveat = [] if full_rotation else ["the motion does not determine the full rotation: this answer is arbitrary"]
+    for name in rot_methods if compare else (method,):
+        try:
+            rr = _solve_rotation(X, Y, name)
+            methods[name] = MethodResult(rr.R_base_cam, None, None, list(rr.warnings) + caveat, dict(rr.diagnostics))
+        except PlsgraphError as exc:
+            methods[name] = MethodResult(None, error=str(exc))
+    if compare:
+        if Tb is None:
+            Tb, Tc, _ = _motion_pairs(camera_track, base_track, pairs.t, td_est, hand_eye_interval_s, 400)
+        # A pose sequence along the track; OpenCV forms the relative motions itself.
+        seq_b = np.concatenate([Tb[:1, 0], Tb[:, 1]])
+        seq_c = np.concatenate([Tc[:1, 0], Tc[:, 1]])
+        for he in hand_eye_methods:
+            try:
+                rr = closedform.hand_eye(seq_b, seq_c, he)
+                methods[f"hand_eye_{he}"] = MethodResult(rr.R_base_cam, rr.t_base_cam, None, list(rr.warnings) + caveat)
+            except PlsgraphError as exc:
+                methods[f"hand_eye_{he}"] = MethodResult(None, error=str(exc))
+    if R is not None:
+        methods[method] = MethodResult(
+            R,
+            None if t_final is None else np.r_[t_final, np.nan],
+            None,
+            methods[method].warnings,
+            dict(methods[method].diagnostics, translation=he_diag),
+        )
+    if R is None:
+        reasons.append("the rotation could not be determined from this motion")
+
+    degenerate = bool(reasons)
+    if degenerate:
+        msg = "; ".join(reasons)
+        log.warning("closed-form calibration degenerate: %s", msg)
+        if raise_on_degenerate:
+            raise DegenerateMotionError(msg)
+    if n < 50:
+        warnings.append(f"only {n} paired samples; record longer for a stable estimate")
+    return ClosedFormResult(
+        R_base_cam=R,
+        t_xy=t_final,
+        t_base_cam=None if t_final is None else np.r_[t_final, np.nan],
+        td=float(td_est),
+        method=method,
+        time_offset=to_res,
+        methods=methods,
+        vertical_axis_cam=vertical,
+        observable=observable,
+        excitation=excitation,
+        n_pairs=int(n),
+        discarded=discarded,
+        degenerate=degenerate,
+        degenerate_reasons=reasons,
+        warnings=warnings,
+        t_xy_velocity=t_xy_vel,
+    )
