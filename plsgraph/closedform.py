@@ -81,8 +81,9 @@ def _as_samples(name: str, A: np.ndarray) -> np.ndarray:
     A = np.asarray(A, dtype=float)
     if A.ndim != 2 or A.shape[1] != 3:
         raise InputError(f"{name}: expected an n x 3 array of motion samples, got shape {A.shape}")
-    bad = ~np.all(np.isfinite(A), axis=1)
-    if bad.any():
+    # Fast path: a NaN or inf anywhere makes the column sums non-finite (one BLAS pass); only then find the rows.
+    bad = ~np.all(np.isfinite(A), axis=1) if not np.all(np.isfinite(np.ones(A.shape[0]) @ A)) else None
+    if bad is not None and bad.any():
         rows = np.flatnonzero(bad)
         raise InputError(
             f"{name}: {rows.size} row(s) contain NaN or inf (first at row {rows[0]}); drop those samples "
@@ -124,21 +125,28 @@ def _check_pair(X: np.ndarray, Y: np.ndarray, weights: np.ndarray | None, min_sa
 
 # --------------------------------------------------------------------------------------------------- moments
 def _moments(X: np.ndarray, Y: np.ndarray, w: np.ndarray | None, center: bool):
-    """Weighted means and the 3 x 3 blocks Sxx, Sxy, Syy of (centred if asked) X, Y, normalized by sum(w)."""
+    """Weighted means and the 3 x 3 blocks Sxx, Sxy, Syy of (centred if asked) X, Y, normalized by sum(w).
+
+    Centring uses S - m m^T on the raw second moments, which avoids an n x 3 copy; when the spread is tiny next
+    to the mean (cancellation would cost digits) the data are centred explicitly instead.
+    """
     wsum = float(X.shape[0]) if w is None else float(w.sum())
-    if center:
-        mx = (X.sum(axis=0) if w is None else w @ X) / wsum
-        my = (Y.sum(axis=0) if w is None else w @ Y) / wsum
-        Xc, Yc = X - mx, Y - my
-    else:
-        mx = my = np.zeros(3)
-        Xc, Yc = X, Y
+    wv = np.ones(X.shape[0]) if w is None else w
+    Xw = X if w is None else X * w[:, None]
+    Yw = Y if w is None else Y * w[:, None]
+    Sxx = Xw.T @ X / wsum
+    Sxy = Xw.T @ Y / wsum
+    Syy = Yw.T @ Y / wsum
+    if not center:
+        return np.zeros(3), np.zeros(3), Sxx, Sxy, Syy
+    mx, my = wv @ X / wsum, wv @ Y / wsum
+    Sxx_c, Sxy_c, Syy_c = Sxx - np.outer(mx, mx), Sxy - np.outer(mx, my), Syy - np.outer(my, my)
+    if np.trace(Sxx_c) > 1e-6 * (mx @ mx) and np.trace(Syy_c) > 1e-6 * (my @ my):
+        return mx, my, Sxx_c, Sxy_c, Syy_c
+    Xc, Yc = X - mx, Y - my
     Xw = Xc if w is None else Xc * w[:, None]
     Yw = Yc if w is None else Yc * w[:, None]
-    Sxx = Xw.T @ Xc / wsum
-    Sxy = Xw.T @ Yc / wsum
-    Syy = Yw.T @ Yc / wsum
-    return mx, my, Sxx, Sxy, Syy
+    return mx, my, Xw.T @ Xc / wsum, Xw.T @ Yc / wsum, Yw.T @ Yc / wsum
 
 
 def _excitation_from_second_moment(S: np.ndarray, rel_tol: float) -> Excitation:
@@ -168,7 +176,14 @@ def excitation(
     if X.shape[0] == 0:
         raise InsufficientDataError("excitation: no samples")
     w = _as_weights(weights, X.shape[0])
-    _, _, S, _, _ = _moments(X, X, w, center)
+    wsum = float(X.shape[0]) if w is None else float(w.sum())
+    S = (X if w is None else X * w[:, None]).T @ X / wsum
+    if center:
+        m = (np.ones(X.shape[0]) if w is None else w) @ X / wsum
+        S = S - np.outer(m, m)
+        if not np.trace(S) > 1e-6 * (m @ m):  # cancellation: centre explicitly
+            Xc = X - m
+            S = (Xc if w is None else Xc * w[:, None]).T @ Xc / wsum
     return _excitation_from_second_moment(S, rel_tol)
 
 

@@ -148,6 +148,21 @@ def test_paper_mode_keeps_raw_matrix_and_warns():
     assert res.diagnostics["n_components"] == 3
 
 
+@pytest.mark.parametrize("method", ["pls", "cca", "procrustes"])
+def test_centring_equals_solving_centred_data(method):
+    """Centring through the second moments must agree with subtracting the means, even for a large mean."""
+    rng = np.random.default_rng(19)
+    R = random_rotation_zyx(rng)
+    X = motion_3d(rng)
+    Y = X @ R.T + rng.normal(scale=0.1, size=X.shape)
+    for offset in (0.0, 1e3, 1e5):
+        Xo, Yo = X + offset, Y - offset
+        a = solve(Xo, Yo, method, center=True).R_base_cam
+        b = solve(Xo - Xo.mean(0), Yo - Yo.mean(0), method).R_base_cam
+        assert angle_deg(a, b) < 1e-6
+    assert np.allclose(excitation(X + 1e5, center=True).singular_values, excitation(X - X.mean(0)).singular_values)
+
+
 def test_weights_equal_dropping_rows():
     rng = np.random.default_rng(9)
     R = random_rotation_zyx(rng)
