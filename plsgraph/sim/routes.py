@@ -129,7 +129,7 @@ def make_trials(
     sigma: float = 0.10,
     scale: float = 1.0,
     quantity: str = "position",
-    noise_model: str = "paper",
+    noise_model: str = "independent",
     planar_side: str = "camera",
     offset: np.ndarray | None = None,
 ) -> TrialSet:
