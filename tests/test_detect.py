@@ -1,0 +1,186 @@
+"""Board detection on rendered images with known truth, and the order checks that guard PnP."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from plsgraph.board import Board, load_board
+from plsgraph.camera import CameraModel, davis346_default
+from plsgraph.detect import (
+    REASON_EMPTY,
+    REASON_MIRRORED,
+    REASON_OK,
+    REASON_ORDER,
+    aprilgrid_corner_index,
+    board_is_symmetric,
+    check_grid_order,
+    detect_aprilgrid,
+    detect_circle_grid,
+    make_aruco_detector,
+)
+from plsgraph.geometry import inv_T, make_T, rotation_error_deg, so3_exp, transform_points
+from plsgraph.pose import solve_pnp
+from plsgraph.sim.render import render_intensity_u8, render_log_intensity
+
+CAM = davis346_default()
+CIRCLES = load_board("acircles_4x11")
+GRID = Board(pattern="aprilgrid", cols=6, rows=6, tag_size=0.088, tag_spacing=0.3)
+
+
+def pose_facing(board: Board, dist: float, rotvec, front_z: float) -> np.ndarray:
+    """T_board_cam of a camera ``dist`` m from the board centre on the side where board z has sign ``front_z``."""
+    R = so3_exp(np.asarray(rotvec, dtype=float))
+    if front_z > 0:  # look along -z of the board: turn the optical axis around
+        R = R @ np.diag([1.0, -1.0, -1.0])
+    t = np.array([0.0, 0.0, dist]) - R @ board.points.mean(axis=0)
+    return inv_T(make_T(R, t))
+
+
+def truth_pixels(T_board_cam: np.ndarray, board: Board, camera: CameraModel = CAM) -> np.ndarray:
+    return camera.project(transform_points(inv_T(T_board_cam), board.points))
+
+
+CIRCLE_POSES = [(0.45, (0.2, -0.3, 0.1)), (0.7, (0.5, 0.3, 1.0)), (1.1, (-0.3, 0.4, -2.0))]
+
+
+@pytest.mark.parametrize("dist,rotvec", CIRCLE_POSES)
+def test_circle_grid_on_rendered_image(dist, rotvec):
+    T = pose_facing(CIRCLES, dist, rotvec, front_z=-1)
+    img = render_log_intensity(T, CAM, CIRCLES)
+    det = detect_circle_grid(img, CIRCLES, CAM, foreground="dark")
+    assert det.ok and det.reason == REASON_OK and det.n_seen == CIRCLES.n_points
+    err = np.linalg.norm(det.uv - truth_pixels(T, CIRCLES), axis=1)
+    # Centroids of perspective-distorted disks are biased by a small fraction of a pixel at most.
+    assert np.median(err) < 0.15 and err.max() < 0.3
+    est = solve_pnp(det.uv, CIRCLES.points, CAM)
+    assert rotation_error_deg(est.T_board_cam[:3, :3], T[:3, :3]) < 0.3
+    assert np.linalg.norm(est.T_board_cam[:3, 3] - T[:3, 3]) < 0.005 * dist
+
+
+def test_circle_grid_bad_windows():
+    n = CIRCLES.n_points
+    blank = np.zeros((CAM.height, CAM.width), np.float32)
+    det = detect_circle_grid(blank, CIRCLES, CAM)
+    assert not det.ok and det.reason == REASON_EMPTY and np.isnan(det.uv).all() and det.uv.shape == (n, 2)
+    # Board half outside the image: a circle grid needs every circle, so no detection (and no error).
+    T = pose_facing(CIRCLES, 0.45, (0.1, 0.2, 0.0), front_z=-1) @ make_T(np.eye(3), np.array([0.3, 0.0, 0.0]))
+    u = truth_pixels(T, CIRCLES)[:, 0]
+    assert 5 < np.count_nonzero(u < 0) < 30  # the set-up really cuts the board
+    assert not detect_circle_grid(render_log_intensity(T, CAM, CIRCLES), CIRCLES, CAM, foreground="dark").ok
+    # A board definition that does not match what is seen (3 instead of 4 circles per row).
+    wrong = Board(pattern="asymmetric_circles", cols=3, rows=11, square_size=0.025, circle_diameter=0.03)
+    T = pose_facing(CIRCLES, 0.7, (0.2, -0.3, 0.1), front_z=-1)
+    assert not detect_circle_grid(render_log_intensity(T, CAM, CIRCLES), wrong, CAM, foreground="dark").ok
+
+
+def test_order_check_rejects_permuted_and_mirrored_labels():
+    T = pose_facing(CIRCLES, 0.7, (0.2, -0.3, 0.4), front_z=-1)
+    uv = truth_pixels(T, CIRCLES) + np.random.default_rng(0).normal(0, 0.1, (CIRCLES.n_points, 2))
+    assert check_grid_order(uv, CIRCLES, CAM)[0] == REASON_OK
+    swapped = uv.copy()
+    swapped[[9, 10]] = swapped[[10, 9]]  # two neighbouring circles exchanged
+    reason, rms = check_grid_order(swapped, CIRCLES, CAM)
+    assert reason == REASON_ORDER
+    assert check_grid_order(uv[::-1], CIRCLES, CAM)[0] == REASON_ORDER
+    shuffled = uv[np.random.default_rng(1).permutation(CIRCLES.n_points)]
+    assert check_grid_order(shuffled, CIRCLES, CAM)[0] == REASON_ORDER
+    # A mirror image of the board fits a homography exactly but would mean seeing it from behind.
+    mirrored = uv.copy()
+    mirrored[:, 0] = CAM.width - 1 - mirrored[:, 0]
+    assert check_grid_order(mirrored, CIRCLES)[0] == REASON_MIRRORED
+
+
+def test_symmetric_board_flagged():
+    assert not board_is_symmetric(CIRCLES)
+    even = Board(pattern="asymmetric_circles", cols=4, rows=10, square_size=0.025, circle_diameter=0.02)
+    assert board_is_symmetric(even)
+
+
+# --- AprilGrid ---------------------------------------------------------------------------------------
+
+
+def test_aprilgrid_on_rendered_image_with_partial_view():
+    T = pose_facing(GRID, 0.7, (0.2, -0.3, 0.1), front_z=1)
+    u8 = render_intensity_u8(T, CAM, GRID)
+    truth = truth_pixels(T, GRID)
+    det = detect_aprilgrid(u8, GRID, CAM, detector=make_aruco_detector(border_bits=1), layout="opencv")
+    assert det.ok
+    seen = np.all(np.isfinite(det.uv), axis=1)
+    assert seen.sum() >= 4 * 30  # most of the 36 tags
+    err = np.linalg.norm(det.uv[seen] - truth[seen], axis=1)
+    assert np.median(err) < 0.2 and err.max() < 1.0
+    # Partial board: blank out the left part of the image; unseen corners are NaN, the rest still right.
+    part = u8.copy()
+    part[:, : CAM.width // 2] = 128
+    pdet = detect_aprilgrid(part, GRID, CAM, detector=make_aruco_detector(border_bits=1), layout="opencv")
+    pseen = np.all(np.isfinite(pdet.uv), axis=1)
+    assert pdet.ok and 8 <= pseen.sum() < seen.sum()
+    assert np.all(truth[pseen, 0] > CAM.width // 2 - 1)
+    assert np.median(np.linalg.norm(pdet.uv[pseen] - truth[pseen], axis=1)) < 0.2
+    # The same tags read with Kalibr's print orientation put corners in the wrong places: rejected.
+    kal = detect_aprilgrid(u8, GRID, CAM, detector=make_aruco_detector(border_bits=1), layout="kalibr")
+    assert not kal.ok and kal.reason == REASON_ORDER
+
+
+# tag36h11 codes of ids 0..3 (36 bits, most significant bit = top-left data cell of the printed tag,
+# 1 = white), as listed in the AprilTag / Kalibr code tables.
+TAG36H11_CODES = [0xD5D628584, 0xD97F18B49, 0xDD280910E, 0xE479E9C98]
+
+
+def kalibr_flat_board(cols: int, rows: int, bit_px: int, spacing: float) -> tuple[np.ndarray, float]:
+    """A 2 x 2 Kalibr AprilGrid drawn cell by cell as Kalibr's target generator lays it out: tag k at
+    tag row k // cols from the *bottom*, upright, 2-bit black border, 6 x 6 data bits. Returns the
+    image (row 0 at the top) and the margin in bits. Board y points up the printed page."""
+    tag_bits = 10
+    gap = int(round(spacing * tag_bits))
+    margin = 8
+    w = 2 * margin + cols * tag_bits + (cols - 1) * gap
+    h = 2 * margin + rows * tag_bits + (rows - 1) * gap
+    cells = np.full((h, w), 255, np.uint8)
+    for k in range(cols * rows):
+        r, c = divmod(k, cols)
+        x0 = margin + c * (tag_bits + gap)
+        y_top = h - (margin + r * (tag_bits + gap) + tag_bits)  # rows counted from the bottom
+        tag = np.zeros((tag_bits, tag_bits), np.uint8)
+        bits = [(TAG36H11_CODES[k] >> (35 - i)) & 1 for i in range(36)]
+        tag[2:8, 2:8] = np.array(bits, np.uint8).reshape(6, 6) * 255
+        cells[y_top : y_top + tag_bits, x0 : x0 + tag_bits] = tag
+    return cv2.resize(cells, (w * bit_px, h * bit_px), interpolation=cv2.INTER_NEAREST), margin
+
+
+def test_aprilgrid_corner_numbering_matches_kalibr_print():
+    cols = rows = 2
+    bit_px, spacing = 6, 0.3
+    tag_size = 0.1
+    board = Board(pattern="aprilgrid", cols=cols, rows=rows, tag_size=tag_size, tag_spacing=spacing)
+    flat, margin = kalibr_flat_board(cols, rows, bit_px, spacing)
+    ppm = 10 * bit_px / tag_size  # flat-image pixels per metre
+    hf = flat.shape[0]
+    # Board (x, y) -> flat pixel: x right from the margin, y up from the bottom margin; pixel centres at integers.
+    m0 = margin * bit_px
+    A = np.array([[ppm, 0.0, m0 - 0.5], [0.0, -ppm, hf - m0 - 0.5], [0.0, 0.0, 1.0]])
+    cam = CameraModel(346, 260, CAM.K, np.zeros(5))
+    for rotvec in [(0.2, -0.3, 0.1), (-0.3, 0.2, 2.5)]:
+        T = pose_facing(board, 0.45, rotvec, front_z=1)
+        T_cb = inv_T(T)
+        H_img_board = cam.K @ np.c_[T_cb[:3, 0], T_cb[:3, 1], T_cb[:3, 3]]
+        img = cv2.warpPerspective(flat, H_img_board @ np.linalg.inv(A), (cam.width, cam.height), flags=cv2.INTER_AREA,
+                                  borderValue=255)
+        det = detect_aprilgrid(img, board, cam, detector=make_aruco_detector(border_bits=2), layout="kalibr")
+        assert det.ok and det.n_seen == board.n_points
+        truth = truth_pixels(T, board, cam)
+        assert np.max(np.linalg.norm(det.uv - truth, axis=1)) < 0.6
+        # The wrong print orientation for these tags does not pass.
+        assert not detect_aprilgrid(img, board, cam, detector=make_aruco_detector(border_bits=2), layout="opencv").ok
+
+
+def test_aprilgrid_index_is_a_permutation():
+    ids = np.arange(12)
+    for layout in ("kalibr", "opencv"):
+        idx = aprilgrid_corner_index(ids, 4, layout)
+        assert sorted(idx.ravel().tolist()) == list(range(48))
+    # Tag 0's Kalibr corner 0 (board origin) is point 0; on a 4 x 3 grid tag 5 sits in row 1, column 1.
+    assert 0 in aprilgrid_corner_index(np.array([0]), 4)[0]
+    assert set(aprilgrid_corner_index(np.array([5]), 4)[0]) == {18, 19, 26, 27}
