@@ -30,6 +30,8 @@ EXCITATION_REL_TOL = 0.1
 _SINGULAR_REL = 1e-12
 #: CCA warns when the covariance it whitens has a condition number above this.
 CCA_COND_WARN = 1e3
+#: CCA warns when its smallest canonical correlation is below this: that canonical pair is mostly noise.
+CCA_RHO_WARN = 0.5
 #: The paper's standardization constant (Eq. 11).
 PAPER_EPS = 1e-10
 
@@ -191,6 +193,23 @@ def _excitations(Sxx: np.ndarray, Syy: np.ndarray, rel_tol: float) -> tuple[Exci
     return _excitation_from_second_moment(Sxx, rel_tol), _excitation_from_second_moment(Syy, rel_tol)
 
 
+def _require_shared_motion(Sxy: np.ndarray, method: str, rel_tol: float, centred: bool) -> np.ndarray:
+    """Refuse unless the two sensors share motion in at least two directions; return the cross-cov singular values.
+
+    Each side may look excited on its own (noise is spread over every axis) while only one direction is common to
+    both, e.g. V-shape velocities once their mean is removed. Covariances go as amplitude squared, hence rel_tol^2.
+    """
+    s = np.linalg.svd(Sxy, compute_uv=False)
+    if not s[1] > rel_tol**2 * s[0]:
+        raise DegenerateMotionError(
+            f"{method}: the camera and odometry motions share only one direction (cross-covariance singular values "
+            f"{np.array2string(s, precision=3)}); the rotation about it is unobservable. Check the pairing and time "
+            "offset, then record motion in two directions (turns, curves)"
+            + ("; or solve with center=False so the mean motion counts" if centred else "")
+        )
+    return s
+
+
 def _require_two_axes(ex: Excitation, ey: Excitation, method: str, centred: bool) -> list[str]:
     """Refuse when either side is collinear or still; return warnings for weak-but-usable motion."""
     for side, e in (("camera (X)", ex), ("odometry (Y)", ey)):
@@ -227,14 +246,10 @@ def _procrustes(X, Y, w, center: bool, rel_tol: float) -> RotationResult:
     _, _, Sxx, Sxy, Syy = _moments(X, Y, w, center)
     ex, ey = _excitations(Sxx, Syy, rel_tol)
     warns = _require_two_axes(ex, ey, "procrustes", center)
+    s = _require_shared_motion(Sxy, "procrustes", rel_tol, center)
     # Wahba: maximise tr(R^T sum w y x^T); M = Y^T W X = Sxy^T.
     M = Sxy.T
-    R, s = _nearest_rotation(M)
-    if not s[1] > rel_tol**2 * s[0]:  # s are covariances (amplitude squared), hence the squared tolerance
-        raise DegenerateMotionError(
-            f"procrustes: the camera and odometry motions share only one direction (cross-covariance singular "
-            f"values {np.array2string(s, precision=3)}); check the pairing / time offset, then add turns"
-        )
+    R, _ = _nearest_rotation(M)
     diag = {
         "cross_cov_singular_values": s,
         "cross_cov_rank": int(np.count_nonzero(s > rel_tol**2 * s[0])),
@@ -254,6 +269,7 @@ def _cca(X, Y, w, center: bool, rel_tol: float) -> RotationResult:
     _, _, Sxx, Sxy, Syy = _moments(X, Y, w, center)
     ex, ey = _excitations(Sxx, Syy, rel_tol)
     warns = _require_two_axes(ex, ey, "cca", center)
+    s_xy = _require_shared_motion(Sxy, "cca", rel_tol, center)
     for side, S in (("camera (X)", Sxx), ("odometry (Y)", Syy)):
         ev = np.linalg.eigvalsh(S)
         if not ev[0] > _SINGULAR_REL * ev[-1]:
@@ -280,7 +296,13 @@ def _cca(X, Y, w, center: bool, rel_tol: float) -> RotationResult:
                 f"cca: the {side} covariance is ill-conditioned (condition number {c:.3g} > {CCA_COND_WARN:.0g}); "
                 "whitening amplifies the noise of the weak axis and the rotation is unreliable. Prefer 'pls'"
             )
+    if rho[2] < CCA_RHO_WARN:
+        warns.append(
+            f"cca: the third canonical correlation is {rho[2]:.2f}: that canonical pair is noise (the motion excites "
+            "only two shared directions) and the rotation built from it is unreliable. Prefer 'pls'"
+        )
     diag = {
+        "cross_cov_singular_values": s_xy,
         "cov_x_eigenvalues": evx[::-1],
         "cov_y_eigenvalues": evy[::-1],
         "cov_x_condition": cond_x,
@@ -355,6 +377,7 @@ def _pls(
     _, _, Sxx, Sxy, Syy = _moments(X, Y, w, center)
     ex, ey = _excitations(Sxx, Syy, rel_tol)
     warns = _require_two_axes(ex, ey, "pls", center)
+    s_xy = _require_shared_motion(Sxy, "pls", rel_tol, center)
     # Standardization (Eq. 11). sigma is the std about the mean when centred, the RMS about zero otherwise.
     if scale == "column":
         sx = np.sqrt(np.clip(np.diag(Sxx), 0, None)) + eps
@@ -382,6 +405,7 @@ def _pls(
     resid = np.trace(Syy_s) - 2 * np.trace(R_std.T @ Sxy_s) + np.trace(R_std.T @ Sxx_s @ R_std)
     diag.update(
         {
+            "cross_cov_singular_values": s_xy,
             "r2_y": float(1.0 - resid / np.trace(Syy_s)) if np.trace(Syy_s) > 0 else float("nan"),
             "regression_matrix": R_reg,
             "regression_singular_values": np.linalg.svd(R_reg, compute_uv=False),

@@ -107,6 +107,32 @@ def test_cca_planar_singular_refuses_and_near_singular_is_reported():
         assert angle_deg(solve(X, Y, method).R_base_cam, R) < 1.0
 
 
+def test_cca_flags_noise_canonical_pair_on_planar_motion():
+    """Both sensors measure the same planar motion with their own noise: CCA's third pair is pure noise."""
+    rng = np.random.default_rng(20)
+    R = random_rotation_zyx(rng)
+    P = planar(rng, 300)
+    X = P + rng.normal(scale=0.1, size=P.shape)
+    Y = P @ R.T + rng.normal(scale=0.1, size=P.shape)
+    res = solve(X, Y, "cca")
+    assert res.diagnostics["canonical_correlations"][2] < 0.5
+    assert any("canonical correlation" in w for w in res.warnings)
+    assert angle_deg(solve(X, Y, "pls").R_base_cam, R) < 3.0
+
+
+@pytest.mark.parametrize("name,kw", CONFIGS, ids=IDS)
+def test_refuses_when_sensors_share_one_direction(name, kw):
+    """Each side looks excited (noise on every axis) but only one motion direction is common to both."""
+    rng = np.random.default_rng(21)
+    R = random_rotation_zyx(rng)
+    clean = np.outer(rng.normal(size=400), [0.6, 0.8, 0.0])
+    X = clean + rng.normal(scale=0.25, size=clean.shape)
+    Y = clean @ R.T + rng.normal(scale=0.25, size=clean.shape)
+    assert excitation(X).kind == "full"
+    with pytest.raises(DegenerateMotionError, match="one direction"):
+        solve(X, Y, **kw)
+
+
 @pytest.mark.parametrize("name,kw", [c for c in CONFIGS if c[0] not in ("pls_paper", "pls_column")], ids=lambda c: c)
 def test_rotation_equivariance_with_noise(name, kw):
     """Re-expressing either sensor's frame changes the estimate by exactly that rotation (noise included)."""
