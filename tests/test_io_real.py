@@ -116,3 +116,49 @@ def test_davis_chunks_equal_whole_and_window():
     ref = whole.slice_time(t0, t1)
     np.testing.assert_array_equal(win.t, ref.t)
     np.testing.assert_array_equal(win.y, ref.y)
+
+
+@pytest.mark.skipif(not JACKAL.exists(), reason="shared real recordings not present")
+def test_jackal_bag_matches_rosbags_deserializer():
+    from rosbags.highlevel import AnyReader
+
+    from plsgraph.io import read_recording
+
+    rec = read_recording(JACKAL)
+    assert rec.warnings == () and rec.events is None and rec.camera is None
+    assert rec.used_topics == {"odometry": "/jackal_velocity_controller/odom", "imu": "/imu/data"}
+    ref_odom, ref_imu = [], []
+    with AnyReader([JACKAL]) as r:
+        for c, _t, raw in r.messages():
+            m = r.deserialize(raw, c.msgtype)
+            st = m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec
+            if c.topic == "/imu/data":
+                ref_imu.append((st, m.angular_velocity.z, m.linear_acceleration.x))
+            else:
+                p, tw = m.pose.pose, m.twist.twist
+                ref_odom.append((st, p.position.x, p.position.y, p.orientation.w, tw.linear.x, tw.angular.z))
+    ref_odom = np.array(sorted(ref_odom))
+    ref_imu = np.array(sorted(ref_imu))
+    o = rec.odometry
+    assert len(o) == len(ref_odom) == 3060 and len(rec.imu) == len(ref_imu) == 3061
+    np.testing.assert_array_equal(o.t, ref_odom[:, 0].astype(np.int64))
+    np.testing.assert_array_equal(np.c_[o.position[:, :2], o.orientation[:, 3], o.linear[:, 0], o.angular[:, 2]],
+                                  ref_odom[:, 1:])
+    np.testing.assert_array_equal(np.c_[rec.imu.gyro[:, 2], rec.imu.accel[:, 0]], ref_imu[:, 1:])
+    # 50 Hz wheel odometry over about a minute.
+    assert abs(np.median(np.diff(o.t)) * 1e-9 - 0.02) < 1e-3
+    assert 60 < (o.t[-1] - o.t[0]) * 1e-9 < 62
+    assert (o.frame_id, o.child_frame_id) == ("odom", "base_link")
+
+
+def test_davis_inspect_agrees_with_reader():
+    from plsgraph.io import inspect_recording, read_events, render_inspection
+
+    info = inspect_recording(DAVIS)
+    (row,) = info["topics"]
+    ev = read_events(DAVIS)
+    assert row["messages"] == 100 and row["encoding"] == "libcaer_cmp"
+    assert (row["events"], row["events_on"], row["events_off"]) == (len(ev), ev.n_on, ev.n_off)
+    assert (row["t_first_ns"], row["t_last_ns"]) == (ev.t_first, ev.t_last)
+    table = render_inspection(info)
+    assert "/event_camera/events" in table and f"{len(ev):,}" in table

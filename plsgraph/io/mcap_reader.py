@@ -38,6 +38,8 @@ class McapSource:
                 raise RecordingError(f"{self.path} is not an MCAP file (bad magic); is it a ROS 1 .bag or .db3?")
         self._topics: dict[str, TopicInfo] | None = None
         self._summary_ok = False
+        # Channels by id from the summary: lets messages be read even when the chunk declaring them is lost.
+        self._summary_channels: dict[int, tuple[str, str, str]] = {}
         self._read_summary()
 
     def _read_summary(self) -> None:
@@ -64,6 +66,7 @@ class McapSource:
                 sc.data.decode("utf-8", errors="replace") if sc else "",
                 "cdr" if ch.message_encoding == "cdr" else ch.message_encoding,
             )
+            self._summary_channels[cid] = (ch.topic, name, info.serialization)
             if ch.topic in topics:  # the same topic on several channels: add up
                 old = topics[ch.topic]
                 if old.messages is not None and info.messages is not None:
@@ -90,9 +93,10 @@ class McapSource:
 
     def _iter(self, topics: set[str] | None, found: dict[str, TopicInfo] | None) -> Iterator[RawMessage]:
         schemas: dict[int, Schema] = {}
-        channels: dict[int, tuple[str, str, str]] = {}
+        channels: dict[int, tuple[str, str, str]] = dict(self._summary_channels)
         read: Counter[str] = Counter()
         lost_chunks = 0
+        orphans = [0]
 
         def handle(rec) -> Iterator[RawMessage]:
             if isinstance(rec, Schema):
@@ -114,6 +118,7 @@ class McapSource:
             elif isinstance(rec, Message):
                 ch = channels.get(rec.channel_id)
                 if ch is None:
+                    orphans[0] += 1
                     return
                 if topics is None or ch[0] in topics:
                     read[ch[0]] += 1
@@ -147,6 +152,8 @@ class McapSource:
                     yield from handle(rec)
         for t, n in read.items():
             self.log.messages_read[t] = self.log.messages_read.get(t, 0) + n
+        if orphans[0]:
+            self.log.warn(f"{self.path.name}: {orphans[0]} messages of channels never declared (lost) were skipped")
         if lost_chunks or self.log.stopped_early:
             self._report_lost(read, topics)
 

@@ -223,12 +223,14 @@ def write_recording(
     camera_frame: str = "camera",
     evt3_sensor_start_us: int = 0,
     topics: dict[str, str] | None = None,
+    chunk_bytes: int = 1 << 20,
 ) -> dict:
     """Write a ROS 2 MCAP recording (and ``<name>.truth.yaml`` if ``truth`` is given).
 
     ``event_format``: 'dvs' (dvs_msgs/msg/EventArray) or an event_camera_msgs/msg/EventPacket encoding,
     'libcaer_cmp' or 'evt3' (µs time resolution). Events go out in ``packet_ns`` windows; camera info once
-    per second. Refuses to replace an existing file unless ``overwrite``. Returns a summary dict
+    per second. ``chunk_bytes`` is the MCAP chunk size (smaller chunks lose less when a file is damaged).
+    Refuses to replace an existing file unless ``overwrite``. Returns a summary dict
     (path, truth path, messages per topic, warnings).
     """
     path = Path(path)
@@ -280,7 +282,7 @@ def write_recording(
     counts = dict.fromkeys((c[0] for c in channels), 0)
     try:
         with open(tmp, "wb") as f:
-            w = Writer(f, compression=CompressionType.ZSTD)
+            w = Writer(f, chunk_size=int(chunk_bytes), compression=CompressionType.ZSTD)
             w.start(profile="ros2", library="plsgraph")
             ids = []
             schema_ids: dict[str, int] = {}

@@ -1,0 +1,202 @@
+"""Vectorized event codecs against deliberately slow word-by-word reference decoders, on random word streams."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from plsgraph.errors import RecordingError
+from plsgraph.io.event_codecs import (
+    Evt3Decoder,
+    LibcaerCmpDecoder,
+    LibcaerDecoder,
+    MonoDecoder,
+    encode_evt3,
+    encode_libcaer_cmp,
+    make_decoder,
+)
+
+
+def _as_arrays(events):
+    a = np.array(events, dtype=np.int64).reshape(-1, 4)
+    return a[:, 0], a[:, 1], a[:, 2], a[:, 3]
+
+
+def _check(out, ref):
+    t, x, y, p = out
+    rt, rx, ry, rp = _as_arrays(ref)
+    np.testing.assert_array_equal(t, rt)
+    np.testing.assert_array_equal(x, rx)
+    np.testing.assert_array_equal(y, ry)
+    np.testing.assert_array_equal(p, rp)
+
+
+class SlowCmp:
+    """libcaer_cmp, one word at a time; x and vector state persist across packets, time does not."""
+
+    def __init__(self, w, h):
+        self.w, self.h, self.ex, self.by, self.pol = w, h, 0, 0, 0
+
+    def decode(self, words, tb):
+        out, hi, lo = [], 0, 0
+        for wd in words:
+            c = wd >> 12
+            if c == 0:
+                hi = (wd & 0xFFF) << 12
+            elif c == 1:
+                lo = wd & 0xFFF
+            elif c == 2:
+                self.ex = wd & 0x7FF
+            elif c == 3:
+                y = wd & 0x7FF
+                if self.ex < self.w and y < self.h:
+                    out.append((tb + (hi | lo) * 1000, self.ex, y, 1 if wd & 0x800 else -1))
+            elif c == 4:
+                self.by, self.pol = wd & 0x7FF, (wd >> 11) & 1
+            elif c == 5:
+                for i in range(8):
+                    if wd & (1 << i) and self.ex < self.w and self.by + i < self.h:
+                        out.append((tb + (hi | lo) * 1000, self.ex, self.by + i, 1 if self.pol else -1))
+                self.by += 8
+        return out
+
+
+class SlowEvt3:
+    """EVT 3.0, one word at a time, with the rollover rule and the wait for a first valid time."""
+
+    def __init__(self, w, h):
+        self.w, self.h = w, h
+        self.high = self.low = self.ey = self.bx = self.pol = 0
+        self.valid = False
+
+    def _hi(self, v):
+        last = (self.high >> 12) & 0xFFF
+        if v < last and last - v > 10:
+            self.high += 1 << 24
+        self.high = (self.high & ~((1 << 24) - 1)) | (v << 12)
+
+    def decode(self, words):
+        out, i = [], 0
+        seen_hi = False
+        while not self.valid and i < len(words):
+            c, v = words[i] >> 12, words[i] & 0xFFF
+            if c == 6:
+                self.low = v
+                if seen_hi:
+                    self.valid = True
+            elif c == 8:
+                self._hi(v)
+                seen_hi = True
+            i += 1
+        for wd in words[i:]:
+            c, v = wd >> 12, wd & 0xFFF
+            t = (self.high | self.low) * 1000
+            if c == 0:
+                self.ey = wd & 0x7FF
+            elif c == 2:
+                x = wd & 0x7FF
+                if x < self.w and self.ey < self.h:
+                    out.append((t, x, self.ey, 1 if wd & 0x800 else -1))
+            elif c == 3:
+                self.bx, self.pol = wd & 0x7FF, (wd >> 11) & 1
+            elif c in (4, 5):
+                n = 12 if c == 4 else 8
+                for k in range(n):
+                    if v & (1 << k) and self.bx + k < self.w and self.ey < self.h:
+                        out.append((t, self.bx + k, self.ey, 1 if self.pol else -1))
+                self.bx += n
+            elif c == 6:
+                self.low = v
+            elif c == 8:
+                self._hi(v)
+        return out
+
+
+def _random_words(rng, n, codes, probs, xmax=400):
+    c = rng.choice(codes, size=n, p=probs)
+    rest = rng.integers(0, 1 << 12, size=n)
+    # Keep addresses mostly inside a small sensor so events survive the bounds check.
+    addr = (c == 2) | (c == 3) | (c == 0)
+    rest = np.where(addr, (rest & 0x800) | rng.integers(0, xmax, size=n), rest)
+    return ((c << 12) | rest).astype(np.uint16)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_libcaer_cmp_matches_slow_reference(seed):
+    rng = np.random.default_rng(seed)
+    w, h = 346, 260
+    fast, slow = LibcaerCmpDecoder(w, h), SlowCmp(w, h)
+    for k in range(4):  # several packets: x and vector state carry over
+        words = _random_words(rng, 3000, [0, 1, 2, 3, 4, 5, 6], [0.05, 0.2, 0.2, 0.35, 0.05, 0.1, 0.05])
+        tb = 1_700_000_000_000_000_000 + k * 10_000_000
+        _check(fast.decode(words.tobytes(), tb), slow.decode(words.tolist(), tb))
+    assert fast.stats.outside_sensor > 0  # random addresses beyond 346 x 260 are dropped, not wrapped
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_evt3_matches_slow_reference(seed):
+    rng = np.random.default_rng(100 + seed)
+    w, h = 640, 480
+    fast, slow = Evt3Decoder(w, h), SlowEvt3(w, h)
+    total = 0
+    for _ in range(4):
+        words = _random_words(
+            rng, 3000, [0, 2, 3, 4, 5, 6, 8, 10, 14, 7], [0.15, 0.35, 0.05, 0.05, 0.05, 0.15, 0.1, 0.03, 0.04, 0.03]
+        )
+        ref = slow.decode(words.tolist())
+        total += len(ref)
+        _check(fast.decode(words.tobytes()), ref)
+    assert total > 1000
+
+
+def test_libcaer_rollover_within_packet():
+    # Timestamps near the 31-bit µs limit wrap to small values; the decoder must add 2**31 µs.
+    ts = np.array([2**31 - 3, 2**31 - 1, 5, 7], dtype=np.int64)
+    x = np.array([1, 2, 3, 4])
+    y = np.array([10, 11, 12, 13])
+    pol = np.array([1, 0, 1, 0])
+    d = (x << 17) | (y << 2) | (pol << 1)
+    blob = np.rec.fromarrays([d.astype("<u4"), ts.astype("<i4")], names="d,ts").tobytes()
+    t, xx, yy, pp = LibcaerDecoder(640, 480).decode(blob, 1000)
+    np.testing.assert_array_equal(t, 1000 + np.array([2**31 - 3, 2**31 - 1, 2**31 + 5, 2**31 + 7]) * 1000)
+    np.testing.assert_array_equal(xx, x)
+    np.testing.assert_array_equal(yy, y)
+    np.testing.assert_array_equal(pp, np.where(pol > 0, 1, -1))
+
+
+def test_mono_fields():
+    t = np.array([0, 5, 4_000_000_000], dtype=np.uint64)
+    x, y, pol = np.array([3, 639, 7], np.uint64), np.array([0, 479, 100], np.uint64), np.array([1, 0, 1], np.uint64)
+    q = t | (x << np.uint64(32)) | (y << np.uint64(48)) | (pol << np.uint64(63))
+    tt, xx, yy, pp = MonoDecoder(640, 480).decode(q.astype("<u8").tobytes(), 10)
+    np.testing.assert_array_equal(tt, 10 + t.astype(np.int64))
+    np.testing.assert_array_equal(xx, x)
+    np.testing.assert_array_equal(yy, y)
+    np.testing.assert_array_equal(pp, [1, -1, 1])
+
+
+def test_encoders_round_trip_through_decoders():
+    rng = np.random.default_rng(7)
+    n = 5000
+    t_us = np.sort(rng.integers(0, 3_000_000, n))
+    x, y, p = rng.integers(0, 346, n), rng.integers(0, 260, n), np.where(rng.random(n) < 0.5, 1, -1)
+    t, xx, yy, pp = LibcaerCmpDecoder(346, 260).decode(encode_libcaer_cmp(t_us, x, y, p), 123)
+    np.testing.assert_array_equal(t, 123 + t_us * 1000)
+    np.testing.assert_array_equal(np.c_[xx, yy, pp], np.c_[x, y, p])
+    # evt3 across two packets whose sensor clock passes the 24-bit rollover (2**24 µs ~ 16.8 s) and a gap.
+    t_abs = np.sort(rng.integers(2**24 - 2_000_000, 2**24 + 30_000_000, n))
+    dec, prev = Evt3Decoder(346, 260), None
+    outs = []
+    for sl in (slice(0, n // 2), slice(n // 2, n)):
+        blob, prev = encode_evt3(t_abs[sl], x[sl], y[sl], p[sl], prev)
+        outs.append(dec.decode(blob))
+    t = np.concatenate([o[0] for o in outs])
+    np.testing.assert_array_equal(t, t_abs * 1000)
+    np.testing.assert_array_equal(np.concatenate([o[3] for o in outs]), p)
+
+
+def test_unknown_encoding_and_bad_packet_offsets():
+    with pytest.raises(RecordingError, match="supported"):
+        make_decoder("evt2", 640, 480)
+    with pytest.raises(RecordingError):
+        encode_libcaer_cmp(np.array([0, 1 << 24]), np.array([0, 0]), np.array([0, 0]), np.array([1, 1]))

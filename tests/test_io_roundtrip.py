@@ -1,0 +1,170 @@
+"""Writer -> reader round trips on simulated data, and the written files against independent decoders."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from plsgraph.camera import CameraModel
+from plsgraph.errors import InputError, RecordingError
+from plsgraph.events import EventStream
+from plsgraph.io import (
+    JointStates,
+    OdometryMsgs,
+    inspect_recording,
+    iter_event_chunks,
+    read_events,
+    read_recording,
+    read_truth,
+    write_recording,
+)
+
+T0 = 1_700_000_000_123_456_000
+
+
+def _sim(n=30_000, seconds=1.5, seed=0, whole_us=True):
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.integers(0, int(seconds * 1e6), n)) * 1000 + T0
+    if not whole_us:
+        t = np.sort(t + rng.integers(0, 1000, n))
+    ev = EventStream.from_arrays(t, rng.integers(0, 346, n), rng.integers(0, 260, n), rng.random(n) < 0.5, 346, 260)
+    tj = T0 + np.arange(0, int(seconds * 1e9), 20_000_000)
+    names = ("front_left_wheel", "front_right_wheel", "rear_left_wheel", "rear_right_wheel")
+    js = JointStates(tj, names, rng.normal(size=(tj.size, 4)), rng.normal(size=(tj.size, 4)))
+    q = rng.normal(size=(tj.size, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    v3 = lambda: rng.normal(size=(tj.size, 3))
+    od = OdometryMsgs(tj, v3(), q, v3(), v3())
+    K = np.array([[320.5, 0, 171.2], [0, 321.0, 129.9], [0, 0, 1]])
+    cam = CameraModel(346, 260, K, [-0.2, 0.05, 1e-3, -2e-3, 0])
+    return ev, js, od, cam
+
+
+@pytest.mark.parametrize("fmt", ["dvs", "libcaer_cmp", "evt3"])
+def test_round_trip_bit_exact(tmp_path, fmt):
+    ev, js, od, cam = _sim()
+    p = tmp_path / f"sim_{fmt}.mcap"
+    truth = {"T_base_cam": np.eye(4), "td": 0.012}
+    # evt3's sensor clock starts 0.5 s before its 24-bit rollover, so the recording crosses it.
+    rep = write_recording(p, ev, js, od, cam, truth, event_format=fmt, evt3_sensor_start_us=2**24 - 500_000)
+    assert rep["warnings"] == []
+    rec = read_recording(p)
+    assert rec.warnings == () and rec.lost == {}
+    assert rec.event_encoding == fmt
+    for a in "txyp":
+        np.testing.assert_array_equal(getattr(rec.events, a), getattr(ev, a))
+    assert (rec.events.width, rec.events.height) == (346, 260)
+    np.testing.assert_array_equal(rec.joints.t, js.t)
+    assert rec.joints.names == js.names
+    np.testing.assert_array_equal(rec.joints.position, js.position)
+    np.testing.assert_array_equal(rec.joints.velocity, js.velocity)
+    left, right, _, _ = rec.joints.wheels()
+    np.testing.assert_allclose(left, js.position[:, [0, 2]].mean(axis=1))
+    np.testing.assert_allclose(right, js.position[:, [1, 3]].mean(axis=1))
+    for a in ("t", "position", "orientation", "linear", "angular"):
+        np.testing.assert_array_equal(getattr(rec.odometry, a), getattr(od, a))
+    np.testing.assert_array_equal(rec.camera.K, cam.K)
+    np.testing.assert_array_equal(rec.camera.dist, cam.dist)
+    assert read_truth(p)["td"] == 0.012
+    np.testing.assert_array_equal(read_truth(p)["T_base_cam"], np.eye(4))
+
+
+def test_written_file_decodes_with_mcap_ros2(tmp_path):
+    """The generic ROS 2 decoder (schema text + CDR) reads what we wrote: the file is standard ROS 2 MCAP."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    ev, js, od, cam = _sim(n=3000, seconds=0.2)
+    p = tmp_path / "dvs.mcap"
+    write_recording(p, ev, js, od, cam, event_format="dvs")
+    xs, seen = [], set()
+    with open(p, "rb") as f:
+        r = make_reader(f, decoder_factories=[DecoderFactory()])
+        assert r.get_header().profile == "ros2"
+        for schema, _ch, _m, msg in r.iter_decoded_messages():
+            assert schema.encoding == "ros2msg"
+            seen.add(schema.name)
+            if schema.name == "dvs_msgs/msg/EventArray":
+                xs += [e.x for e in msg.events]
+                assert msg.events[-1].ts.sec * 10**9 + msg.events[-1].ts.nanosec == msg.header.stamp.sec * 10**9 + (
+                    msg.header.stamp.nanosec
+                )
+            elif schema.name == "sensor_msgs/msg/JointState":
+                assert list(msg.name) == list(js.names)
+            elif schema.name == "sensor_msgs/msg/CameraInfo":
+                assert msg.k[0] == cam.fx and msg.d[0] == cam.dist[0]
+    assert seen == {"dvs_msgs/msg/EventArray", "sensor_msgs/msg/JointState", "nav_msgs/msg/Odometry",
+                    "sensor_msgs/msg/CameraInfo"}
+    np.testing.assert_array_equal(xs, ev.x)
+
+
+def test_packet_formats_round_sub_microsecond_times_with_warning(tmp_path):
+    ev, _, _, _ = _sim(n=2000, seconds=0.1, whole_us=False)
+    rep = write_recording(tmp_path / "a.mcap", ev, None, None, None, event_format="libcaer_cmp")
+    assert any("microsecond" in w for w in rep["warnings"])
+    back = read_events(tmp_path / "a.mcap")
+    assert np.max(np.abs(back.t - ev.t)) <= 500
+    np.testing.assert_array_equal(back.x, ev.x)
+    # The dvs format keeps nanoseconds.
+    write_recording(tmp_path / "b.mcap", ev, None, None, None, event_format="dvs")
+    np.testing.assert_array_equal(read_events(tmp_path / "b.mcap").t, ev.t)
+
+
+def test_overwrite_refused_and_bad_arguments(tmp_path):
+    ev, _, _, _ = _sim(n=100, seconds=0.05)
+    p = tmp_path / "x.mcap"
+    write_recording(p, ev, None, None, None)
+    size = p.stat().st_size
+    with pytest.raises(InputError, match="overwrite=True"):
+        write_recording(p, ev, None, None, None)
+    assert p.stat().st_size == size
+    write_recording(p, ev, None, None, None, event_format="evt3", overwrite=True)
+    assert read_recording(p).event_encoding == "evt3"
+    with pytest.raises(InputError):
+        write_recording(tmp_path / "y.mcap", ev, None, None, None, event_format="evt2")
+    with pytest.raises(InputError):
+        write_recording(tmp_path / "z.mcap", None, None, None, None)
+
+
+def test_chunks_bounded_and_window(tmp_path):
+    ev, _, _, _ = _sim(n=40_000, seconds=1.0)
+    p = tmp_path / "c.mcap"
+    write_recording(p, ev, None, None, None, event_format="libcaer_cmp")
+    chunks = list(iter_event_chunks(p, chunk_events=5000))
+    # A chunk closes at the first message that reaches the size: at most one 10 ms packet (~400 events) over.
+    assert len(chunks) >= 7 and max(len(c) for c in chunks) < 5000 + 1000
+    np.testing.assert_array_equal(np.concatenate([c.t for c in chunks]), ev.t)
+    t0, t1 = T0 + 300_000_000, T0 + 420_000_000
+    np.testing.assert_array_equal(read_events(p, t0=t0, t1=t1).t, ev.slice_time(t0, t1).t)
+
+
+def test_topic_errors_list_the_file(tmp_path):
+    ev, js, _, _ = _sim(n=500, seconds=0.1)
+    p = tmp_path / "t.mcap"
+    write_recording(p, ev, js, None, None)
+    with pytest.raises(RecordingError, match="/joint_states"):
+        read_events(p, topic="/nope")
+    with pytest.raises(RecordingError, match="not event"):
+        read_events(p, topic="/joint_states")
+    with pytest.raises(RecordingError, match="/dvs/events"):
+        read_recording(p, topics={"odometry": "/odom"})
+    rec = read_recording(p)
+    assert rec.odometry is None and rec.camera is None and len(rec.joints) == len(js)
+    with pytest.raises(RecordingError, match="no event topic"):
+        p2 = tmp_path / "j.mcap"
+        write_recording(p2, None, js, None, None)
+        read_events(p2)
+
+
+def test_inspect_counts(tmp_path):
+    ev, js, od, cam = _sim(n=5000, seconds=0.5)
+    p = tmp_path / "i.mcap"
+    rep = write_recording(p, ev, js, od, cam, event_format="evt3")
+    info = inspect_recording(p)
+    rows = {r["topic"]: r for r in info["topics"]}
+    e = rows["/event_camera/events"]
+    assert e["messages"] == rep["messages"]["/event_camera/events"]
+    assert (e["events"], e["events_on"], e["events_off"]) == (len(ev), ev.n_on, ev.n_off)
+    assert (e["t_first_ns"], e["t_last_ns"], e["width"], e["height"]) == (ev.t_first, ev.t_last, 346, 260)
+    assert rows["/odom"]["messages"] == len(od) and "events" not in rows["/odom"]
+    assert rows["/joint_states"]["t_first_ns"] == js.t[0]
