@@ -132,12 +132,13 @@ def sensitivity_study(trials: int, seed: int, base: Protocol) -> list[dict]:
         per_route = {r: route_errors(r, METHODS, trials, seed, prot) for r in PLANAR_ROUTES}
         row: dict = {"variant": label, "protocol": asdict(prot), "methods": {}}
         for key in METHODS:
-            means = [summarize(per_route[r][key])["mean_deg"] for r in PLANAR_ROUTES]
-            fails = sum(summarize(per_route[r][key])["n_failed"] for r in PLANAR_ROUTES)
+            stats = [summarize(per_route[r][key]) for r in PLANAR_ROUTES]
+            means = [st["mean_deg"] for st in stats if st["n_trials"] > 0]
             row["methods"][key] = {
-                "mean_deg": float(np.mean(means)),
-                "worst_route_deg": float(np.max(means)),
-                "n_failed": int(fails),
+                "mean_deg": float(np.mean(means)) if means else float("nan"),
+                "worst_route_deg": float(np.max(means)) if means else float("nan"),
+                "n_failed": int(sum(st["n_failed"] for st in stats)),
+                "routes_refused": [r for r, st in zip(PLANAR_ROUTES, stats, strict=True) if st["n_trials"] == 0],
             }
         rows.append(row)
     return rows
@@ -216,8 +217,8 @@ def render_markdown(result: dict) -> str:
             "",
             "## Sensitivity: what the paper does not specify",
             "",
-            "Mean of the per-route mean errors over the four planar routes (worst route in brackets); "
-            "refusals counted over all routes.",
+            "Mean of the per-route mean errors over the four planar routes (worst route in brackets), over the "
+            "routes where the method returned a result; refused trials are counted, not scored.",
             "",
             "| Variant | " + " | ".join(METHODS[k][0] for k in keys) + " |",
             "|---|" + "---|" * len(keys),
@@ -226,10 +227,14 @@ def render_markdown(result: dict) -> str:
             cells = []
             for k in keys:
                 m = row["methods"][k]
-                cells.append(
-                    f"{m['mean_deg']:.2f} [{m['worst_route_deg']:.2f}]"
-                    + (f" ({m['n_failed']} refused)" if m["n_failed"] else "")
+                txt = (
+                    "refused" if not np.isfinite(m["mean_deg"]) else f"{m['mean_deg']:.2f} [{m['worst_route_deg']:.2f}]"
                 )
+                if m["routes_refused"] and np.isfinite(m["mean_deg"]):
+                    txt += " (refused on " + ", ".join(ROUTE_TITLES[r] for r in m["routes_refused"]) + ")"
+                elif m["n_failed"] and np.isfinite(m["mean_deg"]):
+                    txt += f" ({m['n_failed']} refused)"
+                cells.append(txt)
             lines.append(f"| {row['variant']} | " + " | ".join(cells) + " |")
     if "centering" in result:
         keys = list(CENTERING_METHODS)
