@@ -7,7 +7,7 @@ import argparse
 import sys
 
 from plsgraph.errors import PlsgraphError
-from plsgraph.paper import reproduce_paper
+from plsgraph.paper import Protocol, reproduce_paper
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -18,7 +18,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--force", action="store_true", help="overwrite existing output files")
     ap.add_argument("--no-study", action="store_true", help="skip the sensitivity and centring study")
+    d = Protocol()
+    ap.add_argument("--scale", type=float, default=d.scale, help=f"route size, m or m/s (default {d.scale:g})")
+    ap.add_argument("--quantity", choices=("position", "velocity"), default=d.quantity)
+    ap.add_argument("--noise-model", choices=("independent", "paper"), default=d.noise_model)
+    ap.add_argument("--planar-side", choices=("camera", "base"), default=d.planar_side)
     args = ap.parse_args(argv)
+    protocol = Protocol(
+        scale=args.scale, quantity=args.quantity, noise_model=args.noise_model, planar_side=args.planar_side
+    )
 
     def progress(done: int, total: int) -> None:
         print(f"\r{done}/{total} routes", end="" if done < total else "\n", file=sys.stderr, flush=True)
@@ -32,6 +40,7 @@ def main(argv: list[str] | None = None) -> int:
             overwrite=args.force,
             progress=progress,
             study=False if args.no_study else None,
+            protocol=protocol,
         )
     except PlsgraphError as exc:
         print(f"error: {exc}", file=sys.stderr)
