@@ -38,6 +38,10 @@ METHODS = ("correlation", "explained_covariance")
 
 #: Below this RMS turn rate (rad/s) the angular signal is considered too weak and "auto" uses the speed.
 MIN_TURN_RATE = 0.05
+#: Savitzky-Golay window (s) for differentiating poses. Half a second keeps up with a ground robot's turns
+#: (the same filter is applied to both sensors, so it attenuates both alike) while averaging PnP noise; with
+#: 0.3 s a small board's PnP noise swamped the speed signal of straight driving (docs/odometry_and_time_offset.md).
+DEFAULT_WINDOW_S = 0.5
 #: Below this RMS speed (m/s) of the chosen signal's source the robot is considered not to move.
 MIN_SPEED = 0.02
 
@@ -80,7 +84,11 @@ def body_velocities(T: np.ndarray, rate: float, half: int, polyorder: int = 2) -
 
 
 def camera_velocities(
-    track: CameraTrack, window_s: float = 0.3, polyorder: int = 2, rate: float | None = None, gap_factor: float = 2.5
+    track: CameraTrack,
+    window_s: float = DEFAULT_WINDOW_S,
+    polyorder: int = 2,
+    rate: float | None = None,
+    gap_factor: float = 2.5,
 ) -> CameraVelocities:
     """Angular and linear velocity of the camera in its own frame from its poses relative to the static board.
 
@@ -220,7 +228,7 @@ def estimate_time_offset(
     signal: str = "auto",
     coarse_step: float | None = None,
     fine_step: float | None = None,
-    window_s: float = 0.3,
+    window_s: float = DEFAULT_WINDOW_S,
     min_overlap_s: float = 3.0,
     min_score: float = 0.5,
     max_second_peak_ratio: float = 0.9,
@@ -384,7 +392,7 @@ class PairedSamples:
 
 
 def pair_samples(
-    camera: CameraTrack | CameraVelocities, base: BaseTrack, td: float, window_s: float = 0.3
+    camera: CameraTrack | CameraVelocities, base: BaseTrack, td: float, window_s: float = DEFAULT_WINDOW_S
 ) -> PairedSamples:
     """Pair camera and base velocities at common instants within the overlap of both streams (given td)."""
     cv = camera if isinstance(camera, CameraVelocities) else camera_velocities(camera, window_s=window_s)

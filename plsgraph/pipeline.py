@@ -32,6 +32,7 @@ import numpy as np
 
 from . import closedform
 from .align import (
+    DEFAULT_WINDOW_S,
     CameraVelocities,
     PairedSamples,
     TimeOffsetResult,
@@ -196,7 +197,7 @@ def calibrate_closed_form(
     td_range: tuple[float, float] = (-0.5, 0.5),
     td: float | None = None,
     time_offset_method: str = "correlation",
-    window_s: float = 0.3,
+    window_s: float = DEFAULT_WINDOW_S,
     iterations: int = 3,
     hand_eye_interval_s: float = 1.0,
     hand_eye_methods: tuple[str, ...] = closedform.HAND_EYE_METHODS,

@@ -27,6 +27,14 @@ def test_time_offset_recovered_with_turning(method, td):
     assert res.shifts.min() >= -0.5 - 1e-9 and res.shifts.max() <= 0.5 + 1e-9
 
 
+def test_magnitude_and_projected_signals_agree():
+    rec, base, cam = setup("rich", td=0.05, seed=6)
+    proj = estimate_time_offset(cam, base)
+    mag = estimate_time_offset(cam, base, project=False)
+    assert proj.projected and not mag.projected
+    assert abs(proj.td - 0.05) < 3e-3 and abs(mag.td - 0.05) < 3e-3
+
+
 def test_time_offset_from_speed_when_driving_straight():
     rec, base, cam = setup("straight", td=0.08, seed=2)
     res = estimate_time_offset(cam, base)
