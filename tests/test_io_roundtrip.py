@@ -40,7 +40,7 @@ def _sim(n=30_000, seconds=1.5, seed=0, whole_us=True):
     return ev, js, od, cam
 
 
-@pytest.mark.parametrize("fmt", ["dvs", "libcaer_cmp", "evt3"])
+@pytest.mark.parametrize("fmt", ["dvs", "libcaer_cmp", "evt3", "libcaer", "mono"])
 def test_round_trip_bit_exact(tmp_path, fmt):
     ev, js, od, cam = _sim()
     p = tmp_path / f"sim_{fmt}.mcap"

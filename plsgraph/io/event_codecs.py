@@ -428,3 +428,29 @@ def encode_evt3(
         out[pos[present]] = word[present]
         pos = pos + present
     return out.astype("<u2").tobytes(), int(hi[-1])
+
+
+def encode_libcaer(t_offset_us: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray) -> bytes:
+    """``libcaer`` polarity events (8 bytes each); offsets in µs from the packet's time_base, wrapping at 2**31."""
+    t = np.asarray(t_offset_us, np.int64)
+    if t.size and (t.min() < 0 or np.any(np.diff(t) < 0) or t.max() - t.min() >= 1 << 31):
+        raise RecordingError("libcaer: packet offsets must be sorted, non-negative and span less than 2**31 µs")
+    d = (np.asarray(x, np.int64) << 17) | (np.asarray(y, np.int64) << 2) | ((np.asarray(p) > 0).astype(np.int64) << 1)
+    a = np.empty(t.size, dtype=np.dtype([("d", "<u4"), ("ts", "<i4")]))
+    a["d"] = d | 1  # bit 0: libcaer's "valid" flag
+    a["ts"] = t & 0x7FFFFFFF
+    return a.tobytes()
+
+
+def encode_mono(t_offset_ns: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray) -> bytes:
+    """``mono`` 8-byte events; offsets in ns from the packet's time_base must be < 2**32."""
+    t = np.asarray(t_offset_ns, np.int64)
+    if t.size and (t.min() < 0 or t.max() >= 1 << 32):
+        raise RecordingError("mono: packet offsets must lie in [0, 2**32) ns")
+    q = (
+        t.astype(np.uint64)
+        | (np.asarray(x, np.uint64) << np.uint64(32))
+        | (np.asarray(y, np.uint64) << np.uint64(48))
+        | ((np.asarray(p) > 0).astype(np.uint64) << np.uint64(63))
+    )
+    return q.astype("<u8").tobytes()

@@ -20,13 +20,13 @@ from ..camera import CameraModel
 from ..errors import InputError
 from ..events import EventStream
 from .cdr import CdrWriter
-from .event_codecs import encode_evt3, encode_libcaer_cmp
+from .event_codecs import encode_evt3, encode_libcaer, encode_libcaer_cmp, encode_mono
 from .messages import typestore
 from .recording import JointStates, OdometryMsgs
 
 log = logging.getLogger(__name__)
 
-EVENT_FORMATS = ("dvs", "libcaer_cmp", "evt3")
+EVENT_FORMATS = ("dvs", "libcaer_cmp", "evt3", "libcaer", "mono")
 
 DEFAULT_TOPICS = {
     "dvs": "/dvs/events",
@@ -189,7 +189,7 @@ def _event_messages(
     ev: EventStream, fmt: str, frame: str, packet_ns: int, evt3_sensor_start_us: int, warnings: list[str]
 ) -> Iterator[tuple[int, bytes]]:
     t_all = ev.t
-    if fmt != "dvs" and len(ev) and np.any((t_all - t_all[0]) % 1000):
+    if fmt not in ("dvs", "mono") and len(ev) and np.any((t_all - t_all[0]) % 1000):
         # Packet encodings store µs; say so rather than silently moving events.
         warnings.append(f"{fmt}: event times are not whole microseconds after the first event; rounded to µs")
         t_all = t_all[0] + np.round((t_all - t_all[0]) / 1000.0).astype(np.int64) * 1000
@@ -199,9 +199,13 @@ def _event_messages(
         stamp = int(t[-1])  # drivers stamp a packet when it is complete
         if fmt == "dvs":
             yield stamp, _event_array_bytes(stamp, frame, ev, a, b)
-        elif fmt == "libcaer_cmp":
+        elif fmt in ("libcaer_cmp", "libcaer", "mono"):
             tb = int(t[0])
-            blob = encode_libcaer_cmp((t - tb) // 1000, ev.x[a:b], ev.y[a:b], ev.p[a:b])
+            if fmt == "mono":
+                blob = encode_mono(t - tb, ev.x[a:b], ev.y[a:b], ev.p[a:b])
+            else:
+                enc = encode_libcaer_cmp if fmt == "libcaer_cmp" else encode_libcaer
+                blob = enc((t - tb) // 1000, ev.x[a:b], ev.y[a:b], ev.p[a:b])
             yield stamp, _packet_bytes(stamp, frame, ev, seq, tb, fmt, blob)
         else:
             t_us = (t - int(t_all[0])) // 1000 + evt3_sensor_start_us
@@ -227,9 +231,10 @@ def write_recording(
 ) -> dict:
     """Write a ROS 2 MCAP recording (and ``<name>.truth.yaml`` if ``truth`` is given).
 
-    ``event_format``: 'dvs' (dvs_msgs/msg/EventArray) or an event_camera_msgs/msg/EventPacket encoding,
-    'libcaer_cmp' or 'evt3' (µs time resolution). Events go out in ``packet_ns`` windows; camera info once
-    per second. ``chunk_bytes`` is the MCAP chunk size (smaller chunks lose less when a file is damaged).
+    ``event_format``: 'dvs' (dvs_msgs/msg/EventArray) or an event_camera_msgs/msg/EventPacket encoding:
+    'libcaer_cmp', 'evt3', 'libcaer' (µs time resolution) or 'mono' (ns). Events go out in ``packet_ns``
+    windows; camera info once per second. ``chunk_bytes`` is the MCAP chunk size (smaller chunks lose
+    less when a file is damaged).
     Refuses to replace an existing file unless ``overwrite``. Returns a summary dict
     (path, truth path, messages per topic, warnings).
     """
