@@ -173,6 +173,10 @@ def _fmt(s: dict, std: bool = True) -> str:
     return txt + (f" ({s['n_failed']} refused)" if s["n_failed"] else "")
 
 
+def _pct(v: float) -> str:
+    return f"{v:.2f}" if np.isfinite(v) else "n/a"
+
+
 def render_markdown(result: dict) -> str:
     """The tables as markdown, the paper's figures next to ours."""
     prot = result["protocol"]
@@ -209,7 +213,7 @@ def render_markdown(result: dict) -> str:
         lines.append(
             f"| {ROUTE_TITLES[route]} | {pub['cca'][0]:.2f} ± {pub['cca'][1]:.2f} | {_fmt(res['cca'])} | "
             f"{pub['pls'][0]:.2f} ± {pub['pls'][1]:.2f} | {_fmt(res['pls'])} | {pub['reduction_pct']:.2f} | "
-            f"{res['reduction_pct']:.2f} | {_fmt(res['procrustes'])} | {_fmt(res['pls_default'])} |"
+            f"{_pct(res['reduction_pct'])} | {_fmt(res['procrustes'])} | {_fmt(res['pls_default'])} |"
         )
     if "sensitivity" in result:
         keys = list(METHODS)
@@ -247,6 +251,60 @@ def render_markdown(result: dict) -> str:
         ]
         for route, res in result["centering"].items():
             lines.append(f"| {ROUTE_TITLES[route]} | " + " | ".join(_fmt(res[k], std=False) for k in keys) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _json_safe(obj):
+    """NaN (a method refused every trial) becomes null, so the file is strict JSON."""
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_json_safe(v) for v in obj]
+    return obj
+
+
+PLS_VARIANTS: dict[str, tuple[str, dict, bool]] = {
+    "auto_fitted": ("K auto, fitted (default)", {"method": "pls"}, False),
+    "k2_fitted": ("K=2, fitted", {"method": "pls", "n_components": 2}, False),
+    "k3_fitted": ("K=3, fitted", {"method": "pls", "n_components": 3}, False),
+    "auto_polar": ("K auto, polar", {"method": "pls", "rotation": "polar"}, False),
+    "k2_polar": ("K=2, polar", {"method": "pls", "rotation": "polar", "n_components": 2}, False),
+    "auto_rows": ("K auto, rows (Eq. 20)", {"method": "pls", "rotation": "rows"}, True),
+    "auto_column": ("K auto, column scaling", {"method": "pls", "scale": "column"}, False),
+    "paper": ("paper-exact", {"method": "pls", "paper": True}, True),
+    "procrustes": ("Procrustes", {"method": "procrustes"}, False),
+}
+
+
+def pls_variant_study(trials: int, seed: int, base: Protocol | None = None) -> str:
+    """Markdown table: PLS design choices (components K, rotation construction, scaling) under protocol variants.
+
+    Rows: the four planar routes (mean of per-route means) and the 6-DoF route, for each combination of noise model
+    and zero-axis side. This is the measurement behind the defaults of ``closedform.solve(method="pls")``.
+    """
+    base = base or Protocol()
+    keys = list(PLS_VARIANTS)
+    lines = [
+        "| Data | " + " | ".join(PLS_VARIANTS[k][0] for k in keys) + " |",
+        "|---|" + "---|" * len(keys),
+    ]
+    for noise_model in ("independent", "paper"):
+        for side in ("camera", "base"):
+            prot = replace(base, noise_model=noise_model, planar_side=side)
+            errs = {r: route_errors(r, PLS_VARIANTS, trials, seed, prot) for r in PLANAR_ROUTES + ("6dof",)}
+            for label, routes in (("planar routes", PLANAR_ROUTES), ("6-DoF", ("6dof",))):
+                if label == "6-DoF" and side == "base":
+                    continue  # the 6-DoF route has no zero axis, the side makes no difference
+                cells = []
+                for k in keys:
+                    st = [summarize(errs[r][k]) for r in routes]
+                    ok = [x["mean_deg"] for x in st if x["n_trials"]]
+                    fails = sum(x["n_failed"] for x in st)
+                    cells.append((f"{np.mean(ok):.2f}" if ok else "refused") + (f" ({fails} refused)" if fails else ""))
+                where = f", zero axis on {side}" if label != "6-DoF" else ""
+                lines.append(f"| {label}, {noise_model} noise{where} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -296,7 +354,7 @@ def reproduce_paper(
     markdown = render_markdown(result)
     out.mkdir(parents=True, exist_ok=True)
     md_path.write_text(markdown)
-    json_path.write_text(json.dumps(result, indent=2, allow_nan=True) + "\n")
+    json_path.write_text(json.dumps(_json_safe(result), indent=2, allow_nan=False) + "\n")
     result["markdown"] = markdown
     result["paths"] = {"markdown": str(md_path), "json": str(json_path)}
     return result

@@ -7,7 +7,7 @@ import argparse
 import sys
 
 from plsgraph.errors import PlsgraphError
-from plsgraph.paper import Protocol, reproduce_paper
+from plsgraph.paper import Protocol, pls_variant_study, reproduce_paper
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -23,10 +23,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quantity", choices=("position", "velocity"), default=d.quantity)
     ap.add_argument("--noise-model", choices=("independent", "paper"), default=d.noise_model)
     ap.add_argument("--planar-side", choices=("camera", "base"), default=d.planar_side)
+    ap.add_argument("--pls-variants", action="store_true", help="only print the PLS design-choice study and exit")
     args = ap.parse_args(argv)
     protocol = Protocol(
         scale=args.scale, quantity=args.quantity, noise_model=args.noise_model, planar_side=args.planar_side
     )
+    if args.pls_variants:
+        print(pls_variant_study(args.trials, args.seed, protocol))
+        return 0
 
     def progress(done: int, total: int) -> None:
         print(f"\r{done}/{total} routes", end="" if done < total else "\n", file=sys.stderr, flush=True)
