@@ -5,7 +5,9 @@ For each motion profile (rich, straight, spin), each seed and each camera front 
   pnp       board detections with 0.3 px noise + PnP, OpenCV's 4 x 11 circle grid at 2.5 cm spacing,
   pnp_5cm   the same grid printed at 5 cm spacing,
 it runs plsgraph.pipeline.calibrate_closed_form and prints medians over seeds of the rotation error (deg) of
-every solver, the t_xy error (mm), the td error (ms), and how often the result was flagged degenerate.
+every solver, the t_xy error (mm; planar hand-eye, and the velocity lever arm for comparison), the error of the
+camera tilt from turning alone (deg; the base's up axis in the camera frame, available also when spinning in
+place), the td error (ms), how often the result was flagged degenerate and the pipeline's runtime.
 
     .venv/bin/python scripts/measure_closedform_pipeline.py [--seeds 5] [--duration 20] [--fronts track,pnp,pnp_5cm]
 """
@@ -55,7 +57,7 @@ def main() -> None:
         for front in fronts:
             rot: dict[str, list[float]] = defaultdict(list)
             refused: dict[str, int] = defaultdict(int)
-            txy, tdz, degenerate, secs = [], [], 0, []
+            txy, txy_vel, tilt, tdz, degenerate, secs = [], [], [], [], 0, []
             for seed in range(args.seeds):
                 board = BIG_BOARD if front == "pnp_5cm" else None
                 rec = simulate_robot(motion, seed=seed, td=args.td, duration=args.duration, board=board)
@@ -68,6 +70,11 @@ def main() -> None:
                 tdz.append(1e3 * abs(res.td - args.td))
                 if res.t_xy is not None:
                     txy.append(1e3 * np.linalg.norm(res.t_xy - rec.T_base_cam[:2, 3]))
+                if res.t_xy_velocity is not None:
+                    txy_vel.append(1e3 * np.linalg.norm(res.t_xy_velocity - rec.T_base_cam[:2, 3]))
+                if res.vertical_axis_cam is not None:
+                    up = rec.R_base_cam[2]  # the base's z axis in camera coordinates
+                    tilt.append(float(np.degrees(np.arccos(np.clip(res.vertical_axis_cam @ up, -1.0, 1.0)))))
                 for name in METHODS:
                     m = res.methods.get(name)
                     if m is None or m.R_base_cam is None:
@@ -83,9 +90,12 @@ def main() -> None:
                     extra = f" ({refused[name]}/{n})" if refused[name] else ""
                     cells.append(f"{name}={np.median(rot[name]):.2f}{extra}")
             txy_s = f"{np.median(txy):.1f} mm ({len(txy)}/{n})" if txy else "-"
+            txy_v = f"{np.median(txy_vel):.1f} mm" if txy_vel else "-"
+            tilt_s = f"{np.median(tilt):.2f} deg" if tilt else "-"
             print(
                 f"{motion:8s} {front:8s} degenerate {degenerate}/{n}  td err {np.median(tdz):.2f} ms  "
-                f"t_xy err {txy_s}  runtime {1e3 * np.median(secs):.0f} ms"
+                f"t_xy err {txy_s} (velocity lever arm {txy_v})  tilt err {tilt_s}  "
+                f"runtime {1e3 * np.median(secs):.0f} ms"
             )
             print("    " + "  ".join(cells))
 
