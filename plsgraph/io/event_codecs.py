@@ -50,19 +50,16 @@ class DecodeStats:
     odd_bytes: int = 0
 
 
-def _ffill_index(mask: np.ndarray) -> np.ndarray:
-    """For each position, the index of the last True at or before it (-1 if none)."""
-    last = np.where(mask, np.arange(mask.size), -1)
-    np.maximum.accumulate(last, out=last)
-    return last
+def _state_at(mask: np.ndarray, values: np.ndarray, default: int, at: np.ndarray) -> np.ndarray:
+    """Value of the last state word (``mask``) at or before each position in ``at``; ``default`` before any.
 
-
-def _ffill(mask: np.ndarray, values: np.ndarray, default) -> np.ndarray:
-    """Forward-fill ``values`` (defined where ``mask``) over all positions, ``default`` before the first."""
-    last = _ffill_index(mask)
-    out = values[np.maximum(last, 0)]
-    out = np.where(last >= 0, out, default)
-    return out
+    ``values`` holds the values of the masked words in order. A running count of state words indexes a
+    table [default, v0, v1, ...], which is cheaper than forward-filling every word.
+    """
+    table = np.empty(values.size + 1, np.int64)
+    table[0] = default
+    table[1:] = values
+    return table[np.cumsum(mask, dtype=np.int64)[at]]
 
 
 def _empty() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -77,45 +74,49 @@ def _words16(blob, stats: DecodeStats) -> np.ndarray:
 
 
 def _vector_events(
-    words: np.ndarray,
+    w: np.ndarray,
     code: np.ndarray,
     base_code: int,
     vect_codes: dict[int, int],
     base_state: int,
     pol_state: int,
-    active: np.ndarray,
+    active: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
     """Expand vector words (bitmasks of events along one axis) into (word index, coordinate, polarity).
 
-    ``vect_codes`` maps a vector code to its number of valid bits; every vector word advances the base by
-    its width. Returns also the base and polarity state after the packet.
+    ``vect_codes`` maps a vector code to its number of valid bits; each vector word advances the base by
+    its width, and a base word resets it. Returns also the base and polarity state after the packet.
     """
-    is_base = (code == base_code) & active
-    widths = np.zeros(words.size, np.int64)
-    is_vect = np.zeros(words.size, bool)
+    is_base = code == base_code
+    widths = np.zeros(w.size, np.int64)
     for c, wdt in vect_codes.items():
-        m = (code == c) & active
-        widths[m] = wdt
-        is_vect |= m
-    last_base = _ffill_index(is_base)
-    base_val = np.where(last_base >= 0, (words[np.maximum(last_base, 0)] & 0x7FF).astype(np.int64), base_state)
-    pol_val = np.where(last_base >= 0, (words[np.maximum(last_base, 0)] >> 11) & 1, pol_state)
-    cw = np.cumsum(widths)
-    cw_at_base = np.where(last_base >= 0, cw[np.maximum(last_base, 0)], 0)
-    if words.size:
-        end_base = int(base_val[-1] + cw[-1] - cw_at_base[-1])
-        end_pol = int(pol_val[-1])
-    else:
-        end_base, end_pol = base_state, pol_state
-    vi = np.flatnonzero(is_vect)
+        widths[code == c] = wdt
+    if active is not None:
+        is_base &= active
+        widths[~active] = 0
+    vi = np.flatnonzero(widths)
+    bases = w[is_base]
+    base_vals = (bases & 0x7FF).astype(np.int64)
+    pol_vals = ((bases >> 11) & 1).astype(np.int64)
+    cw = np.cumsum(widths)  # total vector width up to and including each word
+    ends = np.array([w.size - 1])
+    at = np.concatenate([vi, ends])
+    base_at = _state_at(is_base, base_vals, base_state, at)
+    pol_at = _state_at(is_base, pol_vals, pol_state, at)
+    # Width accumulated since the last base word: cw now minus cw at that base word.
+    base_idx = np.flatnonzero(is_base)
+    cw_at_base = _state_at(is_base, cw[base_idx], 0, at)
+    end_base = int(base_at[-1] + cw[-1] - cw_at_base[-1])
+    end_pol = int(pol_at[-1])
     if vi.size == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), end_base, end_pol
-    start = base_val[vi] + cw[vi] - widths[vi] - cw_at_base[vi]
-    valid = (words[vi] & 0xFFF).astype(np.int64)
-    valid = np.where(widths[vi] == 8, valid & 0xFF, valid)
+        z = np.zeros(0, np.int64)
+        return z, z, z, end_base, end_pol
+    start = base_at[:-1] + cw[vi] - widths[vi] - cw_at_base[:-1]
+    valid = (w[vi] & 0xFFF).astype(np.int64)
+    valid &= np.where(widths[vi] == 8, 0xFF, 0xFFF)
     bits = (valid[:, None] >> np.arange(12)) & 1
     rows, cols = np.nonzero(bits)  # row-major: word order, then bit order, as a sequential decoder emits
-    return vi[rows], start[rows] + cols, pol_val[vi][rows].astype(np.int64), end_base, end_pol
+    return vi[rows], start[rows] + cols, pol_at[:-1][rows], end_base, end_pol
 
 
 def _finish(
@@ -160,28 +161,35 @@ class LibcaerCmpDecoder:
         if w.size == 0:
             return _empty()
         code = w >> 12
-        val = (w & 0xFFF).astype(np.int64)
-        high = _ffill(code == 0, val << 12, 0)
-        low = _ffill(code == 1, val, 0)
-        t_us = high | low
-        is_x = code == 2
-        xs = _ffill(is_x, (w & 0x7FF).astype(np.int64), self.ex)
-        self.ex = int(xs[-1])
-        self.stats.unknown_codes += int(np.count_nonzero(code > 6))
+        counts = np.bincount(code, minlength=16)
+        self.stats.unknown_codes += int(counts[7:].sum())
+        is_hi, is_lo, is_x = code == 0, code == 1, code == 2
+        x_vals = (w[is_x] & 0x7FF).astype(np.int64)
+        ex0 = self.ex
+        if x_vals.size:
+            self.ex = int(x_vals[-1])
         iy = np.flatnonzero(code == 3)
-        t_ns = int(time_base_ns) + t_us * 1000
-        vi, vy, vp, self.base_y, self.pol = _vector_events(
-            w, code, 4, {5: 8}, self.base_y, self.pol, np.ones(w.size, bool)
+        has_vect = counts[4] or counts[5]
+        if has_vect:
+            vi, vy, vp, self.base_y, self.pol = _vector_events(w, code, 4, {5: 8}, self.base_y, self.pol, None)
+            at = np.concatenate([iy, vi])
+        else:
+            at = iy
+        # The time state restarts at zero in every packet; x carries over from the previous one.
+        t_us = _state_at(is_hi, (w[is_hi] & 0xFFF).astype(np.int64) << 12, 0, at) | _state_at(
+            is_lo, (w[is_lo] & 0xFFF).astype(np.int64), 0, at
         )
-        y1 = (w[iy] & 0x7FF).astype(np.int64)
-        p1 = ((w[iy] >> 11) & 1).astype(np.int64)
-        if vi.size == 0:
-            return _finish(None, t_ns[iy], xs[iy], y1, p1, self.width, self.height, self.stats, False)
-        idx = np.concatenate([iy, vi])
+        t_ns = int(time_base_ns) + t_us * 1000
+        xs = _state_at(is_x, x_vals, ex0, at)
+        wy = w[iy]
+        y1 = (wy & 0x7FF).astype(np.int64)
+        p1 = ((wy >> 11) & 1).astype(np.int64)
+        if not has_vect:
+            return _finish(None, t_ns, xs, y1, p1, self.width, self.height, self.stats, False)
         return _finish(
             np.concatenate([iy * 16, vi * 16 + 1]),
-            t_ns[idx],
-            xs[idx],
+            t_ns,
+            xs,
             np.concatenate([y1, vy]),
             np.concatenate([p1, vp]),
             self.width,
@@ -255,46 +263,51 @@ class Evt3Decoder:
         if w.size == 0:
             return _empty()
         code = w >> 12
-        val = (w & 0xFFF).astype(np.int64)
         is_hi = code == 8
         is_lo = code == 6
         start = 0
         if not self.valid:
             hi_idx = np.flatnonzero(is_hi)
-            if hi_idx.size == 0:
-                lo_idx = np.flatnonzero(is_lo)
-                if lo_idx.size:
-                    self.time_low = int(val[lo_idx[-1]])
-                return _empty()
-            lo_after = np.flatnonzero(is_lo[hi_idx[0] :])
+            lo_after = np.flatnonzero(is_lo[hi_idx[0] :]) if hi_idx.size else hi_idx
             if lo_after.size == 0:
-                # Keep the time state so the next packet continues it.
-                self._advance_time(val, is_hi, is_lo)
+                # No valid time yet: only the time words count, and their state carries to the next packet.
+                self._advance_time(w, is_hi, is_lo, np.zeros(0, np.int64))
                 return _empty()
             start = int(hi_idx[0] + lo_after[0] + 1)
             self.valid = True
+        counts = np.bincount(code[start:], minlength=16)
+        self.stats.unknown_codes += int(counts[[1, 9, 11, 12, 13]].sum())
+        self.stats.triggers += int(counts[10])
+        is_y = code == 0
+        if start:
+            is_y[:start] = False  # words before the first valid time are skipped, as the reference does
+        ix = np.flatnonzero(code == 2)
+        if start:
+            ix = ix[ix >= start]
+        has_vect = counts[4] or counts[5]
+        if has_vect:
+            active = np.arange(w.size) >= start
+            vi, vx, vp, self.base_x, self.pol = _vector_events(w, code, 3, {4: 12, 5: 8}, self.base_x, self.pol, active)
+            at = np.concatenate([ix, vi])
+        else:
+            at = ix
         low_before = self.time_low
-        hi_full = self._advance_time(val, is_hi, is_lo)
-        t_us = hi_full | _ffill(is_lo, val, low_before)
-        active = np.arange(w.size) >= start
-        self.stats.unknown_codes += int(np.count_nonzero(np.isin(code, (1, 9, 11, 12, 13)) & active))
-        self.stats.triggers += int(np.count_nonzero((code == 10) & active))
-        is_y = (code == 0) & active
-        ys = _ffill(is_y, (w & 0x7FF).astype(np.int64), self.ey)
-        self.ey = int(ys[-1])
-        ix = np.flatnonzero((code == 2) & active)
-        vi, vx, vp, self.base_x, self.pol = _vector_events(w, code, 3, {4: 12, 5: 8}, self.base_x, self.pol, active)
-        x1 = (w[ix] & 0x7FF).astype(np.int64)
-        p1 = ((w[ix] >> 11) & 1).astype(np.int64)
-        t_ns = t_us * 1000
-        if vi.size == 0:
-            return _finish(None, t_ns[ix], x1, ys[ix], p1, self.width, self.height, self.stats, False)
-        idx = np.concatenate([ix, vi])
+        hi_at = self._advance_time(w, is_hi, is_lo, at)
+        t_ns = (hi_at | _state_at(is_lo, (w[is_lo] & 0xFFF).astype(np.int64), low_before, at)) * 1000
+        y_vals = (w[is_y] & 0x7FF).astype(np.int64)
+        ys = _state_at(is_y, y_vals, self.ey, at)
+        if y_vals.size:
+            self.ey = int(y_vals[-1])
+        wx = w[ix]
+        x1 = (wx & 0x7FF).astype(np.int64)
+        p1 = ((wx >> 11) & 1).astype(np.int64)
+        if not has_vect:
+            return _finish(None, t_ns, x1, ys, p1, self.width, self.height, self.stats, False)
         return _finish(
             np.concatenate([ix * 16, vi * 16 + 1]),
-            t_ns[idx],
+            t_ns,
             np.concatenate([x1, vx]),
-            ys[idx],
+            ys,
             np.concatenate([p1, vp]),
             self.width,
             self.height,
@@ -302,23 +315,24 @@ class Evt3Decoder:
             True,
         )
 
-    def _advance_time(self, val: np.ndarray, is_hi: np.ndarray, is_lo: np.ndarray) -> np.ndarray:
-        """Per-word high time bits (with rollovers); updates the carried time state."""
-        hi_idx = np.flatnonzero(is_hi)
-        if hi_idx.size:
-            h = val[hi_idx]
-            prev = np.concatenate([[(self.time_high >> 12) & 0xFFF], h[:-1]])
+    def _advance_time(self, w: np.ndarray, is_hi: np.ndarray, is_lo: np.ndarray, at: np.ndarray) -> np.ndarray:
+        """High time bits (with rollovers) at positions ``at``; updates the carried time state."""
+        h = (w[is_hi] & 0xFFF).astype(np.int64)
+        if h.size:
+            prev = np.empty_like(h)
+            prev[0] = (self.time_high >> 12) & 0xFFF
+            prev[1:] = h[:-1]
             # A high time stepping back by more than 10 is a rollover; small steps back are jitter.
             rolls = (self.time_high >> 24) + np.cumsum((h < prev) & (prev - h > 10))
-            full = np.concatenate([[self.time_high], (rolls << 24) | (h << 12)])
-            hi_full = full[np.cumsum(is_hi)]
+            full = (rolls << 24) | (h << 12)
+            hi_at = _state_at(is_hi, full, self.time_high, at)
             self.time_high = int(full[-1])
         else:
-            hi_full = np.full(val.size, self.time_high, np.int64)
-        lo_idx = np.flatnonzero(is_lo)
-        if lo_idx.size:
-            self.time_low = int(val[lo_idx[-1]])
-        return hi_full
+            hi_at = np.full(at.size, self.time_high, np.int64)
+        lo = w[is_lo]
+        if lo.size:
+            self.time_low = int(lo[-1] & 0xFFF)
+        return hi_at
 
 
 def make_decoder(encoding: str, width: int, height: int):
