@@ -274,6 +274,7 @@ PLS_VARIANTS: dict[str, tuple[str, dict, bool]] = {
     "auto_rows": ("K auto, rows (Eq. 20)", {"method": "pls", "rotation": "rows"}, True),
     "auto_column": ("K auto, column scaling", {"method": "pls", "scale": "column"}, False),
     "paper": ("paper-exact", {"method": "pls", "paper": True}, True),
+    "paper_projected": ("paper-exact, scored on its nearest rotation", {"method": "pls", "paper": True}, False),
     "procrustes": ("Procrustes", {"method": "procrustes"}, False),
 }
 
