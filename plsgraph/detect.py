@@ -1,9 +1,12 @@
 """Board detection in one image: asymmetric circle grids and Kalibr AprilGrids.
 
-Images are 2-D arrays (any dtype). For circle grids the caller says which way the circles show:
-``foreground="dark"`` for intensity images (black circles on white paper, inverted leaky surfaces)
-and ``foreground="bright"`` for event-activity images (count frames, time surfaces, the
-polarity-aware surface), where a moving circle shows as a bright rim on a dark background.
+Images are 2-D arrays (any dtype). For circle grids the caller says how the circles show:
+``foreground="dark"`` for intensity images (black circles on white paper), ``"bright"`` for filled
+bright marks, and ``"rims"`` for event-activity images (count frames, time surfaces, the
+polarity-aware surface) in which a moving circle shows only as a ring of active pixels around an
+empty inside. Rims are found as the small, compact holes of the binarized activity image; the hole's
+centroid is the circle centre at the middle of the window (the inside stays free of events only where
+the circle covered it all the time).
 
 A detection is only returned when its point order is verified: the image points must be the image
 of the board points under one homography (after undistortion, when a camera is given) with small
@@ -32,6 +35,7 @@ REASON_NOT_FOUND = "grid_not_found"
 REASON_ORDER = "inconsistent_order"
 REASON_MIRRORED = "mirrored_order"
 REASON_TOO_FEW = "too_few_points"
+REASON_AMBIGUOUS = "ambiguous_labels"
 
 
 @dataclass(frozen=True)
@@ -64,7 +68,7 @@ def normalize_image(image: np.ndarray, foreground: str = "bright") -> np.ndarray
     image without contrast (no events in the window, a blank render).
     """
     if foreground not in ("bright", "dark"):
-        raise InputError(f"detect: foreground must be 'bright' or 'dark', got {foreground!r}")
+        raise InputError(f"detect: foreground must be 'bright', 'dark' or 'rims', got {foreground!r}")
     img = np.asarray(image, dtype=np.float32)
     if img.ndim != 2:
         raise InputError(f"detect: expected a single-channel 2-D image, got shape {img.shape}")
@@ -199,6 +203,196 @@ def board_is_symmetric(board: Board) -> bool:
     return bool(np.all(d.min(axis=1) < 1e-9 * max(1.0, float(np.ptp(P)))))
 
 
+def rim_holes(active: np.ndarray, min_area: int = 2, max_area_frac: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids (k, 2) and areas (k,) of the compact holes of a binary activity image.
+
+    A hole is a 4-connected component of inactive pixels that does not touch the image border, is
+    no larger than ``max_area_frac`` of the image, fills at least 60 % of its bounding ellipse and is
+    not elongated beyond 4 : 1 (a ring's inside seen obliquely or smeared by motion stays compact).
+    """
+    h, w = active.shape
+    n, _, stats, cent = cv2.connectedComponentsWithStats((~active).astype(np.uint8), connectivity=4)
+    x, y, bw, bh, area = stats.T
+    fill = area / (0.25 * np.pi * np.maximum(bw * bh, 1))
+    ok = (
+        (area >= min_area)
+        & (area <= max_area_frac * h * w)
+        & (x > 0)
+        & (y > 0)
+        & (x + bw < w)
+        & (y + bh < h)
+        & (fill > 0.6)
+        & (np.maximum(bw, bh) <= 4 * np.minimum(bw, bh))
+    )
+    return cent[ok].astype(float), area[ok].astype(float)
+
+
+def board_lattice(board: Board) -> np.ndarray:
+    """Integer lattice coordinates (N, 2) of an asymmetric circle grid's points.
+
+    The circles sit at (x, y) = ((2 j + i mod 2) s, i s): exactly the points with x + y even (in
+    units of s), a square lattice turned by 45 degrees with basis (s, s) and (s, -s). Coordinates
+    (a, b) = ((x + y) / 2, (x - y) / 2) number it; only the board's outline is asymmetric.
+    """
+    q = np.round(board.points[:, :2] / board.square_size).astype(int)
+    return np.stack([(q[:, 0] + q[:, 1]) // 2, (q[:, 0] - q[:, 1]) // 2], axis=-1)
+
+
+_LATTICE_MAPS = np.array(
+    [[[1, 0], [0, 1]], [[0, -1], [1, 0]], [[-1, 0], [0, -1]], [[0, 1], [-1, 0]],
+     [[1, 0], [0, -1]], [[0, 1], [1, 0]], [[-1, 0], [0, 1]], [[0, -1], [-1, 0]]]
+)  # the 8 symmetries of the square lattice (4 turns, 4 reflections)
+
+
+def _grow_lattice(pts: np.ndarray, seed: int, nn: np.ndarray, tol: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
+    """Integer lattice coordinates for the points reachable from ``seed``: (indices, coords)."""
+    d = pts - pts[seed]
+    dist = np.linalg.norm(d, axis=1)
+    near = np.flatnonzero((dist > 0) & (dist < 1.35 * nn[seed]))
+    if near.size < 2:
+        return np.zeros(0, int), np.zeros((0, 2), int)
+    e1 = d[near[np.argmin(dist[near])]]
+    cosang = np.abs(d[near] @ e1) / (dist[near] * np.linalg.norm(e1))
+    if cosang.min() > 0.5:
+        return np.zeros(0, int), np.zeros((0, 2), int)
+    e2 = d[near[np.argmin(cosang)]]
+    # Homography lattice -> image, started as the affine map of the seed's neighbourhood and re-fitted
+    # while the accepted region grows ring by ring (perspective bends the lattice far from the seed).
+    H = np.array([[e1[0], e2[0], pts[seed, 0]], [e1[1], e2[1], pts[seed, 1]], [0.0, 0.0, 1.0]])
+    idx = np.zeros(0, int)
+    lat = np.zeros((0, 2), int)
+    radius = 1
+    for _ in range(40):
+        try:
+            Hinv = np.linalg.inv(H)
+        except np.linalg.LinAlgError:
+            break
+        ph = np.c_[pts, np.ones(len(pts))] @ Hinv.T
+        if np.any(np.abs(ph[:, 2]) < 1e-12):
+            break
+        lc = ph[:, :2] / ph[:, 2:]
+        a = np.round(lc).astype(int)
+        res = np.linalg.norm(lc - a, axis=1)
+        ok = (res < tol) & (np.max(np.abs(a), axis=1) <= radius)
+        cand = np.flatnonzero(ok)
+        # One point per lattice site: the best-fitting one.
+        order = cand[np.argsort(res[cand])]
+        _, first = np.unique(a[order], axis=0, return_index=True)
+        new_idx = np.sort(order[first])
+        grown = new_idx.size > idx.size or radius < 3
+        idx, lat = new_idx, a[new_idx]
+        if idx.size >= 4:
+            Hn, _ = cv2.findHomography(lat.astype(np.float64), pts[idx].astype(np.float64), 0)
+            if Hn is None:
+                break
+            H = Hn
+        if not grown:
+            break
+        radius += 1
+    return idx, lat
+
+
+def label_circle_grid(
+    points: np.ndarray,
+    board: Board,
+    camera: CameraModel | None = None,
+    *,
+    areas: np.ndarray | None = None,
+    min_points: int | None = None,
+    max_rms_px: float = 1.0,
+) -> GridDetection:
+    """Label candidate centres ``points`` (k, 2; clutter allowed, circles may be missing) with board points.
+
+    The candidates are organised into the square lattice of the grid by growing a lattice homography
+    from several seeds; the lattice region found is then placed on the board's lattice by the one
+    lattice symmetry and shift that puts most of its points on board circles. The placement must be
+    unique: when the points seen do not span the board far enough to tell (e.g. a shift by one circle
+    fits as well), the detection is rejected as ambiguous rather than returned with a guessed order.
+    At least ``min_points`` (default max(6, N / 2)) circles must be labelled, and the result must pass
+    :func:`check_grid_order` (one homography, seen from the front). ``areas`` (k,), the sizes of the
+    candidates, let it recognise a lattice of circles and the gaps between them (see the code).
+    """
+    n = board.n_points
+    min_points = max(6, n // 2) if min_points is None else int(min_points)
+    pts = np.asarray(points, dtype=float)
+    if pts.shape[0] < min_points:
+        return _fail(n, REASON_NOT_FOUND)
+    dm = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    np.fill_diagonal(dm, np.inf)
+    nn = dm.min(axis=1)
+    # Seeds: points with at least 3 neighbours at about their nearest distance (inside the grid).
+    n_close = np.count_nonzero(dm < 1.35 * nn[:, None], axis=1)
+    seeds = np.flatnonzero(n_close >= 3)
+    if seeds.size == 0:
+        return _fail(n, REASON_NOT_FOUND)
+    centre = np.median(pts[seeds], axis=0)
+    seeds = seeds[np.argsort(np.linalg.norm(pts[seeds] - centre, axis=1))][:6]
+    best_idx, best_lat = np.zeros(0, int), np.zeros((0, 2), int)
+    for sd in seeds:
+        idx, lat = _grow_lattice(pts, int(sd), nn)
+        if idx.size > best_idx.size:
+            best_idx, best_lat = idx, lat
+        if best_idx.size >= n:
+            break
+    if best_idx.size < min_points:
+        return _fail(n, REASON_NOT_FOUND)
+    if areas is not None:
+        # Touching rims also enclose the gaps between circles; circles and gaps together form a lattice
+        # twice as dense (axis-aligned on the board), in which the circles are the sites of one parity
+        # and clearly larger. Labelling that lattice as circles would give a wrong order that still fits
+        # a homography, so decide here which lattice was grown.
+        par = (best_lat.sum(axis=1) % 2).astype(bool)
+        a_odd = np.asarray(areas, dtype=float)[best_idx[par]]
+        a_even = np.asarray(areas, dtype=float)[best_idx[~par]]
+        if a_odd.size >= 3 and a_even.size >= 3:
+            big_odd = np.median(a_odd) > np.median(a_even)
+            ratio = max(np.median(a_odd), np.median(a_even)) / max(min(np.median(a_odd), np.median(a_even)), 1e-9)
+            if ratio > 1.5:
+                circ = par if big_odd else ~par
+                q = best_lat[circ] - (np.array([1, 0]) if big_odd else 0)  # move the circles to even sites
+                best_idx = best_idx[circ]
+                best_lat = np.stack([(q[:, 0] + q[:, 1]) // 2, (q[:, 0] - q[:, 1]) // 2], axis=-1)
+                if best_idx.size < min_points:
+                    return _fail(n, REASON_TOO_FEW)
+    B = board_lattice(board)
+    bmin = B.min(axis=0)
+    span = B.max(axis=0) - bmin + 1
+    occupied = np.full(tuple(span), -1, dtype=int)
+    occupied[tuple((B - bmin).T)] = np.arange(n)
+    # Score every lattice symmetry and every shift that overlaps the board at once: (8, S, m) hits.
+    D = np.einsum("kij,mj->kmi", _LATTICE_MAPS, best_lat)  # (8, m, 2)
+    lo = bmin - D.max(axis=(0, 1))
+    hi = bmin + span - 1 - D.min(axis=(0, 1))
+    SX, SY = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+    shifts = np.stack([SX.ravel(), SY.ravel()], axis=-1)
+    cells = D[:, None, :, :] + (shifts - bmin)[None, :, None, :]
+    inside = np.all((cells >= 0) & (cells < span), axis=-1)
+    cc = np.where(inside[..., None], cells, 0)
+    counts = (inside & (occupied[cc[..., 0], cc[..., 1]] >= 0)).sum(axis=-1)  # (8, S)
+    top = int(counts.max())
+    if top < min_points:
+        return _fail(n, REASON_TOO_FEW)
+    placements = [(top, int(k), shifts[j]) for k, j in zip(*np.nonzero(counts == top), strict=True)]
+    valid = []
+    for c, k, sh in placements:
+        if c != top:
+            continue
+        cells = best_lat @ _LATTICE_MAPS[k].T + sh - bmin
+        inside = np.all((cells >= 0) & (cells < span), axis=-1)
+        lab = np.full(cells.shape[0], -1)
+        lab[inside] = occupied[cells[inside, 0], cells[inside, 1]]
+        uv = np.full((n, 2), np.nan)
+        uv[lab[lab >= 0]] = pts[best_idx[lab >= 0]]
+        reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_rms_px)
+        if reason == REASON_OK:
+            valid.append((uv, rms))
+    if not valid:
+        return _fail(n, REASON_MIRRORED if top >= min_points else REASON_ORDER)
+    if len(valid) > 1:
+        return _fail(n, REASON_AMBIGUOUS)
+    return GridDetection(valid[0][0], True, REASON_OK, valid[0][1])
+
+
 def detect_circle_grid(
     image: np.ndarray,
     board: Board,
@@ -209,6 +403,8 @@ def detect_circle_grid(
     refine: bool = True,
     max_homography_rms_px: float = 1.0,
     exhaustive: bool = False,
+    rim_threshold: float = 0.0,
+    min_points: int | None = None,
 ) -> GridDetection:
     """Find an asymmetric circle grid and return its centres in ``board.points`` order.
 
@@ -218,10 +414,18 @@ def detect_circle_grid(
     as well. With ``refine`` each centre becomes the weighted centroid of the weight image in a
     disk of half the distance to its nearest neighbour (a rim, even smeared by motion, is centred
     on the circle). The order check of :func:`check_grid_order` decides what is returned.
+
+    ``foreground="rims"`` (event-activity images): pixels above ``rim_threshold`` are active; the
+    circle centres are the centroids of the holes inside the rims (:func:`rim_holes`). Between
+    touching rims there are smaller holes too, so only holes at least 0.4 times as large as the
+    typical large hole are kept before they are labelled (:func:`label_circle_grid`, which allows
+    missing circles: unseen points are NaN, at least ``min_points`` must be found).
     """
     if board.pattern != "asymmetric_circles":
         raise InputError(f"detect_circle_grid: board {board.name!r} is a {board.pattern}, not asymmetric_circles")
     n = board.n_points
+    if foreground == "rims":
+        return _detect_rims(np.asarray(image), board, camera, rim_threshold, max_homography_rms_px, min_points)
     weight = normalize_image(image, foreground)
     if weight is None:
         return _fail(n, REASON_EMPTY)
@@ -250,6 +454,30 @@ def detect_circle_grid(
         last_reason, last_rms = reason, rms
         log.debug("circle grid rejected (%s, homography rms %.2f px)", reason, rms)
     return _fail(n, last_reason, last_rms)
+
+
+def _detect_rims(
+    image: np.ndarray, board: Board, camera: CameraModel | None, threshold: float, max_rms_px: float,
+    min_points: int | None,
+) -> GridDetection:
+    n = board.n_points
+    if image.ndim != 2:
+        raise InputError(f"detect: expected a single-channel 2-D image, got shape {image.shape}")
+    active = image > threshold
+    if not np.any(active):
+        return _fail(n, REASON_EMPTY)
+    # A 3 x 3 closing bridges the one-pixel breaks a rim has where the circle's edge runs along the motion.
+    closed = cv2.morphologyEx(active.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
+    centres, area = rim_holes(closed)
+    if centres.shape[0] < 6:
+        return _fail(n, REASON_NOT_FOUND)
+    # Circle insides are the largest compact holes; gaps between touching rims and texture leave
+    # smaller ones. Reference: the median of the n largest.
+    ref = float(np.median(np.sort(area)[-n:]))
+    keep = area >= 0.4 * ref
+    return label_circle_grid(
+        centres[keep], board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px
+    )
 
 
 # --- AprilGrid -------------------------------------------------------------------------------------

@@ -1,0 +1,308 @@
+"""The event front end: event surfaces at a fixed rate -> board detection -> PnP -> camera track.
+
+For each window the events just before the query time t_k are turned into an image
+(:mod:`plsgraph.surfaces`), the board is detected in it (:mod:`plsgraph.detect`) and the pose is
+solved by PnP (:mod:`plsgraph.pose`). What is counted in ``track.info``:
+
+* ``windows``: windows tried; ``detected``: windows with a verified board detection;
+  ``poses``: windows that produced a pose;
+* ``skipped``: reason -> count over all windows that gave no pose: ``too_few_events`` (nothing
+  moved), the detector's reasons (``grid_not_found``, ``inconsistent_order``, ``mirrored_order``,
+  ``too_few_points``, ``empty_image``), ``time_not_increasing`` and PnP's (``pnp_failed``,
+  ``rms_above_threshold``);
+* ``seconds``: time spent in surfaces, detection and PnP.
+
+Circle grids are found as rims (:func:`plsgraph.detect.detect_circle_grid` with
+``foreground="rims"``): each kind's image is binarized at a level that keeps the pixels with recent
+events (:func:`_rim_image`) and the circles' insides are the holes.
+
+Detection time stamps. A surface built from the events of (t_k - W, t_k] shows the board where
+it was while those events happened, not where it is at t_k. With ``timestamp="events"`` (default)
+each detection is stamped with the mean time of the events that formed the detected rims: those
+within half a point spacing of the detected points and young enough to be above the rim level
+(for the decaying kinds: younger than tau). For a circle moving at constant speed the inside that
+stayed free of events is centred where the circle was at the middle of that span.
+``timestamp="query"`` stamps t_k, or ``"window_centre"`` t_k - W / 2.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter
+from collections.abc import Callable
+
+import numpy as np
+
+from . import surfaces
+from .board import Board
+from .camera import CameraModel
+from .detect import (
+    REASON_OK,
+    board_is_symmetric,
+    detect_aprilgrid,
+    detect_circle_grid,
+    make_aruco_detector,
+)
+from .errors import InputError, InsufficientDataError
+from .events import EventStream
+from .pose import camera_track_from_detections
+from .tracks import CameraTrack, Detections
+
+log = logging.getLogger(__name__)
+
+#: Short names accepted for ``kind`` in addition to :data:`plsgraph.surfaces.KINDS`.
+KIND_ALIASES = {"polarity": "polarity_aware", "classic": "time_surface", "ts": "time_surface"}
+TIMESTAMPS = ("events", "query", "window_centre")
+
+#: Default surface parameters per kind: the paper's values where it gives them.
+DEFAULT_PARAMS: dict[str, dict] = {
+    "count": {},
+    "polarity_sum": {},
+    "time_surface": {"tau_s": 0.03},
+    "polarity_aware": {"alpha": 0.1, "blur_ksize": 5, "blur_sigma": 0.7},
+    "leaky": {"tau_s": 0.05},
+}
+
+
+def resolve_kind(kind: str) -> str:
+    k = KIND_ALIASES.get(kind, kind)
+    if k not in surfaces.KINDS:
+        raise InputError(f"front end: unknown surface kind {kind!r}; use one of {', '.join(surfaces.KINDS)} "
+                         f"(or {', '.join(KIND_ALIASES)})")
+    return k
+
+
+def _rim_image(img: np.ndarray, kind: str, params: dict) -> tuple[np.ndarray, float]:
+    """The activity image and the level above which a pixel counts as part of a rim.
+
+    Counts: any event. Signed kinds: magnitude. Time surfaces: events younger than tau (exp(-1)),
+    so that old, smeared rims do not close the circles' insides. Polarity-aware surface: the paper's
+    5 x 5 blur spreads a one-pixel rim to about 0.57 at its centre line and an isolated event to about
+    0.32; 0.25 keeps rims. Leaky integrator: |value| above 0.3 contrast steps.
+    """
+    if kind in ("count",):
+        return img, 0.5
+    if kind == "polarity_sum":
+        return np.abs(img), 0.5
+    if kind == "time_surface":
+        return np.abs(img), float(np.exp(-1.0))
+    if kind == "polarity_aware":
+        return np.abs(img), 0.25
+    return np.abs(img), 0.3 * float(params.get("contrast", 0.2))
+
+
+def _active_age_s(kind: str, params: dict, window_s: float) -> float:
+    """Age of the oldest events a rim image shows (see :func:`_rim_image`)."""
+    if kind in ("time_surface", "leaky") and params.get("tau_s"):
+        return float(params["tau_s"])
+    return window_s
+
+
+def _points_mask(uv: np.ndarray, shape: tuple[int, int], frac: float = 0.5) -> np.ndarray:
+    """Boolean image of the pixels within ``frac`` of the nearest-neighbour spacing of any finite point."""
+    h, w = shape
+    mask = np.zeros(shape, dtype=bool)
+    q = uv[np.all(np.isfinite(uv), axis=1)]
+    if q.shape[0] < 2:
+        return mask
+    d = np.linalg.norm(q[:, None] - q[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    r = frac * d.min(axis=1)
+    R = int(np.ceil(r.max()))
+    off = np.arange(-R, R + 1)
+    dy, dx = np.meshgrid(off, off, indexing="ij")
+    px = np.round(q[:, :1]).astype(int) + dx.ravel()[None, :]
+    py = np.round(q[:, 1:]).astype(int) + dy.ravel()[None, :]
+    ok = ((px - q[:, :1]) ** 2 + (py - q[:, 1:]) ** 2 <= r[:, None] ** 2) & (px >= 0) & (px < w) & (py >= 0) & (py < h)
+    mask[py[ok], px[ok]] = True
+    return mask
+
+
+def _event_time(events: EventStream, uv: np.ndarray, t_ref_ns: int, max_age_s: float) -> float | None:
+    """Mean time (s) of the events that formed the detected rims: those near the detected points and
+    young enough to show in the rim image."""
+    mask = _points_mask(uv, (events.height, events.width))
+    age_s = (t_ref_ns - events.t).astype(np.float64) * 1e-9
+    sel = mask[events.y, events.x] & (age_s <= max_age_s)
+    if not np.any(sel):
+        return None
+    return float(t_ref_ns * 1e-9 - np.mean(age_s[sel]))
+
+
+def detect_in_events(
+    stream: EventStream,
+    camera: CameraModel,
+    board: Board,
+    rate_hz: float = 30.0,
+    kind: str = "polarity",
+    *,
+    window_s: float | None = None,
+    surface_params: dict | None = None,
+    min_events: int = 100,
+    timestamp: str = "events",
+    tag_layout: str = "kalibr",
+    tag_border_bits: int = 2,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[Detections, dict]:
+    """Board detections in event surfaces at ``rate_hz``; see :func:`camera_track_from_events`.
+
+    Returns the detections (board-point order, NaN for unseen points) and the bookkeeping dict.
+    """
+    kind = resolve_kind(kind)
+    if timestamp not in TIMESTAMPS:
+        raise InputError(f"front end: timestamp must be one of {', '.join(TIMESTAMPS)}, got {timestamp!r}")
+    if not rate_hz > 0:
+        raise InputError(f"front end: rate_hz must be positive, got {rate_hz}")
+    if (stream.width, stream.height) != (camera.width, camera.height):
+        raise InputError(
+            f"front end: events are {stream.width} x {stream.height} but the camera model is "
+            f"{camera.width} x {camera.height}; use the intrinsics of this sensor"
+        )
+    params = {**DEFAULT_PARAMS[kind], **(surface_params or {})}
+    if window_s is None:
+        # Decaying surfaces look back 5 tau (exp(-5) is negligible); the others one frame period.
+        tau = params.get("tau_s")
+        window_s = surfaces.DECAY_LOOKBACK * tau if kind in ("time_surface", "leaky") and tau else 1.0 / rate_hz
+    if not window_s > 0:
+        raise InputError(f"front end: window_s must be positive, got {window_s}")
+    period_ns = int(round(1e9 / rate_hz))
+    window_ns = int(round(window_s * 1e9))
+    n = board.n_points
+    if len(stream) == 0:
+        raise InsufficientDataError("front end: the event stream is empty; check the recording's event topic")
+    t_query = np.arange(stream.t_first + period_ns, stream.t_last + period_ns, period_ns, dtype=np.int64)
+    i1s = np.searchsorted(stream.t, t_query, side="right")
+    i0s = np.searchsorted(stream.t, t_query - window_ns, side="right")
+    aruco = make_aruco_detector(tag_border_bits) if board.pattern == "aprilgrid" else None
+    skipped: Counter[str] = Counter()
+    secs = {"surfaces": 0.0, "detection": 0.0}
+    t_out, uv_out = [], []
+    n_events = 0
+    last_t = -np.inf
+    for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
+        if progress is not None:
+            progress(k, t_query.size)
+        if i1 - i0 < min_events:
+            skipped["too_few_events"] += 1
+            continue
+        ev = stream.slice_index(int(i0), int(i1))
+        n_events += int(i1 - i0)
+        c0 = time.perf_counter()
+        img = surfaces.surface(ev, kind, int(tq), **params)
+        c1 = time.perf_counter()
+        if board.pattern == "aprilgrid":
+            det = detect_aprilgrid(
+                surfaces.to_uint8(img), board, camera, detector=aruco, layout=tag_layout
+            )
+        else:
+            rim, level = _rim_image(img, kind, params)
+            det = detect_circle_grid(rim, board, camera, foreground="rims", rim_threshold=level)
+        secs["surfaces"] += c1 - c0
+        secs["detection"] += time.perf_counter() - c1
+        if det.reason != REASON_OK:
+            skipped[det.reason] += 1
+            continue
+        if timestamp == "query":
+            t_det = tq * 1e-9
+        elif timestamp == "window_centre":
+            t_det = (tq - 0.5 * window_ns) * 1e-9
+        else:
+            t_det = _event_time(ev, det.uv, int(tq), _active_age_s(kind, params, window_s))
+            t_det = (tq - 0.5 * window_ns) * 1e-9 if t_det is None else t_det
+        if t_det <= last_t:
+            skipped["time_not_increasing"] += 1
+            continue
+        last_t = t_det
+        t_out.append(t_det)
+        uv_out.append(det.uv)
+    if progress is not None:
+        progress(t_query.size, t_query.size)
+    info = {
+        "kind": kind,
+        "surface_params": params,
+        "rate_hz": float(rate_hz),
+        "window_s": float(window_s),
+        "timestamp": timestamp,
+        "board": board.name or board.pattern,
+        "windows": int(t_query.size),
+        "detected": len(t_out),
+        "skipped": dict(skipped),
+        "events_used": n_events,
+        "seconds": secs,
+        "warnings": [],
+    }
+    if board.pattern == "asymmetric_circles" and board_is_symmetric(board):
+        info["warnings"].append(
+            f"board {board.name!r} looks the same turned by 180 degrees (even number of rows); poses may be "
+            "flipped by 180 degrees about the board normal; use a board with an odd number of rows"
+        )
+    if not t_out:
+        raise InsufficientDataError(
+            f"front end: no board detected in any of {t_query.size} windows ({dict(skipped)}); check that the "
+            f"board definition ({board.cols} x {board.rows} {board.pattern}) matches the target, that it is in "
+            "view and moving, and try another surface kind"
+        )
+    dets = Detections(np.asarray(t_out), np.asarray(uv_out).reshape(-1, n, 2), board.points)
+    return dets, info
+
+
+def camera_track_from_events(
+    stream: EventStream,
+    camera: CameraModel,
+    board: Board,
+    rate_hz: float = 30.0,
+    kind: str = "polarity",
+    *,
+    window_s: float | None = None,
+    surface_params: dict | None = None,
+    min_events: int = 100,
+    timestamp: str = "events",
+    max_rms_px: float = 1.5,
+    sigma_px: float | None = None,
+    tag_layout: str = "kalibr",
+    tag_border_bits: int = 2,
+    progress: Callable[[int, int], None] | None = None,
+) -> CameraTrack:
+    """Camera track T_board_cam(t) from an event stream: surfaces at ``rate_hz`` -> detection -> PnP.
+
+    ``kind``: a :mod:`plsgraph.surfaces` kind (``count``, ``polarity_sum``, ``time_surface``,
+    ``polarity_aware``, ``leaky``) or an alias (``polarity``, ``classic``/``ts``). ``window_s``: the
+    events' look-back per window (default one frame period, or 5 tau for decaying kinds);
+    ``surface_params`` override :data:`DEFAULT_PARAMS`. Windows with fewer than ``min_events``
+    events are skipped. ``timestamp``: how detections are stamped (module docstring). PnP frames
+    with reprojection RMS above ``max_rms_px`` are dropped; ``sigma_px`` fixes the pixel noise of the
+    covariance (default: estimated per frame). AprilGrids: ``tag_layout`` / ``tag_border_bits`` as
+    in :func:`plsgraph.detect.detect_aprilgrid`. ``progress(done, total)`` is called per window.
+
+    Raises :class:`InsufficientDataError` when no window yields a detection or no detection a pose.
+    """
+    dets, info = detect_in_events(
+        stream,
+        camera,
+        board,
+        rate_hz,
+        kind,
+        window_s=window_s,
+        surface_params=surface_params,
+        min_events=min_events,
+        timestamp=timestamp,
+        tag_layout=tag_layout,
+        tag_border_bits=tag_border_bits,
+        progress=progress,
+    )
+    c0 = time.perf_counter()
+    track = camera_track_from_detections(dets, camera, max_rms_px=max_rms_px, sigma_px=sigma_px)
+    info["seconds"]["pnp"] = time.perf_counter() - c0
+    skipped = Counter(info["skipped"])
+    skipped.update(track.info.get("rejected", {}))
+    info["skipped"] = dict(skipped)
+    info["poses"] = len(track)
+    info["median_rms_px"] = track.info.get("median_rms_px")
+    for w in info["warnings"]:
+        log.warning(w)
+    log.info(
+        "front end (%s): %d windows, %d detections, %d poses; skipped %s",
+        info["kind"], info["windows"], info["detected"], info["poses"], info["skipped"],
+    )
+    return CameraTrack(track.t, track.T_board_cam, track.cov, track.rms_px, track.detections, info)
