@@ -170,3 +170,20 @@ def test_damaged_ros1_bag(tmp_path, caplog):
                 assert rec.odometry is not None or rec.imu is not None or rec.warnings
             except RecordingError as exc:
                 assert str(exc)
+
+
+@pytest.mark.skipif(not (SHARED_REAL_DIR / "jackal_odometry.bag").exists(), reason="no real data")
+def test_cut_ros1_bag_read_front_to_back(tmp_path, caplog):
+    caplog.set_level(logging.ERROR)
+    data = (SHARED_REAL_DIR / "jackal_odometry.bag").read_bytes()
+    full = read_recording(SHARED_REAL_DIR / "jackal_odometry.bag")
+    p = tmp_path / "cut.bag"
+    p.write_bytes(data[: len(data) * 6 // 10])  # the index at the end is gone
+    rec = read_recording(p)
+    assert any("front to back" in w for w in rec.warnings) and any("cut short" in w for w in rec.warnings)
+    n = len(rec.odometry)
+    assert 0.4 * len(full.odometry) < n < 0.7 * len(full.odometry)
+    np.testing.assert_array_equal(rec.odometry.t, full.odometry.t[:n])
+    np.testing.assert_array_equal(rec.odometry.position, full.odometry.position[:n])
+    np.testing.assert_array_equal(rec.imu.gyro, full.imu.gyro[: len(rec.imu)])
+    assert rec.lost == {"/jackal_velocity_controller/odom": None, "/imu/data": None}

@@ -26,6 +26,22 @@ def _bag_path(p: Path) -> Path:
     return p
 
 
+def open_bag(path: Path):
+    """A RosbagsSource, or for a ROS 1 bag whose index cannot be read, a sequential scan of its records."""
+    try:
+        return RosbagsSource(path)
+    except RecordingError as exc:
+        if Path(path).suffix != ".bag" or not Path(path).is_file():
+            raise
+        from .ros1_scan import Ros1ScanSource
+
+        src = Ros1ScanSource(path)
+        src.log.warn(f"{Path(path).name}: index unreadable ({exc.__cause__ or exc}); reading the bag front to back")
+        if not src.topics():
+            raise RecordingError(f"{path}: no readable connections or messages in the bag") from exc
+        return src
+
+
 class RosbagsSource:
     """A ROS 1 bag or ROS 2 bag directory. Messages keep their native serialization ('ros1' or 'cdr')."""
 

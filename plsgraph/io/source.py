@@ -65,9 +65,9 @@ def open_source(path: str | Path) -> Source:
     if not p.exists():
         raise RecordingError(f"recording {p} does not exist")
     if p.is_dir() or p.suffix in (".bag", ".db3"):
-        from .rosbags_reader import RosbagsSource
+        from .rosbags_reader import open_bag
 
-        return RosbagsSource(p)
+        return open_bag(p)
     if p.suffix == ".mcap" or _looks_like_mcap(p):
         from .mcap_reader import McapSource
 
