@@ -21,8 +21,10 @@ from collections import defaultdict
 
 import numpy as np
 
+from plsgraph.align import estimate_time_offset
 from plsgraph.board import Board
 from plsgraph.closedform import HAND_EYE_METHODS
+from plsgraph.errors import PlsgraphError
 from plsgraph.geometry import rotation_error_deg
 from plsgraph.odometry import base_track_from_wheels
 from plsgraph.pipeline import calibrate_closed_form
@@ -30,6 +32,11 @@ from plsgraph.pose import camera_track_from_detections
 from plsgraph.sim.robot import simulate_robot
 
 METHODS = ("pls", "pls_paper", "cca", "procrustes") + tuple(f"hand_eye_{m}" for m in HAND_EYE_METHODS)
+TD_VARIANTS = {
+    "projected": {},
+    "magnitude": {"project": False},
+    "explained_cov": {"method": "explained_covariance"},
+}
 BIG_BOARD = Board("asymmetric_circles", cols=4, rows=11, square_size=0.05, circle_diameter=0.04, name="acircles_5cm")
 
 
@@ -58,11 +65,21 @@ def main() -> None:
             rot: dict[str, list[float]] = defaultdict(list)
             refused: dict[str, int] = defaultdict(int)
             txy, txy_vel, tilt, tdz, degenerate, secs = [], [], [], [], 0, []
+            td_alt: dict[str, list[float]] = defaultdict(list)
+            visible, ranges = [], []
             for seed in range(args.seeds):
                 board = BIG_BOARD if front == "pnp_5cm" else None
                 rec = simulate_robot(motion, seed=seed, td=args.td, duration=args.duration, board=board)
                 base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right)
                 cam = camera_track_for(rec, front, seed)
+                visible.append(rec.info["visible_fraction"])
+                ranges.append(rec.info["range_m"])
+                for label, kw in TD_VARIANTS.items():
+                    try:
+                        r = estimate_time_offset(cam, base, window_s=args.window, **kw)
+                        td_alt[label].append(1e3 * abs(r.td - args.td))
+                    except PlsgraphError:
+                        td_alt[label].append(np.nan)
                 t0 = time.perf_counter()
                 res = calibrate_closed_form(cam, base, window_s=args.window)
                 secs.append(time.perf_counter() - t0)
@@ -98,6 +115,14 @@ def main() -> None:
                 f"runtime {1e3 * np.median(secs):.0f} ms"
             )
             print("    " + "  ".join(cells))
+            alt = "  ".join(
+                f"{k}={np.nanmedian(v):.2f} ms" if np.any(np.isfinite(v)) else f"{k}=refused" for k, v in td_alt.items()
+            )
+            rng = np.array(ranges)
+            print(
+                f"    td variants (median |err|): {alt}; board fully visible in {100 * np.mean(visible):.1f} % of "
+                f"frames, camera-board range {rng[:, 0].min():.2f}-{rng[:, 1].max():.2f} m"
+            )
 
 
 if __name__ == "__main__":
