@@ -54,6 +54,17 @@ class Excitation:
     kind: str
     rel_tol: float
 
+    def as_dict(self) -> dict:
+        """Plain-data form (numpy arrays and Python scalars) for diagnostics and JSON reports."""
+        return {
+            "singular_values": self.singular_values,
+            "directions": self.directions,
+            "condition_number": self.condition_number,
+            "rank": self.rank,
+            "kind": self.kind,
+            "rel_tol": self.rel_tol,
+        }
+
     def describe(self) -> str:
         s = ", ".join(f"{v:.3g}" for v in self.singular_values)
         return f"{self.kind} (rank {self.rank}, principal RMS [{s}], condition {self.condition_number:.3g})"
@@ -253,8 +264,8 @@ def _procrustes(X, Y, w, center: bool, rel_tol: float) -> RotationResult:
     diag = {
         "cross_cov_singular_values": s,
         "cross_cov_rank": int(np.count_nonzero(s > rel_tol**2 * s[0])),
-        "excitation_x": ex,
-        "excitation_y": ey,
+        "excitation_x": ex.as_dict(),
+        "excitation_y": ey.as_dict(),
         "center": center,
     }
     return RotationResult(R, "procrustes", diag, warns, R_raw=M)
@@ -310,8 +321,8 @@ def _cca(X, Y, w, center: bool, rel_tol: float) -> RotationResult:
         "canonical_correlations": rho,
         "canonical_directions_x": A,
         "canonical_directions_y": B,
-        "excitation_x": ex,
-        "excitation_y": ey,
+        "excitation_x": ex.as_dict(),
+        "excitation_y": ey.as_dict(),
         "center": center,
     }
     return RotationResult(R, "cca", diag, warns, R_raw=R_raw)
@@ -409,8 +420,8 @@ def _pls(
             "r2_y": float(1.0 - resid / np.trace(Syy_s)) if np.trace(Syy_s) > 0 else float("nan"),
             "regression_matrix": R_reg,
             "regression_singular_values": np.linalg.svd(R_reg, compute_uv=False),
-            "excitation_x": ex,
-            "excitation_y": ey,
+            "excitation_x": ex.as_dict(),
+            "excitation_y": ey.as_dict(),
             "center": center,
             "scale": scale,
             "rotation": rotation,
@@ -612,8 +623,8 @@ def hand_eye(
     log.debug("hand_eye(%s) on %d poses", method, Tb.shape[0])
     diag = {
         "n_poses": int(Tb.shape[0]),
-        "rotation_excitation_base": ea,
-        "rotation_excitation_cam": eb,
+        "rotation_excitation_base": ea.as_dict(),
+        "rotation_excitation_cam": eb.as_dict(),
         "opencv_R_singular_values": s,
     }
     return RotationResult(R, f"hand_eye_{method}", diag, warns, R_raw=R_c, t_base_cam=t_c)

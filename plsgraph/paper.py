@@ -321,7 +321,7 @@ def reproduce_paper(
 ) -> dict:
     """Run the synthetic protocol, write ``out_dir/paper_tables.md`` and ``.json``, return the figures.
 
-    ``quick`` uses 20 trials and skips the sensitivity study (a few seconds); ``study`` forces it on or off.
+    ``quick`` uses at most 20 trials and skips the sensitivity study (a few seconds); ``study`` forces it on or off.
     Existing output files raise InputError unless ``overwrite``. ``progress(done, total)`` is called after each
     route. The returned dict has "table1", "table2" (route -> method -> mean_deg, std_deg, n_trials, n_failed),
     "paper" (published figures), "protocol", "markdown" and "paths".
@@ -337,7 +337,7 @@ def reproduce_paper(
             "directory"
         )
     protocol = protocol or Protocol()
-    n = 20 if quick else int(trials)
+    n = min(int(trials), 20) if quick else int(trials)
     run_study = (not quick) if study is None else bool(study)
     result: dict = {"trials": n, "seed": int(seed), "protocol": asdict(protocol)}
     result.update(run_tables(n, seed, protocol, progress))

@@ -369,3 +369,45 @@ def test_hand_eye_bad_inputs():
     still = np.repeat(np.eye(4)[None], 6, axis=0)
     with pytest.raises(DegenerateMotionError, match="no rotation"):
         hand_eye(still, still)
+
+
+def _plain(v) -> bool:
+    if isinstance(v, dict):
+        return all(isinstance(k, str) and _plain(x) for k, x in v.items())
+    if isinstance(v, list | tuple):
+        return all(_plain(x) for x in v)
+    return isinstance(v, np.ndarray | float | int | str | bool | np.floating | np.integer)
+
+
+def test_diagnostics_are_plain_data_for_reports():
+    rng = np.random.default_rng(22)
+    R = random_rotation_zyx(rng)
+    X = motion_3d(rng)
+    Y = X @ R.T + rng.normal(scale=0.1, size=X.shape)
+    results = [solve(X, Y, **kw) for _, kw in CONFIGS]
+    Twb, Tbc, _ = _hand_eye_poses(rng, planar_motion=False)
+    results.append(hand_eye(Twb, Tbc))
+    for res in results:
+        assert _plain(res.diagnostics), res.method
+        assert all(isinstance(w, str) for w in res.warnings)
+
+
+def test_random_inputs_give_a_rotation_or_a_typed_error():
+    """Property: whatever finite data come in, the answer is a proper rotation or a PlsgraphError, never junk."""
+    from plsgraph.errors import PlsgraphError
+
+    rng = np.random.default_rng(23)
+    for _ in range(60):
+        n = int(rng.integers(1, 40))
+        X = rng.normal(size=(n, 3)) * rng.uniform(0, 2, size=3) * (rng.uniform() < 0.8)
+        Y = (
+            rng.normal(size=(n, 3)) * rng.uniform(0, 2, size=3)
+            if rng.uniform() < 0.5
+            else X @ random_rotation_zyx(rng).T
+        )
+        for _, kw in CONFIGS:
+            try:
+                res = solve(X, Y, **kw)
+            except PlsgraphError:
+                continue
+            assert is_rotation(res.R_base_cam, 1e-9)
