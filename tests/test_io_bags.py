@@ -109,3 +109,43 @@ def test_ros2_db3_event_arrays_and_packets(tmp_path):
     rec = read_recording(d)
     assert rec.event_topic in ("/dvs/events", "/event_camera/events")
     assert any("several event topics" in w for w in rec.warnings)
+
+
+def test_ros1_profile_mcap_odometry(tmp_path):
+    """MCAP files with the ros1 profile (ROS 1 serialization, ros1msg schema) read like ROS 1 bags."""
+    from mcap.writer import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    T = ts.types
+    v3 = T["geometry_msgs/msg/Vector3"]
+    p = tmp_path / "ros1.mcap"
+    truth = []
+    with open(p, "wb") as f:
+        w = Writer(f)
+        w.start(profile="ros1", library="test")
+        sid = w.register_schema("nav_msgs/Odometry", "ros1msg", ts.generate_msgdef("nav_msgs/msg/Odometry")[0].encode())
+        cid = w.register_channel("/odom", "ros1", sid)
+        for i in range(5):
+            stamp = T["builtin_interfaces/msg/Time"](sec=10 + i, nanosec=5)
+            pose = T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=float(i), y=0.5, z=0.0),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+            )
+            twist = T["geometry_msgs/msg/Twist"](linear=v3(x=1.0, y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=0.1 * i))
+            m = T["nav_msgs/msg/Odometry"](
+                header=T["std_msgs/msg/Header"](seq=i, stamp=stamp, frame_id="odom"),
+                child_frame_id="base_link",
+                pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+                twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)),
+            )
+            t = (10 + i) * 10**9 + 5
+            truth.append((t, float(i), 0.1 * i))
+            w.add_message(cid, t, bytes(ts.serialize_ros1(m, "nav_msgs/msg/Odometry")), t)
+        w.finish()
+    rec = read_recording(p)
+    ref = np.array(truth)
+    np.testing.assert_array_equal(rec.odometry.t, ref[:, 0].astype(np.int64))
+    np.testing.assert_array_equal(rec.odometry.position[:, 0], ref[:, 1])
+    np.testing.assert_array_equal(rec.odometry.angular[:, 2], ref[:, 2])
+    assert rec.warnings == ()

@@ -179,10 +179,27 @@ class McapSource:
         Standard types use rosbags' ROS 2 definitions; others are registered from the file's own
         ``ros2msg`` schema text.
         """
+        if m.serialization == "ros1":
+            return self._deserialize_ros1(m)
+        if m.serialization != "cdr":
+            raise RecordingError(f"{self.path.name}: topic {m.topic} uses message encoding {m.serialization!r}")
         ts = self._typestore()
         if m.msgtype not in ts.types:
             self._register(m)
         return ts.deserialize_cdr(bytes(m.data), m.msgtype)
+
+    def _deserialize_ros1(self, m: RawMessage):
+        # MCAP with the ros1 profile: the schema is the bag-style concatenated ROS 1 definition.
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        if getattr(self, "_ts1", None) is None:
+            self._ts1 = get_typestore(Stores.EMPTY)
+        if m.msgtype not in self._ts1.types:
+            info = self.topics().get(m.topic)
+            if info is None or not info.schema_text:
+                raise RecordingError(f"{self.path.name}: topic {m.topic} has no ROS 1 message definition")
+            self._ts1.register(get_types_from_msg(info.schema_text, m.msgtype))
+        return self._ts1.deserialize_ros1(bytes(m.data), m.msgtype)
 
     def _typestore(self):
         if getattr(self, "_ts", None) is None:

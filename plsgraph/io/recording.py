@@ -116,6 +116,11 @@ class ImuMsgs:
     accel: np.ndarray
     frame_id: str = "imu_link"
 
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        if np.shape(self.gyro) != (n, 3) or np.shape(self.accel) != (n, 3):
+            raise InputError(f"imu: gyro {np.shape(self.gyro)} and accel {np.shape(self.accel)} must be ({n}, 3)")
+
     def __len__(self) -> int:
         return int(self.t.size)
 
