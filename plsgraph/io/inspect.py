@@ -96,3 +96,7 @@ def render_inspection(info: dict) -> str:
         out.append("warnings:")
         out += [f"  - {w}" for w in info["warnings"]]
     return "\n".join(out)
+
+
+# The CLI's name for the table renderer.
+format_inspection = render_inspection
