@@ -57,6 +57,7 @@ class Protocol:
     quantity: str = "position"
     noise_model: str = "independent"
     planar_side: str = "camera"
+    exact_zero_axis: bool = False
 
 
 def route_errors(
@@ -73,6 +74,7 @@ def route_errors(
         quantity=protocol.quantity,
         noise_model=protocol.noise_model,
         planar_side=protocol.planar_side,
+        exact_zero_axis=protocol.exact_zero_axis,
     )
     out = {}
     for key, (_, kwargs, use_raw) in methods.items():
@@ -125,6 +127,9 @@ def sensitivity_study(trials: int, seed: int, base: Protocol) -> list[dict]:
             for side in ("camera", "base"):
                 p = replace(base, quantity=quantity, noise_model=noise_model, planar_side=side)
                 variants.append((f"{quantity}, {noise_model} noise, zero axis on {side}", p))
+    if base.noise_model == "independent":
+        p = replace(base, planar_side="base", exact_zero_axis=True)
+        variants.append((f"{base.quantity}, independent noise, zero axis on base and noise-free (odometry)", p))
     for scale in (0.5, 2.0, 5.0):
         variants.append((f"{base.quantity}, {base.noise_model} noise, scale {scale:g}", replace(base, scale=scale)))
     rows = []

@@ -132,12 +132,15 @@ def make_trials(
     noise_model: str = "independent",
     planar_side: str = "camera",
     offset: np.ndarray | None = None,
+    exact_zero_axis: bool = False,
 ) -> TrialSet:
     """Draw ``count`` trials of the paper's protocol on ``route`` with a fixed seed.
 
     ``offset`` (3,) is added to the clean motion of the planar side before rotation, to study a motion with a
     non-zero mean (e.g. a route that does not start at the origin); velocities already have one on every route
     but the circle.
+    ``exact_zero_axis`` leaves the zero axis of the planar side noise-free, as for wheel odometry, whose z motion
+    is exactly zero (only with ``noise_model="independent"``).
     """
     if noise_model not in NOISE_MODELS:
         raise InputError(f"noise_model must be one of {NOISE_MODELS}, got {noise_model!r}")
@@ -155,6 +158,10 @@ def make_trials(
     R = np.stack([random_rotation_zyx(rng) for _ in range(count)])
     nx = sigma * rng.standard_normal((count, n, 3))
     ny = sigma * rng.standard_normal((count, n, 3))
+    if exact_zero_axis:
+        if noise_model != "independent":
+            raise InputError("exact_zero_axis needs noise_model='independent' (the paper model mixes X noise into Y)")
+        (nx if planar_side == "camera" else ny)[..., 2] = 0.0
     Rt = np.swapaxes(R, 1, 2)
     if planar_side == "camera":
         X_clean = np.broadcast_to(P, (count, n, 3))
