@@ -105,3 +105,10 @@ def test_centring_loses_the_signal_of_forward_motion():
     assert v["pls_default"]["n_failed"] == 0 and v["pls_default"]["mean_deg"] < 5.0
     centred = v["pls_default_centred"]
     assert centred["n_failed"] > 0 or centred["mean_deg"] > 10.0
+
+
+def test_exact_zero_axis_matches_wheel_odometry():
+    ts = make_trials("s_shape", count=3, planar_side="base", exact_zero_axis=True)
+    assert np.all(ts.Y[..., 2] == 0.0) and np.std(ts.X) > 0.1
+    with pytest.raises(InputError, match="independent"):
+        make_trials("s_shape", count=3, noise_model="paper", exact_zero_axis=True)
