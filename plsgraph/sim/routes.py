@@ -169,5 +169,10 @@ def make_trials(
         # The base (odometry) moves in its plane; the camera sees the same motion rotated: x_cam = R^T y_base.
         X_clean = P @ R
     X = X_clean + nx
-    Y = (X if noise_model == "paper" else X_clean) @ Rt + ny
+    if noise_model == "paper":
+        Y = X @ Rt + ny
+    else:
+        # On the base side the clean odometry motion is the route itself; taking it directly keeps its zero axis
+        # exactly zero instead of a rotated-and-back rounding residue.
+        Y = (X_clean @ Rt if planar_side == "camera" else np.broadcast_to(P, (count, n, 3))) + ny
     return TrialSet(route, X, Y, R)
