@@ -187,3 +187,21 @@ def test_cut_ros1_bag_read_front_to_back(tmp_path, caplog):
     np.testing.assert_array_equal(rec.odometry.position, full.odometry.position[:n])
     np.testing.assert_array_equal(rec.imu.gyro, full.imu.gyro[: len(rec.imu)])
     assert rec.lost == {"/jackal_velocity_controller/odom": None, "/imu/data": None}
+
+
+@pytest.mark.skipif(not (SHARED_REAL_DIR / "davis346_tagboard.mcap").exists(), reason="no real data")
+def test_cut_real_mcap_keeps_readable_start_of_last_chunk(tmp_path, caplog):
+    """The sample's chunks are ~800 kB; a recording cut mid-chunk keeps the whole messages before the cut."""
+    caplog.set_level(logging.ERROR)
+    src = SHARED_REAL_DIR / "davis346_tagboard.mcap"
+    full = read_events(src)
+    data = src.read_bytes()
+    p = tmp_path / "cut.mcap"
+    p.write_bytes(data[: len(data) // 10])  # inside the first chunk
+    rec = read_recording(p)
+    n = len(rec.events)
+    assert n > 30_000  # without salvage nothing of the first chunk would survive
+    np.testing.assert_array_equal(rec.events.t, full.t[:n])
+    np.testing.assert_array_equal(rec.events.y, full.y[:n])
+    assert any("damaged chunk's readable start" in w for w in rec.warnings)
+    assert rec.lost == {"/event_camera/events": None}

@@ -22,9 +22,10 @@ log = logging.getLogger(__name__)
 _FALLBACK_SIZE = 2048
 
 
-def describe_topics(topics: dict[str, TopicInfo]) -> str:
+def describe_topics(topics: dict[str, TopicInfo], log: ReadLog | None = None) -> str:
     if not topics:
-        return "the file has no readable topics"
+        why = f" ({log.warnings[0]})" if log is not None and log.warnings else ""
+        return f"the file has no readable topics{why}"
     return "the file has: " + ", ".join(f"{t} [{i.msgtype or '?'}]" for t, i in sorted(topics.items()))
 
 
@@ -42,7 +43,9 @@ def pick_topic(src: Source, wanted_types: tuple[str, ...], topic: str | None, wh
         return topic
     cands = sorted(t for t, i in topics.items() if i.msgtype in wanted_types)
     if not cands:
-        raise RecordingError(f"{src.path.name}: no {what} topic ({', '.join(wanted_types)}); {describe_topics(topics)}")
+        raise RecordingError(
+            f"{src.path.name}: no {what} topic ({', '.join(wanted_types)}); {describe_topics(topics, src.log)}"
+        )
     if len(cands) > 1:
         # The busiest topic is the usual choice (e.g. a camera plus a downsampled preview); say so.
         cands.sort(key=lambda t: -(topics[t].messages or 0))

@@ -81,10 +81,18 @@ class McapSource:
             # No index: one pass over the file finds the channels and counts what is readable.
             found: dict[str, TopicInfo] = {}
             counts: Counter[str] = Counter()
-            for m in self._iter(None, found):
-                counts[m.topic] += 1
-            for t, info in found.items():
-                info.messages = counts.get(t, 0)
+            # The scan's own damage reports are dropped: the real read reports the same damage once.
+            real_log, self.log = self.log, ReadLog()
+            try:
+                for m in self._iter(None, found):
+                    counts[m.topic] += 1
+            finally:
+                scan_log, self.log = self.log, real_log
+            if not found:  # nothing readable: the scan's report is all there is to say
+                for w in scan_log.warnings:
+                    self.log.warn(w)
+            # Without a summary the total per topic is unknown (None); only what is readable was counted.
+            self._readable_counts = dict(counts)
             self._topics = found
         return self._topics
 
@@ -127,12 +135,17 @@ class McapSource:
         with open(self.path, "rb") as f:
             records = StreamReader(f, emit_chunks=True, validate_crcs=True, record_size_limit=self.size).records
             while True:
+                start = f.tell()
                 try:
                     rec = next(records)
                 except StopIteration:
                     break
                 except Exception as exc:  # noqa: BLE001 - the mcap library raises many types on corrupt bytes
-                    self._stopped(exc, f.tell(), read, topics)
+                    before = sum(read.values())
+                    salvaged: list = []
+                    for r in _salvage_chunk(self.path, start, self.size, salvaged):
+                        yield from handle(r)
+                    self._stopped(exc, start, read, topics, sum(read.values()) - before, salvaged)
                     break
                 if isinstance(rec, Chunk):
                     try:
@@ -157,11 +170,14 @@ class McapSource:
         if lost_chunks or self.log.stopped_early:
             self._report_lost(read, topics)
 
-    def _stopped(self, exc: Exception, pos: int, read: Counter, topics: set[str] | None) -> None:
+    def _stopped(
+        self, exc: Exception, pos: int, read: Counter, topics: set[str] | None, salvaged: int, why: list
+    ) -> None:
         self.log.stopped_early = True
+        extra = f", {salvaged} of them from the damaged chunk's readable start" if salvaged else ""
         self.log.warn(
             f"{self.path.name}: file is truncated or corrupt near byte {pos} of {self.size} "
-            f"({type(exc).__name__}: {exc}); kept the {sum(read.values())} messages read before it"
+            f"({type(exc).__name__}: {exc}); kept the {sum(read.values())} messages read before it{extra}"
         )
 
     def _report_lost(self, read: Counter, topics: set[str] | None) -> None:
@@ -222,6 +238,64 @@ class McapSource:
         for name, text in split_msgdef(m.msgtype, info.schema_text):
             types.update(get_types_from_msg(text, name))
         self._typestore().register(types)
+
+
+def _salvage_chunk(path: Path, start: int, size: int, note: list) -> Iterator:
+    """Records from the readable start of a chunk cut off at the end of the file (a recording that was
+    interrupted): decompress what is there (uncompressed, zstd or lz4 streams give their prefix) and parse
+    whole records until the first incomplete one."""
+    import io
+    import struct
+
+    from mcap.data_stream import ReadDataStream
+    from mcap.opcode import Opcode
+
+    with open(path, "rb") as f:
+        f.seek(start)
+        head = f.read(9)
+        if len(head) < 9 or head[0] != Opcode.CHUNK:
+            return
+        body = f.read(min(struct.unpack_from("<Q", head, 1)[0], size))
+    try:
+        _t0, _t1, usize, _crc, clen = struct.unpack_from("<QQQII", body, 0)
+        pos = 32
+        if clen > 64 or pos + clen + 8 > len(body):
+            return
+        comp = body[pos : pos + clen].decode()
+        pos += clen + 8  # compression name, then the length of the (cut) records block
+        data = body[pos:]
+        if comp == "":
+            raw = data
+        elif comp == "zstd":
+            import zstandard
+
+            raw = zstandard.ZstdDecompressor().decompressobj().decompress(data)
+        elif comp == "lz4":
+            import lz4.frame
+
+            raw = lz4.frame.LZ4FrameDecompressor().decompress(data)
+        else:
+            return
+    except Exception:  # noqa: BLE001 - a damaged header or stream: nothing to salvage
+        return
+    raw = raw[: min(len(raw), usize)]
+    readers = {Opcode.SCHEMA: Schema.read, Opcode.CHANNEL: Channel.read}
+    p = 0
+    while p + 9 <= len(raw):
+        op = raw[p]
+        n = struct.unpack_from("<Q", raw, p + 1)[0]
+        if p + 9 + n > len(raw):
+            break
+        stream = ReadDataStream(io.BytesIO(raw[p + 9 : p + 9 + n]))
+        try:
+            if op == Opcode.MESSAGE:
+                yield Message.read(stream, n)
+            elif op in readers:
+                yield readers[op](stream)
+        except Exception:  # noqa: BLE001
+            break
+        note.append(op)
+        p += 9 + n
 
 
 def split_msgdef(name: str, text: str) -> list[tuple[str, str]]:

@@ -286,7 +286,7 @@ def read_recording(
     if not used:
         from .events_reader import describe_topics
 
-        raise RecordingError(f"{src.path.name}: nothing plsgraph can use; {describe_topics(all_topics)}")
+        raise RecordingError(f"{src.path.name}: nothing plsgraph can use; {describe_topics(all_topics, src.log)}")
     by_topic = {t: r for r, t in used.items()}
     collectors = {t: _Collector(r, t) for r, t in used.items() if r != "events"}
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,8 +45,8 @@ class ReadLog:
     stopped_early: bool = False
 
     def warn(self, msg: str) -> None:
-        import logging
-
+        if msg in self.warnings:  # a second pass over the same damage says nothing new
+            return
         logging.getLogger("plsgraph.io").warning(msg)
         self.warnings.append(msg)
 
