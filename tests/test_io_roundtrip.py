@@ -168,3 +168,17 @@ def test_inspect_counts(tmp_path):
     assert (e["t_first_ns"], e["t_last_ns"], e["width"], e["height"]) == (ev.t_first, ev.t_last, 346, 260)
     assert rows["/odom"]["messages"] == len(od) and "events" not in rows["/odom"]
     assert rows["/joint_states"]["t_first_ns"] == js.t[0]
+
+
+@pytest.mark.parametrize("fmt", ["dvs", "libcaer_cmp"])
+def test_events_outside_sensor_dropped_with_warning(tmp_path, fmt):
+    ev, _, _, _ = _sim(n=2000, seconds=0.1)
+    # Declare a smaller sensor than the events cover (validate=False skips the constructor's own check).
+    small = EventStream.from_arrays(ev.t, ev.x, ev.y, ev.p, 200, 260, validate=False)
+    p = tmp_path / "o.mcap"
+    write_recording(p, small, None, None, None, event_format=fmt)
+    rec = read_recording(p)
+    inside = ev.x < 200
+    np.testing.assert_array_equal(rec.events.t, ev.t[inside])
+    np.testing.assert_array_equal(rec.events.x, ev.x[inside])
+    assert any(f"dropped {int((~inside).sum())} events outside the sensor" in w for w in rec.warnings)

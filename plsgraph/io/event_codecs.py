@@ -145,6 +145,11 @@ def _finish(
     )
 
 
+def finish_events(t, x, y, p, width: int, height: int, stats: DecodeStats):
+    """Drop events outside the sensor (counted in ``stats``) and convert to the EventStream dtypes."""
+    return _finish(None, np.asarray(t), np.asarray(x), np.asarray(y), np.asarray(p), width, height, stats, False)
+
+
 @dataclass
 class LibcaerCmpDecoder:
     """Stateful ``libcaer_cmp`` decoder (x address and vector base carry over between packets)."""

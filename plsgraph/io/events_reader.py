@@ -12,7 +12,7 @@ import numpy as np
 from ..errors import RecordingError
 from ..events import EventStream
 from .cdr import CdrError
-from .event_codecs import DecodeStats, Evt3Decoder, make_decoder
+from .event_codecs import DecodeStats, Evt3Decoder, finish_events, make_decoder
 from .messages import EVENT_ARRAY_TYPES, EVENT_PACKET_TYPES, EVENT_TYPES, parse_event_array, parse_event_packet
 from .source import RawMessage, ReadLog, Source, TopicInfo, open_source
 
@@ -30,7 +30,8 @@ def describe_topics(topics: dict[str, TopicInfo], log: ReadLog | None = None) ->
 
 
 def pick_topic(src: Source, wanted_types: tuple[str, ...], topic: str | None, what: str) -> str:
-    """The topic to read: ``topic`` if given (checked), else the only topic of one of ``wanted_types``."""
+    """The topic to read: ``topic`` if given (checked), else the topic of one of ``wanted_types`` (the busiest
+    one, with a warning, if there are several)."""
     topics = src.topics()
     if topic is not None:
         if topic not in topics:
@@ -71,9 +72,10 @@ class _TopicDecoder:
         try:
             if m.msgtype in EVENT_PACKET_TYPES:
                 return self._packet(m)
-            stamp, w, h, t, x, y, p = parse_event_array(m.data, m.serialization)
+            _stamp, w, h, t, x, y, p = parse_event_array(m.data, m.serialization)
             self._size(w, h)
-            return t, x, y, p
+            # Same bounds check and dtypes as the packet codecs (a corrupt address must not pass silently).
+            return finish_events(t, x, y, p, self.width, self.height, self.stats)
         except CdrError as exc:
             self.bad_messages += 1
             if self.bad_messages <= 3:
