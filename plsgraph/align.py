@@ -27,7 +27,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from .errors import DegenerateMotionError, InputError, InsufficientDataError
-from .geometry import so3_log
+from .geometry import interpolate_poses, so3_log
 from .odometry import in_gap
 from .tracks import BaseTrack, CameraTrack
 
@@ -83,24 +83,77 @@ def body_velocities(T: np.ndarray, rate: float, half: int, polyorder: int = 2) -
     return omega, np.einsum("nji,nj->ni", R, p_dot)
 
 
+def pose_outliers(
+    T: np.ndarray,
+    half: int,
+    sigma: float = 5.0,
+    iterations: int = 3,
+    min_rot_rad: float = np.radians(0.3),
+    min_pos_m: float = 0.005,
+) -> np.ndarray:
+    """Mask of poses (n, 4, 4) that stick out of a smooth trajectory (single-frame spikes in rotation or position).
+
+    Positions and the accumulated body-frame rotation increments are compared with their Savitzky-Golay
+    smoothing over 2 * half + 1 frames; a pose whose residual exceeds ``sigma`` robust standard deviations
+    (1.4826 MAD) on either, and at least ``min_rot_rad`` / ``min_pos_m`` (so that noise-free tracks, whose MAD
+    is rounding dust, keep every pose), is an outlier. Outliers are replaced by their neighbours' interpolation
+    and the test repeated, because one spike also bends the smoothing around it.
+    """
+    n = T.shape[0]
+    win = 2 * half + 1
+    bad = np.zeros(n, dtype=bool)
+    if n < win + 2:
+        return bad
+    idx = np.arange(n)
+    for _ in range(iterations):
+        good = np.flatnonzero(~bad)
+        # Interpolate the good poses back onto every index, so the filter runs on an evenly indexed sequence.
+        Tg = interpolate_poses(idx.astype(float).clip(good[0], good[-1]), good.astype(float), T[good])
+        R = Tg[:, :3, :3]
+        phi = np.vstack([np.zeros(3), np.cumsum(so3_log(np.einsum("nji,njk->nik", R[:-1], R[1:])), axis=0)])
+        # The residuals of the measured (not the interpolated) poses against the smooth curve.
+        R_meas = T[:, :3, :3]
+        phi_meas = phi + so3_log(np.einsum("nji,njk->nik", R, R_meas))
+        res_r = np.linalg.norm(phi_meas - savgol_filter(phi, win, 2, axis=0), axis=1)
+        res_p = np.linalg.norm(T[:, :3, 3] - savgol_filter(Tg[:, :3, 3], win, 2, axis=0), axis=1)
+        new = np.zeros(n, dtype=bool)
+        for r, floor in ((res_r, min_rot_rad), (res_p, min_pos_m)):
+            ref = r[~bad]
+            scale = 1.4826 * np.median(np.abs(ref - np.median(ref)))
+            new |= r > max(np.median(ref) + sigma * scale, floor)
+        if np.array_equal(new, bad):
+            break
+        bad = new
+    return bad
+
+
 def camera_velocities(
     track: CameraTrack,
     window_s: float = DEFAULT_WINDOW_S,
     polyorder: int = 2,
     rate: float | None = None,
     gap_factor: float = 2.5,
+    outlier_sigma: float | None = 5.0,
 ) -> CameraVelocities:
     """Angular and linear velocity of the camera in its own frame from its poses relative to the static board.
 
     The board does not move, so the body velocity of T_board_cam is the camera's velocity relative to the
     world, expressed in the camera frame. ``window_s`` is the Savitzky-Golay window (s); ``rate`` the grid
     rate (default: the median frame rate). Grid samples closer than half a window to a hole in the track
-    (a step longer than ``gap_factor`` times the median) are marked invalid.
+    (a step longer than ``gap_factor`` times the median) are marked invalid. Poses that jump away from their
+    neighbours by more than ``outlier_sigma`` robust standard deviations (a PnP flip, a misdetection) are
+    dropped first (``info["outliers"]``); None keeps every pose.
     """
     t = track.t
     if t.size < 5:
         raise InsufficientDataError(f"camera track: need at least 5 poses to differentiate, got {t.size}")
     dt_med = float(np.median(np.diff(t)))
+    outliers = np.zeros(t.size, dtype=bool)
+    if outlier_sigma is not None:
+        outliers = pose_outliers(track.T_board_cam, _window_half(window_s, 1.0 / dt_med, polyorder), outlier_sigma)
+        if outliers.any():
+            track = CameraTrack(t[~outliers], track.T_board_cam[~outliers])
+            t = track.t
     rate = 1.0 / dt_med if rate is None else float(rate)
     n = int(np.floor((t[-1] - t[0]) * rate)) + 1
     tg = t[0] + np.arange(n) / rate
@@ -115,7 +168,15 @@ def camera_velocities(
         valid &= ~((tg > t[k] - reach) & (tg < t[k + 1] + reach))
     valid[:half] = False  # the filter's edge polynomials are extrapolations
     valid[-half:] = False
-    info = {"window_s": (2 * half + 1) / rate, "half": half, "polyorder": polyorder, "rate": rate, "holes": holes.size}
+    info = {
+        "window_s": (2 * half + 1) / rate,
+        "half": half,
+        "polyorder": polyorder,
+        "rate": rate,
+        "holes": int(holes.size),
+        "outliers": int(outliers.sum()),
+        "outlier_mask": outliers,
+    }
     return CameraVelocities(tg, omega, v, valid, info)
 
 

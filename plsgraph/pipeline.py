@@ -184,10 +184,34 @@ def _motion_pairs(
     return Tb, Tc, int(np.count_nonzero(~ok))
 
 
-def _solve_rotation(X: np.ndarray, Y: np.ndarray, method: str) -> closedform.RotationResult:
+def _solve_rotation(
+    X: np.ndarray, Y: np.ndarray, method: str, weights: np.ndarray | None = None
+) -> closedform.RotationResult:
     if method == "pls_paper":
-        return closedform.solve(X, Y, "pls", paper=True)
-    return closedform.solve(X, Y, method)
+        return closedform.solve(X, Y, "pls", paper=True, weights=weights)
+    return closedform.solve(X, Y, method, weights=weights)
+
+
+def covariance_weights(camera_track: CameraTrack, t: np.ndarray, clip: float = 10.0) -> np.ndarray | None:
+    """Per-row weights (2n,) for the stacked rows from the camera poses' covariance, or None without one.
+
+    Angular rows get 1 / tr(rotation covariance), linear rows 1 / tr(translation covariance), interpolated to
+    the paired times, each normalised to mean 1 and clipped to [1 / clip, clip] times its median so that one
+    overconfident pose cannot dominate. Uniform covariances give uniform weights.
+    """
+    cov = camera_track.cov
+    if cov is None or cov.shape != (len(camera_track), 6, 6) or not np.all(np.isfinite(cov)):
+        return None
+    out = []
+    for block in (slice(0, 3), slice(3, 6)):
+        tr = np.trace(cov[:, block, block], axis1=1, axis2=2)
+        if not np.all(tr > 0):
+            return None
+        w = 1.0 / np.interp(t, camera_track.t, tr)
+        med = np.median(w)
+        w = np.clip(w, med / clip, med * clip)
+        out.append(w / w.mean())
+    return np.concatenate(out)
 
 
 def calibrate_closed_form(
@@ -203,6 +227,7 @@ def calibrate_closed_form(
     hand_eye_methods: tuple[str, ...] = closedform.HAND_EYE_METHODS,
     compare: bool = True,
     raise_on_degenerate: bool = False,
+    use_covariance: bool = True,
 ) -> ClosedFormResult:
     """Closed-form T_base_cam (rotation, floor-plane translation) and td from a camera and a base track.
 
@@ -211,6 +236,7 @@ def calibrate_closed_form(
     otherwise it is searched in ``td_range`` with ``time_offset_method``. ``iterations`` alternations of
     rotation and lever arm; ``hand_eye_interval_s`` the span of the relative motions for the translation and
     the OpenCV hand-eye comparison. ``compare`` also runs every other solver (results in ``methods``).
+    ``use_covariance`` weights the velocity rows by the camera poses' covariance when the track has one.
     Input problems raise (InputError, InsufficientDataError); motion that leaves something undetermined gives
     a result with ``degenerate`` set, or raises DegenerateMotionError with ``raise_on_degenerate``.
     """
@@ -222,6 +248,10 @@ def calibrate_closed_form(
     warnings: list[str] = list(base_track.info.get("warnings", []))
     reasons: list[str] = []
     cv: CameraVelocities = camera_velocities(camera_track, window_s=window_s)
+    if cv.info.get("outliers"):
+        # The relative motions for the translation must not use the poses the differentiation rejected.
+        keep = ~cv.info["outlier_mask"]
+        camera_track = CameraTrack(camera_track.t[keep], camera_track.T_board_cam[keep])
 
     # 1. Time offset.
     to_res: TimeOffsetResult | None = None
@@ -238,7 +268,7 @@ def calibrate_closed_form(
 
     # 2. Pairing and excitation.
     pairs = pair_samples(cv, base_track, td_est)
-    discarded = dict(pairs.discarded)
+    discarded = dict(pairs.discarded, camera_outlier_frames=int(cv.info.get("outliers", 0)))
     n = pairs.t.size
     w = pairs.omega_base[:, 2]
     v = pairs.v_base[:, 0]
@@ -286,6 +316,7 @@ def calibrate_closed_form(
         vertical = vertical / np.linalg.norm(vertical)
 
     # 3. Rotation and lever arm, alternating.
+    row_weights = covariance_weights(camera_track, pairs.t) if use_covariance else None
     methods: dict[str, MethodResult] = {}
     R = None
     t_xy = np.zeros(2)
@@ -295,7 +326,7 @@ def calibrate_closed_form(
         try:
             for _ in range(max(1, iterations)):
                 X, Y, _k = _stack_rows(pairs, t_xy)
-                R = _solve_rotation(X, Y, method).R_base_cam
+                R = _solve_rotation(X, Y, method, row_weights).R_base_cam
                 t_xy = lever_arm_from_velocities(pairs, R)
             t_xy_vel = t_xy.copy()
         except PlsgraphError as exc:
@@ -321,7 +352,7 @@ def calibrate_closed_form(
     caveat = [] if full_rotation else ["the motion does not determine the full rotation: this answer is arbitrary"]
     for name in rot_methods if compare else (method,):
         try:
-            rr = _solve_rotation(X, Y, name)
+            rr = _solve_rotation(X, Y, name, row_weights)
             methods[name] = MethodResult(rr.R_base_cam, None, None, list(rr.warnings) + caveat, dict(rr.diagnostics))
         except PlsgraphError as exc:
             methods[name] = MethodResult(None, error=str(exc))

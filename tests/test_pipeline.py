@@ -114,3 +114,21 @@ def test_detections_and_pnp_path():
     assert rotation_error_deg(res.R_base_cam, rec.R_base_cam) < 1.0
     assert np.all(np.abs(res.t_xy - rec.T_base_cam[:2, 3]) < 0.03)
     assert abs(res.td - 0.02) < 10e-3
+
+
+def test_pose_outliers_are_rejected_and_counted():
+    from plsgraph.geometry import se3_exp
+
+    rec, base, cam = tracks("rich", seed=7)
+    rng = np.random.default_rng(0)
+    bad = rng.choice(len(cam), size=len(cam) // 30, replace=False)
+    xi = np.concatenate([rng.normal(0, np.radians(15), (bad.size, 3)), rng.normal(0, 0.2, (bad.size, 3))], axis=1)
+    T = cam.T_board_cam.copy()
+    T[bad] = T[bad] @ se3_exp(xi)  # PnP flips / misdetections in 3 % of the frames
+    res = calibrate_closed_form(CameraTrack(cam.t, T), base, compare=False)
+    assert res.discarded["camera_outlier_frames"] >= 0.8 * bad.size
+    assert rotation_error_deg(res.R_base_cam, rec.R_base_cam) < 0.3
+    assert np.all(np.abs(res.t_xy - rec.T_base_cam[:2, 3]) < 0.01)
+    assert abs(res.td - 0.037) < 3e-3
+    clean = calibrate_closed_form(cam, base, compare=False)
+    assert clean.discarded["camera_outlier_frames"] == 0
