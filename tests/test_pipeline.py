@@ -132,3 +132,15 @@ def test_pose_outliers_are_rejected_and_counted():
     assert abs(res.td - 0.037) < 3e-3
     clean = calibrate_closed_form(cam, base, compare=False)
     assert clean.discarded["camera_outlier_frames"] == 0
+
+
+def test_odometry_jump_is_discarded_and_reported():
+    rec, base, cam = tracks("rich", seed=8)
+    right = rec.wheel_right.copy()
+    right[500:] += 40.0  # an encoder reset 10 s in
+    jumpy = base_track_from_wheels(rec.wheel_t, rec.wheel_left, right)
+    res = calibrate_closed_form(cam, jumpy, compare=False)
+    assert any("treated as resets" in w for w in res.warnings)
+    assert res.discarded["odometry_gap_or_jump"] > 0 and res.discarded["motion_pairs_across_gaps"] > 0
+    assert rotation_error_deg(res.R_base_cam, rec.R_base_cam) < 0.5
+    assert np.all(np.abs(res.t_xy - rec.T_base_cam[:2, 3]) < 0.01)
