@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from plsgraph.io import read_events, read_recording
 from plsgraph.io.event_codecs import encode_evt3
@@ -149,3 +150,27 @@ def test_ros1_profile_mcap_odometry(tmp_path):
     np.testing.assert_array_equal(rec.odometry.position[:, 0], ref[:, 1])
     np.testing.assert_array_equal(rec.odometry.angular[:, 2], ref[:, 2])
     assert rec.warnings == ()
+
+
+def test_unknown_encoding_first_is_fatal_later_is_skipped(tmp_path):
+    from rosbags.rosbag2 import Writer
+
+    from plsgraph.errors import RecordingError
+
+    ts = _stores(ros1=False)
+    _, packets, truth = _msgs(ts, np.random.default_rng(2), n_msgs=5)
+    for name, bad_index in (("later", 3), ("first", 0)):
+        d = tmp_path / name
+        with Writer(d, version=8) as w:
+            c = w.add_connection("/event_camera/events", "event_camera_msgs/msg/EventPacket", typestore=ts)
+            for k, (stamp, msg) in enumerate(packets):
+                if k == bad_index:
+                    msg = type(msg)(**{**msg.__dict__, "encoding": "evt2"})
+                w.write(c, stamp, ts.serialize_cdr(msg, "event_camera_msgs/msg/EventPacket"))
+        if bad_index == 0:
+            with pytest.raises(RecordingError, match="evt2.*supported"):
+                read_events(d)
+        else:
+            rec = read_recording(d)
+            assert any("skipped an unreadable event message" in w and "evt2" in w for w in rec.warnings)
+            assert 0 < len(rec.events) < len(truth[0])

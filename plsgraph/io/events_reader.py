@@ -66,21 +66,36 @@ class _TopicDecoder:
     height: int = 0
     evt3_offset_ns: int | None = None
     bad_messages: int = 0
+    good_messages: int = 0
     stats: DecodeStats = field(default_factory=DecodeStats)
 
     def decode(self, m: RawMessage):
         try:
-            if m.msgtype in EVENT_PACKET_TYPES:
-                return self._packet(m)
-            _stamp, w, h, t, x, y, p = parse_event_array(m.data, m.serialization)
-            self._size(w, h)
-            # Same bounds check and dtypes as the packet codecs (a corrupt address must not pass silently).
-            return finish_events(t, x, y, p, self.width, self.height, self.stats)
+            out = self._decode(m)
+            self.good_messages += 1
+            return out
         except CdrError as exc:
-            self.bad_messages += 1
-            if self.bad_messages <= 3:
-                self.src_log.warn(f"{self.name}: skipped an unreadable event message at {m.log_time_ns} ns: {exc}")
-            return None
+            self._bad(m, exc)
+        except RecordingError as exc:
+            # Unknown encoding, size change, big-endian flag: fatal on the first message (the file is not
+            # what it claims), a damaged message once the topic has proven readable.
+            if not self.good_messages:
+                raise
+            self._bad(m, exc)
+        return None
+
+    def _bad(self, m: RawMessage, exc: Exception) -> None:
+        self.bad_messages += 1
+        if self.bad_messages <= 3:
+            self.src_log.warn(f"{self.name}: skipped an unreadable event message at {m.log_time_ns} ns: {exc}")
+
+    def _decode(self, m: RawMessage):
+        if m.msgtype in EVENT_PACKET_TYPES:
+            return self._packet(m)
+        _stamp, w, h, t, x, y, p = parse_event_array(m.data, m.serialization)
+        self._size(w, h)
+        # Same bounds check and dtypes as the packet codecs (a corrupt address must not pass silently).
+        return finish_events(t, x, y, p, self.width, self.height, self.stats)
 
     def _size(self, w: int, h: int) -> None:
         if not self.width:
@@ -99,9 +114,10 @@ class _TopicDecoder:
         hdr, blob = parse_event_packet(m.data, m.serialization)
         self._size(hdr.width, hdr.height)
         if self.decoder is None or hdr.encoding != self.encoding:
+            new = make_decoder(hdr.encoding, self.width, self.height)  # raises on an unknown encoding
             if self.decoder is not None:
                 self.src_log.warn(f"{self.name}: encoding changes from {self.encoding} to {hdr.encoding}")
-            self.decoder = make_decoder(hdr.encoding, self.width, self.height)
+            self.decoder = new
             self.stats = self.decoder.stats
             self.encoding = hdr.encoding
         t, x, y, p = self.decoder.decode(blob, hdr.time_base)
