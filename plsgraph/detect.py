@@ -37,6 +37,12 @@ REASON_MIRRORED = "mirrored_order"
 REASON_TOO_FEW = "too_few_points"
 REASON_AMBIGUOUS = "ambiguous_labels"
 
+#: Hole-area ratio between the two parity classes of a grown lattice above which it is taken for the
+#: lattice of circles and gaps (see :func:`label_circle_grid`).
+FINE_LATTICE_AREA_RATIO = 1.3
+#: Share of the lattice points found that must land on board circles for a labelling to be accepted.
+MIN_INSIDE_FRACTION = 0.85
+
 
 @dataclass(frozen=True)
 class GridDetection:
@@ -279,16 +285,16 @@ def _grow_lattice(pts: np.ndarray, seed: int, nn: np.ndarray, tol: float = 0.3) 
         order = cand[np.argsort(res[cand])]
         _, first = np.unique(a[order], axis=0, return_index=True)
         new_idx = np.sort(order[first])
-        grown = new_idx.size > idx.size or radius < 3
+        grown = new_idx.size > idx.size
         idx, lat = new_idx, a[new_idx]
         if idx.size >= 4:
             Hn, _ = cv2.findHomography(lat.astype(np.float64), pts[idx].astype(np.float64), 0)
             if Hn is None:
                 break
             H = Hn
-        if not grown:
+        if not grown and radius >= 3:
             break
-        radius += 1
+        radius += 1 if radius < 3 else 2
     return idx, lat
 
 
@@ -329,6 +335,8 @@ def label_circle_grid(
     seeds = seeds[np.argsort(np.linalg.norm(pts[seeds] - centre, axis=1))][:6]
     best_idx, best_lat = np.zeros(0, int), np.zeros((0, 2), int)
     for sd in seeds:
+        if np.isin(sd, best_idx):  # growing from a point of the best lattice would find it again
+            continue
         idx, lat = _grow_lattice(pts, int(sd), nn)
         if idx.size > best_idx.size:
             best_idx, best_lat = idx, lat
@@ -338,18 +346,16 @@ def label_circle_grid(
         return _fail(n, REASON_NOT_FOUND)
     if areas is not None:
         # Touching rims also enclose the gaps between circles; circles and gaps together form a lattice
-        # twice as dense (axis-aligned on the board), in which the circles are the sites of one parity
-        # and clearly larger. Labelling that lattice as circles would give a wrong order that still fits
-        # a homography, so decide here which lattice was grown.
+        # twice as dense (axis-aligned on the board) in which the circles are the sites of one parity and
+        # clearly larger (for the bundled board about 2 to 4 times the area). Labelling that lattice as
+        # circles would give a wrong order that still fits a homography, so decide which lattice was grown.
         par = (best_lat.sum(axis=1) % 2).astype(bool)
-        a_odd = np.asarray(areas, dtype=float)[best_idx[par]]
-        a_even = np.asarray(areas, dtype=float)[best_idx[~par]]
-        if a_odd.size >= 3 and a_even.size >= 3:
-            big_odd = np.median(a_odd) > np.median(a_even)
-            ratio = max(np.median(a_odd), np.median(a_even)) / max(min(np.median(a_odd), np.median(a_even)), 1e-9)
-            if ratio > 1.5:
-                circ = par if big_odd else ~par
-                q = best_lat[circ] - (np.array([1, 0]) if big_odd else 0)  # move the circles to even sites
+        a = np.asarray(areas, dtype=float)[best_idx]
+        if np.count_nonzero(par) >= 3 and np.count_nonzero(~par) >= 3:
+            m_odd, m_even = float(np.median(a[par])), float(np.median(a[~par]))
+            if max(m_odd, m_even) > FINE_LATTICE_AREA_RATIO * min(m_odd, m_even):
+                circ = par if m_odd > m_even else ~par
+                q = best_lat[circ] - (np.array([1, 0]) if m_odd > m_even else 0)  # circles to even sites
                 best_idx = best_idx[circ]
                 best_lat = np.stack([(q[:, 0] + q[:, 1]) // 2, (q[:, 0] - q[:, 1]) // 2], axis=-1)
                 if best_idx.size < min_points:
@@ -359,20 +365,30 @@ def label_circle_grid(
     span = B.max(axis=0) - bmin + 1
     occupied = np.full(tuple(span), -1, dtype=int)
     occupied[tuple((B - bmin).T)] = np.arange(n)
-    # Score every lattice symmetry and every shift that overlaps the board at once: (8, S, m) hits.
-    D = np.einsum("kij,mj->kmi", _LATTICE_MAPS, best_lat)  # (8, m, 2)
-    lo = bmin - D.max(axis=(0, 1))
-    hi = bmin + span - 1 - D.min(axis=(0, 1))
-    SX, SY = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
-    shifts = np.stack([SX.ravel(), SY.ravel()], axis=-1)
-    cells = D[:, None, :, :] + (shifts - bmin)[None, :, None, :]
-    inside = np.all((cells >= 0) & (cells < span), axis=-1)
-    cc = np.where(inside[..., None], cells, 0)
-    counts = (inside & (occupied[cc[..., 0], cc[..., 1]] >= 0)).sum(axis=-1)  # (8, S)
-    top = int(counts.max())
+    # Score every lattice symmetry and every shift at once: the number of seen points that land on board
+    # circles is the cross-correlation of two small occupancy images (template matching on the lattice).
+    board_img = np.zeros(tuple(span), np.float32)
+    board_img[tuple((B - bmin).T)] = 1.0
+    placements = []  # (count, map index, shift)
+    for k, M in enumerate(_LATTICE_MAPS):
+        D = best_lat @ M.T
+        dmin = D.min(axis=0)
+        dspan = D.max(axis=0) - dmin + 1
+        tmpl = np.zeros(tuple(dspan), np.float32)
+        tmpl[tuple((D - dmin).T)] = 1.0
+        padded = cv2.copyMakeBorder(board_img, dspan[0] - 1, dspan[0] - 1, dspan[1] - 1, dspan[1] - 1,
+                                    cv2.BORDER_CONSTANT, value=0)
+        hits = np.rint(cv2.matchTemplate(padded, tmpl, cv2.TM_CCORR)).astype(int)
+        for u, v in zip(*np.nonzero(hits == hits.max()), strict=True):
+            shift = np.array([u, v]) - (dspan - 1) + bmin - dmin
+            placements.append((int(hits[u, v]), k, shift))
+    top = max(c for c, _, _ in placements)
     if top < min_points:
         return _fail(n, REASON_TOO_FEW)
-    placements = [(top, int(k), shifts[j]) for k, j in zip(*np.nonzero(counts == top), strict=True)]
+    if top < MIN_INSIDE_FRACTION * best_idx.size:
+        # The grown lattice does not fit on the board: most likely the denser lattice of circles and the
+        # gaps between them (or a repetitive background) taken for the circles. Never label it.
+        return _fail(n, REASON_ORDER)
     valid = []
     for c, k, sh in placements:
         if c != top:
@@ -463,21 +479,30 @@ def _detect_rims(
     n = board.n_points
     if image.ndim != 2:
         raise InputError(f"detect: expected a single-channel 2-D image, got shape {image.shape}")
-    active = image > threshold
+    active = (image > threshold).astype(np.uint8)
     if not np.any(active):
         return _fail(n, REASON_EMPTY)
-    # A 3 x 3 closing bridges the one-pixel breaks a rim has where the circle's edge runs along the motion.
-    closed = cv2.morphologyEx(active.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
-    centres, area = rim_holes(closed)
-    if centres.shape[0] < 6:
-        return _fail(n, REASON_NOT_FOUND)
-    # Circle insides are the largest compact holes; gaps between touching rims and texture leave
-    # smaller ones. Reference: the median of the n largest.
-    ref = float(np.median(np.sort(area)[-n:]))
-    keep = area >= 0.4 * ref
-    return label_circle_grid(
-        centres[keep], board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px
-    )
+    # Where the circle's edge runs along the motion it produces no events, so each rim has two breaks
+    # through which its inside would leak into the background. Thickening the rims by k pixels closes
+    # breaks up to 2k + 1 wide and shrinks every hole evenly (its centroid stays). k = 2 closes most
+    # breaks; k = 3 helps slow motion (wide breaks), k = 1 small, distant circles (small holes).
+    result = _fail(n, REASON_NOT_FOUND)
+    for k in (2, 3, 1):
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1))
+        centres, area = rim_holes(cv2.dilate(active, kernel).astype(bool))
+        if centres.shape[0] < 6:
+            continue
+        # Circle insides are the largest compact holes; gaps between touching rims and texture leave
+        # smaller ones. Reference: the median of the n largest.
+        ref = float(np.median(np.sort(area)[-n:]))
+        keep = area >= 0.4 * ref
+        det = label_circle_grid(
+            centres[keep], board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px
+        )
+        if det.ok:
+            return det
+        result = det if result.reason == REASON_NOT_FOUND else result
+    return result
 
 
 # --- AprilGrid -------------------------------------------------------------------------------------
