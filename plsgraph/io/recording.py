@@ -247,6 +247,14 @@ class _Collector:
         msg = self.rows[0]
         K = np.asarray(getattr(msg, "k", getattr(msg, "K", None)), float)
         D = np.asarray(getattr(msg, "d", getattr(msg, "D", [])), float)
+        changed = sum(
+            1
+            for m in self.rows[1:]
+            if not np.array_equal(np.asarray(getattr(m, "k", getattr(m, "K", None)), float), K)
+            or not np.array_equal(np.asarray(getattr(m, "d", getattr(m, "D", [])), float), D)
+        )
+        if changed:
+            warn(f"{self.topic}: intrinsics change in {changed} of {len(self.rows)} messages; using the first")
         model = msg.distortion_model or "plumb_bob"
         if model not in ("plumb_bob", "rational_polynomial") or D.size > 5 and np.any(D[5:] != 0):
             warn(f"{self.topic}: distortion {model!r} with {D.size} coefficients is not plumb_bob; camera ignored")
