@@ -174,3 +174,24 @@ def test_unknown_encoding_first_is_fatal_later_is_skipped(tmp_path):
             rec = read_recording(d)
             assert any("skipped an unreadable event message" in w and "evt2" in w for w in rec.warnings)
             assert 0 < len(rec.events) < len(truth[0])
+
+
+def test_overlapping_messages_are_sorted_with_warning(tmp_path):
+    from rosbags.rosbag2 import Writer
+
+    ts = _stores(ros1=False)
+    arrays, _, truth = _msgs(ts, np.random.default_rng(4), n_msgs=4)
+    d = tmp_path / "ov"
+    with Writer(d, version=8) as w:
+        c = w.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=ts)
+        # The second message's payload is logged first: its events come before the first one's.
+        order = [(arrays[0][0], arrays[1][1]), (arrays[1][0], arrays[0][1]), arrays[2], arrays[3]]
+        for stamp, msg in order:
+            w.write(c, stamp, ts.serialize_cdr(msg, "dvs_msgs/msg/EventArray"))
+    from plsgraph.io import read_events_with_log
+
+    res = read_events_with_log(d)
+    assert any("not in time order across messages" in w for w in res.warnings)
+    order = np.argsort(truth[0], kind="stable")
+    np.testing.assert_array_equal(res.events.t, truth[0][order])
+    assert np.all(np.diff(res.events.t) >= 0)

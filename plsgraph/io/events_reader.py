@@ -67,6 +67,7 @@ class _TopicDecoder:
     evt3_offset_ns: int | None = None
     bad_messages: int = 0
     good_messages: int = 0
+    backwards: int = 0  # messages that started before the previous one ended (stream not time-ordered)
     stats: DecodeStats = field(default_factory=DecodeStats)
 
     def decode(self, m: RawMessage):
@@ -169,7 +170,7 @@ def _iter_chunks(
         if out is None or out[0].size == 0:
             continue
         t, x, y, p = out
-        if t.size > 1 and np.any(np.diff(t) < 0):
+        if t.size > 1 and np.any(t[1:] < t[:-1]):
             unsorted_msgs += 1
             o = np.argsort(t, kind="stable")
             t, x, y, p = t[o], x[o], y[o], p[o]
@@ -195,6 +196,7 @@ def _iter_chunks(
         src.log.warn(f"{dec.name}: {unsorted_msgs} messages had events out of time order; sorted within each")
     if backwards:
         src.log.warn(f"{dec.name}: {backwards} messages start before the previous one ended (overlapping packets)")
+    dec.backwards = backwards
     dec.finish()
 
 
@@ -240,32 +242,33 @@ def read_events_with_log(
     chunks = list(_iter_chunks(src, name, dec, 4_000_000, t0, t1))
     msgtype = src.topics()[name].msgtype
     enc = "dvs" if msgtype in EVENT_ARRAY_TYPES else (dec.encoding or "unknown")
-    if not chunks:
-        if not dec.width:
-            raise RecordingError(f"{src.path.name}: topic {name} holds no readable events")
-        stream = EventStream.empty(dec.width, dec.height)
-    else:
-        stream = EventStream.concatenate(chunks) if _sorted_chunks(chunks) else _sort_join(chunks, src.log, name)
+    if not chunks and not dec.width:
+        raise RecordingError(f"{src.path.name}: topic {name} holds no readable events")
+    stream = join_chunks(chunks, dec, src.log, name)
     return EventReadResult(stream, name, enc, tuple(src.log.warnings))
 
 
-def _sorted_chunks(chunks: list[EventStream]) -> bool:
-    ok = all(c.t.size < 2 or not np.any(np.diff(c.t) < 0) for c in chunks)
-    return ok and all(a.t_last <= b.t_first for a, b in zip(chunks, chunks[1:], strict=False))
-
-
-def _sort_join(chunks: list[EventStream], rlog: ReadLog, name: str) -> EventStream:
-    rlog.warn(f"{name}: events were not in time order across messages; sorted them (check the driver's clock)")
-    c0 = chunks[0]
-    s = EventStream(
-        np.concatenate([c.t for c in chunks]),
-        np.concatenate([c.x for c in chunks]),
-        np.concatenate([c.y for c in chunks]),
-        np.concatenate([c.p for c in chunks]),
-        c0.width,
-        c0.height,
-    )
-    return s.sorted()
+def join_chunks(chunks: list[EventStream], dec: _TopicDecoder, rlog: ReadLog, name: str) -> EventStream:
+    """One stream from the chunks of ``_iter_chunks``; sorted (with a warning) only if messages overlapped."""
+    if not chunks:
+        return EventStream.empty(dec.width, dec.height)
+    # Each message was sorted on its own; with no message starting before its predecessor ended, the
+    # chunks are already in order and a second full check would only cost time.
+    if len(chunks) == 1:
+        s = chunks[0]
+    else:
+        s = EventStream(
+            np.concatenate([c.t for c in chunks]),
+            np.concatenate([c.x for c in chunks]),
+            np.concatenate([c.y for c in chunks]),
+            np.concatenate([c.p for c in chunks]),
+            dec.width,
+            dec.height,
+        )
+    if dec.backwards:
+        rlog.warn(f"{name}: events were not in time order across messages; sorted them (check the driver's clock)")
+        s = s.sorted()
+    return s
 
 
 def read_events(

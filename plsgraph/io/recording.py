@@ -15,7 +15,7 @@ import numpy as np
 from ..camera import CameraModel
 from ..errors import InputError, RecordingError
 from ..events import EventStream
-from .events_reader import _iter_chunks, _sort_join, _sorted_chunks, _TopicDecoder, pick_topic
+from .events_reader import _iter_chunks, _TopicDecoder, join_chunks, pick_topic
 from .messages import (
     CAMERA_INFO_TYPE,
     EVENT_ARRAY_TYPES,
@@ -331,11 +331,8 @@ def read_recording(
     events = None
     enc = None
     if ev_topic is not None:
-        if chunks:
-            ordered = _sorted_chunks(chunks)
-            events = EventStream.concatenate(chunks) if ordered else _sort_join(chunks, src.log, ev_topic)
-        elif dec is not None and dec.width:
-            events = EventStream.empty(dec.width, dec.height)
+        if chunks or dec.width:
+            events = join_chunks(chunks, dec, src.log, ev_topic)
         else:
             warn(f"{ev_topic}: no readable events")
         msgtype = all_topics[ev_topic].msgtype
