@@ -24,6 +24,7 @@ def test_camera_truth_closes_the_loop(rec):
     rhs = rec.truth_base.poses_at(rec.cam_t + rec.td) @ rec.T_base_cam
     assert np.allclose(lhs, rhs, atol=1e-9)
     assert np.all(rec.cam_t + rec.td >= rec.truth_base.t[0]) and np.all(rec.cam_t + rec.td <= rec.truth_base.t[-1])
+    assert rec.cam_t.min() >= 0.0 and rec.wheel_t.min() >= 0.0
 
 
 def test_truth_velocities_match_pose_derivatives(rec):

@@ -303,7 +303,8 @@ def simulate_robot(
     # Camera stamps: a regular camera clock, kept where the odometry time t_cam + td lies in the truth.
     phase = rng.uniform(0.0, 1.0 / cam_rate)
     cam_t = np.arange(phase - td, duration - td, 1.0 / cam_rate)
-    cam_t = cam_t[(cam_t + td >= t[0]) & (cam_t + td <= t[-1])]
+    # Stamps stay non-negative in both clocks: recordings store unsigned nanoseconds.
+    cam_t = cam_t[(cam_t + td >= t[0]) & (cam_t + td <= t[-1]) & (cam_t >= 0.0)]
     T_world_cam = truth_base.poses_at(cam_t + td) @ T_base_cam
     T_board_cam = inv_T(T_world_board) @ T_world_cam
 
