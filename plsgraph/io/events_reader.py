@@ -18,6 +18,8 @@ from .source import RawMessage, ReadLog, Source, TopicInfo, open_source
 
 log = logging.getLogger(__name__)
 
+# evt3 packets used to map the sensor clock onto the host clock.
+_EVT3_CLOCK_PACKETS = 8
 # 11-bit addresses (libcaer_cmp, evt3) bound the sensor when a message does not state its size.
 _FALLBACK_SIZE = 2048
 
@@ -68,9 +70,12 @@ class _TopicDecoder:
     bad_messages: int = 0
     good_messages: int = 0
     backwards: int = 0  # messages that started before the previous one ended (stream not time-ordered)
+    _pending: list = field(default_factory=list)  # evt3 packets waiting for the clock offset
     stats: DecodeStats = field(default_factory=DecodeStats)
 
-    def decode(self, m: RawMessage):
+    def decode(self, m: RawMessage) -> list[tuple[np.ndarray, ...]]:
+        """Decoded (t, x, y, p) arrays ready to hand out: usually this message's, but evt3 holds back its
+        first packets until the sensor clock is mapped (see :meth:`flush`)."""
         try:
             out = self._decode(m)
             self.good_messages += 1
@@ -83,20 +88,39 @@ class _TopicDecoder:
             if not self.good_messages:
                 raise
             self._bad(m, exc)
-        return None
+        return []
+
+    def flush(self) -> list[tuple[np.ndarray, ...]]:
+        """Whatever is still held back at the end of the stream."""
+        if not self._pending:
+            return []
+        return self._release()
+
+    def _release(self) -> list[tuple[np.ndarray, ...]]:
+        # Median over the held packets of (header stamp - first event's sensor time): the metavision
+        # driver stamps a packet with the host time of its first event; the median ignores a first packet
+        # stamped differently (seen in the event_camera_codecs evt3 sample).
+        offs = np.array([stamp - int(t[0]) for stamp, (t, _, _, _) in self._pending], dtype=np.int64)
+        # Integer lower median: float64 cannot hold epoch nanoseconds exactly.
+        self.evt3_offset_ns = int(np.sort(offs)[(offs.size - 1) // 2])
+        log.info("%s: evt3 sensor clock mapped to host time with offset %d ns (spread %d ns over %d packets)",
+                 self.name, self.evt3_offset_ns, int(offs.max() - offs.min()), offs.size)
+        out = [(t + self.evt3_offset_ns, x, y, p) for _, (t, x, y, p) in self._pending]
+        self._pending = []
+        return out
 
     def _bad(self, m: RawMessage, exc: Exception) -> None:
         self.bad_messages += 1
         if self.bad_messages <= 3:
             self.src_log.warn(f"{self.name}: skipped an unreadable event message at {m.log_time_ns} ns: {exc}")
 
-    def _decode(self, m: RawMessage):
+    def _decode(self, m: RawMessage) -> list[tuple[np.ndarray, ...]]:
         if m.msgtype in EVENT_PACKET_TYPES:
             return self._packet(m)
         _stamp, w, h, t, x, y, p = parse_event_array(m.data, m.serialization)
         self._size(w, h)
         # Same bounds check and dtypes as the packet codecs (a corrupt address must not pass silently).
-        return finish_events(t, x, y, p, self.width, self.height, self.stats)
+        return [finish_events(t, x, y, p, self.width, self.height, self.stats)]
 
     def _size(self, w: int, h: int) -> None:
         if not self.width:
@@ -122,14 +146,14 @@ class _TopicDecoder:
             self.stats = self.decoder.stats
             self.encoding = hdr.encoding
         t, x, y, p = self.decoder.decode(blob, hdr.time_base)
-        if isinstance(self.decoder, Evt3Decoder) and t.size:
-            # evt3 carries the sensor clock only. Drivers stamp a packet when it is complete, so the first
-            # packet's header stamp minus its last event time maps sensor time onto the host clock.
-            if self.evt3_offset_ns is None:
-                self.evt3_offset_ns = int(hdr.stamp_ns) - int(t[-1])
-                log.info("%s: evt3 sensor clock mapped to host time with offset %d ns", self.name, self.evt3_offset_ns)
-            t = t + self.evt3_offset_ns
-        return t, x, y, p
+        if not isinstance(self.decoder, Evt3Decoder) or t.size == 0:
+            return [(t, x, y, p)]
+        # evt3 carries the sensor clock only; one constant offset maps it onto the host clock, estimated
+        # from the first few packets (held back meanwhile: a bounded number).
+        if self.evt3_offset_ns is not None:
+            return [(t + self.evt3_offset_ns, x, y, p)]
+        self._pending.append((int(hdr.stamp_ns), (t, x, y, p)))
+        return self._release() if len(self._pending) >= _EVT3_CLOCK_PACKETS else []
 
     def finish(self) -> None:
         s = self.stats
@@ -165,11 +189,14 @@ def _iter_chunks(
         )
         return s
 
-    for m in src.iter_raw({topic}):
-        out = dec.decode(m)
-        if out is None or out[0].size == 0:
+    def decoded():
+        for m in src.iter_raw({topic}):
+            yield from dec.decode(m)
+        yield from dec.flush()
+
+    for t, x, y, p in decoded():
+        if t.size == 0:
             continue
-        t, x, y, p = out
         if t.size > 1 and np.any(t[1:] < t[:-1]):
             unsorted_msgs += 1
             o = np.argsort(t, kind="stable")

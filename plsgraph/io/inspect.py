@@ -28,6 +28,16 @@ def inspect_recording(path: str | Path | Source) -> dict:
             row.update(events=0, events_on=0, events_off=0, width=None, height=None, encoding=None)
             decoders[name] = _TopicDecoder(src.log, f"{src.path.name}:{name}")
         rows[name] = row
+    def add_events(row: dict, outs: list) -> None:
+        for t, _x, _y, p in outs:
+            if t.size == 0:
+                continue
+            on = int(np.count_nonzero(p > 0))
+            row["events"] += int(t.size)
+            row["events_on"] += on
+            row["events_off"] += int(t.size) - on
+            _span(row, int(t.min()), int(t.max()))
+
     for m in src.iter_raw(None):
         row = rows.get(m.topic)
         if row is None:  # a topic the scan found only now (file without summary)
@@ -36,23 +46,20 @@ def inspect_recording(path: str | Path | Source) -> dict:
         row["messages"] += 1
         dec = decoders.get(m.topic)
         if dec is None:
-            t0 = t1 = int(m.log_time_ns)
+            _span(row, int(m.log_time_ns), int(m.log_time_ns))
         else:
-            out = dec.decode(m)
-            if out is None or out[0].size == 0:
-                continue
-            t, _x, _y, p = out
-            on = int(np.count_nonzero(p > 0))
-            row["events"] += int(t.size)
-            row["events_on"] += on
-            row["events_off"] += int(t.size) - on
-            t0, t1 = int(t.min()), int(t.max())
-        row["t_first_ns"] = t0 if row["t_first_ns"] is None else min(row["t_first_ns"], t0)
-        row["t_last_ns"] = t1 if row["t_last_ns"] is None else max(row["t_last_ns"], t1)
+            add_events(row, dec.decode(m))
+    for name, dec in decoders.items():
+        add_events(rows[name], dec.flush())
     for name, dec in decoders.items():
         dec.finish()
         rows[name].update(width=dec.width or None, height=dec.height or None, encoding=_encoding(dec, rows[name]))
     return {"path": str(src.path), "topics": list(rows.values()), "warnings": list(src.log.warnings)}
+
+
+def _span(row: dict, t0: int, t1: int) -> None:
+    row["t_first_ns"] = t0 if row["t_first_ns"] is None else min(row["t_first_ns"], t0)
+    row["t_last_ns"] = t1 if row["t_last_ns"] is None else max(row["t_last_ns"], t1)
 
 
 def _encoding(dec: _TopicDecoder, row: dict) -> str | None:

@@ -196,7 +196,9 @@ def _event_messages(
     prev_high = None
     for seq, (a, b) in enumerate(_packets(ev, packet_ns)):
         t = t_all[a:b]
-        stamp = int(t[-1])  # drivers stamp a packet when it is complete
+        # Drivers stamp libcaer/dvs packets when complete; the metavision driver stamps evt3 packets with
+        # the host time of their first event, which is what readers use to map the sensor clock.
+        stamp = int(t[0]) if fmt == "evt3" else int(t[-1])
         if fmt == "dvs":
             yield stamp, _event_array_bytes(stamp, frame, ev, a, b)
         elif fmt in ("libcaer_cmp", "libcaer", "mono"):
