@@ -182,3 +182,22 @@ def test_events_outside_sensor_dropped_with_warning(tmp_path, fmt):
     np.testing.assert_array_equal(rec.events.t, ev.t[inside])
     np.testing.assert_array_equal(rec.events.x, ev.x[inside])
     assert any(f"dropped {int((~inside).sum())} events outside the sensor" in w for w in rec.warnings)
+
+
+def test_streaming_memory_does_not_grow_with_recording_length(tmp_path):
+    import tracemalloc
+
+    peaks = []
+    for n in (100_000, 400_000):
+        ev, _, _, _ = _sim(n=n, seconds=n / 1e6)
+        p = tmp_path / f"m{n}.mcap"
+        write_recording(p, ev, None, None, None, event_format="libcaer_cmp", chunk_bytes=1 << 16)
+        del ev
+        tracemalloc.start()
+        total = sum(len(c) for c in iter_event_chunks(p, chunk_events=20_000))
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+        assert total == n
+    # 4x the events, about the same peak (one event chunk plus one 64 kB container chunk); a whole-stream
+    # read would need 13 bytes per event, i.e. over 5 MB for the longer file.
+    assert peaks[1] < 1.3 * peaks[0] and peaks[1] < 3e6
