@@ -289,3 +289,32 @@ def in_gap(track: BaseTrack, t_query: np.ndarray, margin: float = 0.0) -> np.nda
     if jumps.size:
         bad |= np.min(np.abs(tq[..., None] - jumps), axis=-1) <= max(margin, 1e-9) + np.median(np.diff(track.t))
     return bad
+
+
+def rescale_planar_track(track: BaseTrack, speed_scale: float = 1.0, turn_scale: float = 1.0) -> BaseTrack:
+    """The planar track re-integrated with its arc lengths times ``speed_scale`` and turns times ``turn_scale``.
+
+    Corrects a wheel radius (speed) or an effective track width (turn rate: b_eff = b / turn_scale) after the
+    fact. Each step's arc length and heading change are recovered exactly from consecutive poses (the inverse
+    of the arc integration), scaled and integrated again from the first pose; velocities are scaled alike.
+    """
+    if not (speed_scale > 0 and turn_scale > 0):
+        raise InputError(f"rescale_planar_track: scales must be positive, got {speed_scale}, {turn_scale}")
+    T = track.T_world_base
+    theta = np.unwrap(np.arctan2(T[:, 1, 0], T[:, 0, 0]))
+    dth = np.diff(theta)
+    dp = np.diff(T[:, :2, 3], axis=0)
+    c, s = np.cos(theta[:-1]), np.sin(theta[:-1])
+    along = c * dp[:, 0] + s * dp[:, 1]  # the step in the base frame at its start
+    across = -s * dp[:, 0] + c * dp[:, 1]
+    small = np.abs(dth) < 1e-9
+    th = np.where(small, 1.0, dth)
+    sinc = np.where(small, 1.0 - dth**2 / 6.0, np.sin(th) / th)
+    vers = np.where(small, dth / 2.0, (1.0 - np.cos(th)) / th)
+    # Least-squares arc length from both components of the chord (exact for a true arc step).
+    ds = (along * sinc + across * vers) / (sinc**2 + vers**2)
+    x, y, th_new = integrate_planar(speed_scale * ds, turn_scale * dth, T[0, 0, 3], T[0, 1, 3], theta[0])
+    n = len(track)
+    poses = make_T(rot_z(th_new), np.stack([x, y, np.full(n, T[0, 2, 3])], axis=1))
+    info = dict(track.info, speed_scale=float(speed_scale), turn_scale=float(turn_scale))
+    return BaseTrack(track.t, poses, track.v * speed_scale, track.omega * turn_scale, info=info)

@@ -11,6 +11,7 @@ from plsgraph.odometry import (
     in_gap,
     integrate_planar,
     resample,
+    rescale_planar_track,
     velocity_at,
 )
 from plsgraph.sim.robot import simulate_robot
@@ -188,3 +189,18 @@ def test_real_jackal_odometry_is_consistent(jackal_odometry):
     derived = base_track_from_odometry(o[:, 0], o[:, 1:4], o[:, 4:8])
     assert np.median(np.abs(derived.v[:, 0] - v)) < 0.01
     assert np.median(np.abs(derived.omega[:, 2] - w)) < 0.02
+
+
+def test_rescale_planar_track_corrects_track_width_and_radius():
+    rec = simulate_robot("rich", duration=10.0, seed=9, slip=0.0, encoder_ticks_per_rev=0)
+    t, left, right = rec.wheel_t, rec.wheel_left, rec.wheel_right
+    true = base_track_from_wheels(t, left, right, 0.10, 0.42)
+    nominal = base_track_from_wheels(t, left, right, 0.098, 0.37)
+    # v scales with r, omega with r / b.
+    fixed = rescale_planar_track(nominal, 0.10 / 0.098, (0.10 / 0.098) * (0.37 / 0.42))
+    assert np.allclose(fixed.T_world_base, true.T_world_base, atol=1e-9)
+    assert np.allclose(fixed.v, true.v) and np.allclose(fixed.omega, true.omega)
+    same = rescale_planar_track(nominal)
+    assert np.allclose(same.T_world_base, nominal.T_world_base, atol=1e-12)
+    with pytest.raises(InputError):
+        rescale_planar_track(nominal, 0.0, 1.0)
