@@ -281,9 +281,10 @@ def _grow_lattice(pts: np.ndarray, seed: int, nn: np.ndarray, tol: float = 0.3) 
         res = np.linalg.norm(lc - a, axis=1)
         ok = (res < tol) & (np.max(np.abs(a), axis=1) <= radius)
         cand = np.flatnonzero(ok)
-        # One point per lattice site: the best-fitting one.
+        # One point per lattice site: the best-fitting one (sites keyed as one integer, |a| <= radius).
         order = cand[np.argsort(res[cand])]
-        _, first = np.unique(a[order], axis=0, return_index=True)
+        key = (a[order, 0] + radius) * (2 * radius + 1) + (a[order, 1] + radius)
+        _, first = np.unique(key, return_index=True)
         new_idx = np.sort(order[first])
         grown = new_idx.size > idx.size
         idx, lat = new_idx, a[new_idx]

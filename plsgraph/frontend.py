@@ -123,11 +123,100 @@ def _event_time(events: EventStream, uv: np.ndarray, t_ref_ns: int, max_age_s: f
     """Mean time (s) of the events that formed the detected rims: those near the detected points and
     young enough to show in the rim image."""
     mask = _points_mask(uv, (events.height, events.width))
-    age_s = (t_ref_ns - events.t).astype(np.float64) * 1e-9
-    sel = mask[events.y, events.x] & (age_s <= max_age_s)
+    if not np.any(mask):
+        return None
+    # Only the events in the detection's bounding box and age range can count; select those first.
+    ys, xs = np.nonzero(mask)
+    i0 = int(np.searchsorted(events.t, t_ref_ns - int(max_age_s * 1e9), side="left"))
+    x, y, t = events.x[i0:], events.y[i0:], events.t[i0:]
+    box = (x >= xs.min()) & (x <= xs.max()) & (y >= ys.min()) & (y <= ys.max())
+    x, y, t = x[box], y[box], t[box]
+    sel = mask[y, x]
     if not np.any(sel):
         return None
-    return float(t_ref_ns * 1e-9 - np.mean(age_s[sel]))
+    return float(t_ref_ns * 1e-9 - np.mean((t_ref_ns - t[sel]).astype(np.float64)) * 1e-9)
+
+
+class _WindowJob:
+    """The per-window work (surface, detection, time stamp) over a range of windows."""
+
+    def __init__(self, stream, camera, board, kind, params, window_s, min_events, timestamp, tag_layout, border_bits):
+        self.stream, self.camera, self.board, self.kind, self.params = stream, camera, board, kind, params
+        self.window_s, self.min_events, self.timestamp, self.tag_layout = window_s, min_events, timestamp, tag_layout
+        self.border_bits = border_bits
+
+    def run(self, t_query: np.ndarray, i0s: np.ndarray, i1s: np.ndarray, progress=None):
+        stream, board, kind, params = self.stream, self.board, self.kind, self.params
+        window_ns = int(round(self.window_s * 1e9))
+        aruco = make_aruco_detector(self.border_bits) if board.pattern == "aprilgrid" else None
+        skipped: Counter[str] = Counter()
+        secs = {"surfaces": 0.0, "detection": 0.0}
+        t_out, uv_out = [], []
+        n_events = 0
+        for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
+            if progress is not None:
+                progress(k, t_query.size)
+            if i1 - i0 < self.min_events:
+                skipped["too_few_events"] += 1
+                continue
+            ev = stream.slice_index(int(i0), int(i1))
+            n_events += int(i1 - i0)
+            c0 = time.perf_counter()
+            img = surfaces.surface(ev, kind, int(tq), **params)
+            c1 = time.perf_counter()
+            if board.pattern == "aprilgrid":
+                det = detect_aprilgrid(
+                    surfaces.to_uint8(img), board, self.camera, detector=aruco, layout=self.tag_layout
+                )
+            else:
+                rim, level = _rim_image(img, kind, params)
+                det = detect_circle_grid(rim, board, self.camera, foreground="rims", rim_threshold=level)
+            secs["surfaces"] += c1 - c0
+            secs["detection"] += time.perf_counter() - c1
+            if det.reason != REASON_OK:
+                skipped[det.reason] += 1
+                continue
+            t_det = None
+            if self.timestamp == "query":
+                t_det = tq * 1e-9
+            elif self.timestamp == "events":
+                t_det = _event_time(ev, det.uv, int(tq), _active_age_s(kind, params, self.window_s))
+            if t_det is None:
+                t_det = (tq - 0.5 * window_ns) * 1e-9
+            t_out.append(t_det)
+            uv_out.append(det.uv)
+        return t_out, uv_out, skipped, secs, n_events
+
+
+# The job of the current parallel run; forked workers inherit it instead of receiving a pickled copy.
+_JOB: tuple | None = None
+
+
+def _run_chunk(bounds: tuple[int, int]):
+    job, t_query, i0s, i1s = _JOB
+    a, b = bounds
+    return job.run(t_query[a:b], i0s[a:b], i1s[a:b])
+
+
+def _run_parallel(job: _WindowJob, t_query, i0s, i1s, workers: int, progress) -> list:
+    """Contiguous chunks of windows on ``workers`` forked processes (the stream is shared, not copied)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    global _JOB
+    _JOB = (job, t_query, i0s, i1s)
+    edges = np.linspace(0, t_query.size, 4 * workers + 1).round().astype(int)
+    chunks = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
+    try:
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
+            parts = []
+            for j, part in enumerate(pool.map(_run_chunk, chunks)):
+                parts.append(part)
+                if progress is not None:
+                    progress(chunks[j][1], t_query.size)
+            return parts
+    finally:
+        _JOB = None
 
 
 def detect_in_events(
@@ -143,6 +232,7 @@ def detect_in_events(
     timestamp: str = "events",
     tag_layout: str = "kalibr",
     tag_border_bits: int = 2,
+    workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[Detections, dict]:
     """Board detections in event surfaces at ``rate_hz``; see :func:`camera_track_from_events`.
@@ -174,48 +264,29 @@ def detect_in_events(
     t_query = np.arange(stream.t_first + period_ns, stream.t_last + period_ns, period_ns, dtype=np.int64)
     i1s = np.searchsorted(stream.t, t_query, side="right")
     i0s = np.searchsorted(stream.t, t_query - window_ns, side="right")
-    aruco = make_aruco_detector(tag_border_bits) if board.pattern == "aprilgrid" else None
+    job = _WindowJob(stream, camera, board, kind, params, window_s, min_events, timestamp, tag_layout, tag_border_bits)
+    workers = max(1, min(int(workers), t_query.size))
+    if workers == 1:
+        parts = [job.run(t_query, i0s, i1s, progress)]
+    else:
+        parts = _run_parallel(job, t_query, i0s, i1s, workers, progress)
     skipped: Counter[str] = Counter()
     secs = {"surfaces": 0.0, "detection": 0.0}
     t_out, uv_out = [], []
     n_events = 0
     last_t = -np.inf
-    for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
-        if progress is not None:
-            progress(k, t_query.size)
-        if i1 - i0 < min_events:
-            skipped["too_few_events"] += 1
-            continue
-        ev = stream.slice_index(int(i0), int(i1))
-        n_events += int(i1 - i0)
-        c0 = time.perf_counter()
-        img = surfaces.surface(ev, kind, int(tq), **params)
-        c1 = time.perf_counter()
-        if board.pattern == "aprilgrid":
-            det = detect_aprilgrid(
-                surfaces.to_uint8(img), board, camera, detector=aruco, layout=tag_layout
-            )
-        else:
-            rim, level = _rim_image(img, kind, params)
-            det = detect_circle_grid(rim, board, camera, foreground="rims", rim_threshold=level)
-        secs["surfaces"] += c1 - c0
-        secs["detection"] += time.perf_counter() - c1
-        if det.reason != REASON_OK:
-            skipped[det.reason] += 1
-            continue
-        if timestamp == "query":
-            t_det = tq * 1e-9
-        elif timestamp == "window_centre":
-            t_det = (tq - 0.5 * window_ns) * 1e-9
-        else:
-            t_det = _event_time(ev, det.uv, int(tq), _active_age_s(kind, params, window_s))
-            t_det = (tq - 0.5 * window_ns) * 1e-9 if t_det is None else t_det
-        if t_det <= last_t:
-            skipped["time_not_increasing"] += 1
-            continue
-        last_t = t_det
-        t_out.append(t_det)
-        uv_out.append(det.uv)
+    for p_t, p_uv, p_skipped, p_secs, p_n in parts:
+        skipped.update(p_skipped)
+        n_events += p_n
+        for key in secs:
+            secs[key] += p_secs[key]
+        for t_det, uv in zip(p_t, p_uv, strict=True):
+            if t_det <= last_t:
+                skipped["time_not_increasing"] += 1
+                continue
+            last_t = t_det
+            t_out.append(t_det)
+            uv_out.append(uv)
     if progress is not None:
         progress(t_query.size, t_query.size)
     info = {
@@ -234,8 +305,8 @@ def detect_in_events(
     }
     if board.pattern == "asymmetric_circles" and board_is_symmetric(board):
         info["warnings"].append(
-            f"board {board.name!r} looks the same turned by 180 degrees (even number of rows); poses may be "
-            "flipped by 180 degrees about the board normal; use a board with an odd number of rows"
+            f"board {board.name!r} looks the same turned by 180 degrees (even number of rows): its detections "
+            "cannot be labelled uniquely and are rejected as ambiguous; use a board with an odd number of rows"
         )
     if not t_out:
         raise InsufficientDataError(
@@ -262,6 +333,7 @@ def camera_track_from_events(
     sigma_px: float | None = None,
     tag_layout: str = "kalibr",
     tag_border_bits: int = 2,
+    workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> CameraTrack:
     """Camera track T_board_cam(t) from an event stream: surfaces at ``rate_hz`` -> detection -> PnP.
@@ -273,7 +345,8 @@ def camera_track_from_events(
     events are skipped. ``timestamp``: how detections are stamped (module docstring). PnP frames
     with reprojection RMS above ``max_rms_px`` are dropped; ``sigma_px`` fixes the pixel noise of the
     covariance (default: estimated per frame). AprilGrids: ``tag_layout`` / ``tag_border_bits`` as
-    in :func:`plsgraph.detect.detect_aprilgrid`. ``progress(done, total)`` is called per window.
+    in :func:`plsgraph.detect.detect_aprilgrid`. ``workers`` > 1 processes the windows in that many
+    forked processes (Linux; the result is identical). ``progress(done, total)`` is called per window.
 
     Raises :class:`InsufficientDataError` when no window yields a detection or no detection a pose.
     """
@@ -289,6 +362,7 @@ def camera_track_from_events(
         timestamp=timestamp,
         tag_layout=tag_layout,
         tag_border_bits=tag_border_bits,
+        workers=workers,
         progress=progress,
     )
     c0 = time.perf_counter()
