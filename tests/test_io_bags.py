@@ -195,3 +195,62 @@ def test_overlapping_messages_are_sorted_with_warning(tmp_path):
     order = np.argsort(truth[0], kind="stable")
     np.testing.assert_array_equal(res.events.t, truth[0][order])
     assert np.all(np.diff(res.events.t) >= 0)
+
+
+def test_ros2_robot_topics_serialized_by_rosbags(tmp_path):
+    """JointState / Odometry / Imu written by rosbags' CDR serializer read back exactly (fast CDR path)."""
+    from rosbags.rosbag2 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    T = ts.types
+    rng = np.random.default_rng(5)
+    n = 20
+    stamps = T0 + np.arange(n) * 20_000_000
+    stamps[3] = 0  # a zero stamp falls back to the log time
+    log_times = T0 + np.arange(n) * 20_000_000 + 1000
+    pos, vel = rng.normal(size=(n, 2)), rng.normal(size=(n, 2))
+    odo = rng.normal(size=(n, 13))
+    imu = rng.normal(size=(n, 6))
+    hdr = lambda t, f: T["std_msgs/msg/Header"](
+        stamp=T["builtin_interfaces/msg/Time"](sec=int(t) // 10**9, nanosec=int(t) % 10**9), frame_id=f
+    )
+    v3 = lambda a: T["geometry_msgs/msg/Vector3"](x=a[0], y=a[1], z=a[2])
+    d = tmp_path / "robot"
+    with Writer(d, version=8) as w:
+        cj = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+        co = w.add_connection("/odom", "nav_msgs/msg/Odometry", typestore=ts)
+        ci = w.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=ts)
+        for i in range(n):
+            js = T["sensor_msgs/msg/JointState"](header=hdr(stamps[i], ""), name=["wheel_left", "wheel_right"],
+                                                 position=pos[i], velocity=vel[i], effort=np.zeros(0))
+            w.write(cj, int(log_times[i]), ts.serialize_cdr(js, "sensor_msgs/msg/JointState"))
+            o = odo[i]
+            pose = T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=o[0], y=o[1], z=o[2]),
+                                               orientation=T["geometry_msgs/msg/Quaternion"](x=o[3], y=o[4], z=o[5],
+                                                                                              w=o[6]))
+            od = T["nav_msgs/msg/Odometry"](
+                header=hdr(stamps[i], "odom"), child_frame_id="base_link",
+                pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=rng.normal(size=36)),
+                twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=T["geometry_msgs/msg/Twist"](linear=v3(o[7:10]), angular=v3(o[10:13])),
+                    covariance=rng.normal(size=36)))
+            w.write(co, int(log_times[i]), ts.serialize_cdr(od, "nav_msgs/msg/Odometry"))
+            im = T["sensor_msgs/msg/Imu"](
+                header=hdr(stamps[i], "imu_link"),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                orientation_covariance=rng.normal(size=9), angular_velocity=v3(imu[i, :3]),
+                angular_velocity_covariance=rng.normal(size=9), linear_acceleration=v3(imu[i, 3:]),
+                linear_acceleration_covariance=rng.normal(size=9))
+            w.write(ci, int(log_times[i]), ts.serialize_cdr(im, "sensor_msgs/msg/Imu"))
+    rec = read_recording(d)
+    want_t = np.where(stamps > 0, stamps, log_times)
+    order = np.argsort(want_t, kind="stable")
+    np.testing.assert_array_equal(rec.joints.t, want_t[order])
+    np.testing.assert_array_equal(rec.joints.position, pos[order])
+    np.testing.assert_array_equal(rec.joints.velocity, vel[order])
+    o = rec.odometry
+    np.testing.assert_array_equal(np.c_[o.position, o.orientation, o.linear, o.angular], odo[order])
+    assert (o.frame_id, o.child_frame_id) == ("odom", "base_link")
+    np.testing.assert_array_equal(np.c_[rec.imu.gyro, rec.imu.accel], imu[order])
+    assert any("zero header stamp" in w for w in rec.warnings)

@@ -23,6 +23,9 @@ from .messages import (
     IMU_TYPE,
     JOINT_STATE_TYPE,
     ODOMETRY_TYPE,
+    parse_imu_cdr,
+    parse_joint_state_cdr,
+    parse_odometry_cdr,
 )
 from .source import Source, TopicInfo, open_source
 
@@ -152,6 +155,9 @@ _ROLES = {
 }
 
 
+_TYPE = {"joints": JOINT_STATE_TYPE, "odometry": ODOMETRY_TYPE, "imu": IMU_TYPE}
+
+
 def _stamp(obj, log_time: int) -> int:
     st = obj.header.stamp
     t = int(st.sec) * 1_000_000_000 + int(st.nanosec)
@@ -187,6 +193,21 @@ class _Collector:
             self.frames.add((obj.header.frame_id, ""))
         else:
             self.rows.append(obj)
+
+    def add_cdr(self, data, log_time: int) -> None:
+        """Same as :meth:`add` from ROS 2 CDR bytes, without building a message object."""
+        if self.role == "joints":
+            stamp, names, pos, vel = parse_joint_state_cdr(data, log_time)
+            self.rows.append((names, pos, vel))
+        elif self.role == "odometry":
+            stamp, frame, child, row = parse_odometry_cdr(data, log_time)
+            self.rows.append(row)
+            self.frames.add((frame, child))
+        else:
+            stamp, frame, row = parse_imu_cdr(data, log_time)
+            self.rows.append(row)
+            self.frames.add((frame, ""))
+        self.t.append(stamp)
 
     def times(self, warn) -> np.ndarray:
         t = np.asarray(self.t, np.int64)
@@ -309,7 +330,10 @@ def read_recording(
                 continue
             c = collectors[m.topic]
             try:
-                c.add(src.deserialize(m), m.log_time_ns)
+                if m.serialization == "cdr" and c.role in ("joints", "odometry", "imu") and m.msgtype == _TYPE[c.role]:
+                    c.add_cdr(m.data, m.log_time_ns)
+                else:
+                    c.add(src.deserialize(m), m.log_time_ns)
             except Exception as exc:  # noqa: BLE001 - rosbags raises assorted errors on corrupt bytes
                 c.bad += 1
                 if c.bad <= 3:
