@@ -42,7 +42,7 @@ from .align import (
 )
 from .errors import DegenerateMotionError, InputError, PlsgraphError
 from .geometry import inv_T
-from .odometry import in_gap
+from .odometry import in_gap, rescale_planar_track
 from .tracks import BaseTrack, CameraTrack
 
 log = logging.getLogger(__name__)
@@ -96,31 +96,64 @@ class ClosedFormResult:
     degenerate_reasons: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     t_xy_velocity: np.ndarray | None = None
+    odometry_scale: dict[str, float] = field(default_factory=dict)
 
 
-def _stack_rows(pairs: PairedSamples, t_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+def _stack_rows(
+    pairs: PairedSamples, t_xy: np.ndarray, speed_scale: float = 1.0, turn_scale: float = 1.0
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Stacked camera (X) and base (Y) rows: angular velocities, then lever-arm-corrected linear velocities.
 
-    The linear rows are scaled by RMS(omega) / RMS(v) so both blocks carry the same weight.
+    The odometry's velocities are corrected by the current scale estimates; the linear rows are scaled by
+    RMS(omega) / RMS(v) so both blocks carry the same weight.
     """
     t3 = np.r_[t_xy, 0.0]
-    v_eff = pairs.v_base + np.cross(pairs.omega_base, t3)
-    rms_w = np.sqrt(np.mean(np.sum(pairs.omega_base**2, axis=1)))
+    w_b = turn_scale * pairs.omega_base
+    v_eff = speed_scale * pairs.v_base + np.cross(w_b, t3)
+    rms_w = np.sqrt(np.mean(np.sum(w_b**2, axis=1)))
     rms_v = np.sqrt(np.mean(np.sum(v_eff**2, axis=1)))
     k = rms_w / rms_v if rms_v > 0 and rms_w > 0 else 1.0
     X = np.vstack([pairs.omega_cam, k * pairs.v_cam])
-    Y = np.vstack([pairs.omega_base, k * v_eff])
+    Y = np.vstack([w_b, k * v_eff])
     return X, Y, float(k)
 
 
 def lever_arm_from_velocities(pairs: PairedSamples, R_base_cam: np.ndarray) -> np.ndarray:
     """t_xy by least squares on R v_cam - v_base = w (-t_y, t_x) (the camera's speed due to turning)."""
-    r = pairs.v_cam @ R_base_cam.T - pairs.v_base
+    return lever_arm_and_odometry_scales(pairs, R_base_cam, estimate_scales=False)[0]
+
+
+def lever_arm_and_odometry_scales(
+    pairs: PairedSamples, R_base_cam: np.ndarray, estimate_scales: bool = True, estimate_speed_scale: bool = True
+) -> tuple[np.ndarray, float, float]:
+    """Camera position t_xy and the odometry's speed and turn-rate scale factors from paired velocities.
+
+    The camera measures true rates; if the odometry's are off by factors (a wrong wheel radius, a skid-steer
+    robot's effective track width), R omega_cam = s_w omega_base and R v_cam = s_v v_base + s_w omega_base x t.
+    s_w comes from the first equation; s_v, t_x, t_y jointly from the second by least squares. Without
+    ``estimate_scales`` both are 1; without ``estimate_speed_scale`` s_v is 1 (needed when speed and turn rate
+    are proportional, which makes s_v and t_y inseparable).
+    """
     w = pairs.omega_base[:, 2]
     ww = float(w @ w)
     if not ww > 0:
         raise DegenerateMotionError("lever arm: the base never turns, so the camera position is unobservable")
-    return np.array([w @ r[:, 1], -(w @ r[:, 0])]) / ww
+    s_w = float((pairs.omega_cam @ R_base_cam.T)[:, 2] @ w / ww) if estimate_scales else 1.0
+    if not s_w > 0:
+        raise DegenerateMotionError(
+            f"the camera turns against the odometry (turn-rate scale {s_w:.3f}); check the wheel order/signs"
+        )
+    r = pairs.v_cam @ R_base_cam.T
+    vx, vy = pairs.v_base[:, 0], pairs.v_base[:, 1]
+    z = np.zeros_like(w)
+    if estimate_scales and estimate_speed_scale:
+        # Unknowns (s_v, t_x, t_y): x rows s_v v_x - s_w w t_y, y rows s_v v_y + s_w w t_x.
+        A = np.vstack([np.column_stack([vx, z, -s_w * w]), np.column_stack([vy, s_w * w, z])])
+        sol, *_ = np.linalg.lstsq(A, np.r_[r[:, 0], r[:, 1]], rcond=None)
+        return sol[1:], float(sol[0]), s_w
+    A = np.vstack([np.column_stack([z, -s_w * w]), np.column_stack([s_w * w, z])])
+    sol, *_ = np.linalg.lstsq(A, np.r_[r[:, 0] - vx, r[:, 1] - vy], rcond=None)
+    return sol, 1.0, s_w
 
 
 def planar_hand_eye_translation(
@@ -184,6 +217,35 @@ def _motion_pairs(
     return Tb, Tc, int(np.count_nonzero(~ok))
 
 
+#: Odometry scale factors further than this from 1 are reported as a warning.
+SCALE_WARN = 0.03
+
+
+def _scale_report(s_v: float, s_w: float, info: dict) -> dict[str, float]:
+    out = {"speed": float(s_v), "turn_rate": float(s_w)}
+    r, b = info.get("wheel_radius"), info.get("track_width")
+    if r and b:
+        # v = r (w_R + w_L) / 2 scales with r; omega = r (w_R - w_L) / b with r / b.
+        out["wheel_radius_m"] = float(r * s_v)
+        out["track_width_m"] = float(b * s_v / s_w)
+    return out
+
+
+def _scale_warnings(s_v: float, s_w: float, info: dict) -> list[str]:
+    if abs(s_v - 1) <= SCALE_WARN and abs(s_w - 1) <= SCALE_WARN:
+        return []
+    rep = _scale_report(s_v, s_w, info)
+    msg = (
+        f"the odometry's speed is x{s_v:.3f} and its turn rate x{s_w:.3f} of what the camera sees; "
+        "the translation was computed from the corrected odometry"
+    )
+    if "track_width_m" in rep:
+        msg += f". Effective wheel radius {rep['wheel_radius_m']:.4f} m and track width {rep['track_width_m']:.4f} m"
+        if s_w < 1 - SCALE_WARN:
+            msg += " (skid-steer robots turn less than their geometric track width predicts)"
+    return [msg]
+
+
 def _solve_rotation(
     X: np.ndarray, Y: np.ndarray, method: str, weights: np.ndarray | None = None
 ) -> closedform.RotationResult:
@@ -228,6 +290,7 @@ def calibrate_closed_form(
     compare: bool = True,
     raise_on_degenerate: bool = False,
     use_covariance: bool = True,
+    estimate_odometry_scale: bool = True,
 ) -> ClosedFormResult:
     """Closed-form T_base_cam (rotation, floor-plane translation) and td from a camera and a base track.
 
@@ -237,6 +300,8 @@ def calibrate_closed_form(
     rotation and lever arm; ``hand_eye_interval_s`` the span of the relative motions for the translation and
     the OpenCV hand-eye comparison. ``compare`` also runs every other solver (results in ``methods``).
     ``use_covariance`` weights the velocity rows by the camera poses' covariance when the track has one.
+    ``estimate_odometry_scale`` estimates the odometry's speed and turn-rate scale factors (wrong wheel radius,
+    effective track width) along with the lever arm, reports them and corrects the odometry for the translation.
     Input problems raise (InputError, InsufficientDataError); motion that leaves something undetermined gives
     a result with ``degenerate`` set, or raises DegenerateMotionError with ``raise_on_degenerate``.
     """
@@ -320,14 +385,17 @@ def calibrate_closed_form(
     methods: dict[str, MethodResult] = {}
     R = None
     t_xy = np.zeros(2)
+    s_v = s_w = 1.0
     t_xy_vel = None
     he_diag: dict = {}
     if full_rotation:
         try:
             for _ in range(max(1, iterations)):
-                X, Y, _k = _stack_rows(pairs, t_xy)
+                X, Y, _k = _stack_rows(pairs, t_xy, s_v, s_w)
                 R = _solve_rotation(X, Y, method, row_weights).R_base_cam
-                t_xy = lever_arm_from_velocities(pairs, R)
+                t_xy, s_v, s_w = lever_arm_and_odometry_scales(
+                    pairs, R, estimate_odometry_scale, cos_vw <= MAX_SPEED_TURN_COSINE
+                )
             t_xy_vel = t_xy.copy()
         except PlsgraphError as exc:
             reasons.append(f"{method}: {exc}")
@@ -335,7 +403,13 @@ def calibrate_closed_form(
     t_final = None
     Tb = Tc = None
     if R is not None:
-        Tb, Tc, n_cross = _motion_pairs(camera_track, base_track, pairs.t, td_est, hand_eye_interval_s, 400)
+        scale_warn = _scale_warnings(s_v, s_w, base_track.info)
+        warnings += scale_warn
+        he_base = base_track
+        if estimate_odometry_scale and (abs(s_v - 1) > 1e-3 or abs(s_w - 1) > 1e-3):
+            # The relative base motions for the hand-eye come from the odometry corrected by the scales.
+            he_base = rescale_planar_track(base_track, s_v, s_w)
+        Tb, Tc, n_cross = _motion_pairs(camera_track, he_base, pairs.t, td_est, hand_eye_interval_s, 400)
         discarded["motion_pairs_across_gaps"] = n_cross
         try:
             t_final, he_diag = planar_hand_eye_translation(Tb, Tc, R)
@@ -348,7 +422,7 @@ def calibrate_closed_form(
             )
 
     # 4. Every solver for comparison, on the same rows (the headline method's entry carries its translation).
-    X, Y, _k = _stack_rows(pairs, t_xy if R is not None else np.zeros(2))
+    X, Y, _k = _stack_rows(pairs, t_xy, s_v, s_w) if R is not None else _stack_rows(pairs, np.zeros(2))
     caveat = [] if full_rotation else ["the motion does not determine the full rotation: this answer is arbitrary"]
     for name in rot_methods if compare else (method,):
         try:
@@ -404,4 +478,5 @@ def calibrate_closed_form(
         degenerate_reasons=reasons,
         warnings=warnings,
         t_xy_velocity=t_xy_vel,
+        odometry_scale=_scale_report(s_v, s_w, base_track.info) if R is not None else {},
     )

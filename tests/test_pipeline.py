@@ -144,3 +144,27 @@ def test_odometry_jump_is_discarded_and_reported():
     assert res.discarded["odometry_gap_or_jump"] > 0 and res.discarded["motion_pairs_across_gaps"] > 0
     assert rotation_error_deg(res.R_base_cam, rec.R_base_cam) < 0.5
     assert np.all(np.abs(res.t_xy - rec.T_base_cam[:2, 3]) < 0.01)
+
+
+def test_odometry_scale_errors_are_estimated_and_corrected():
+    # The robot's effective track width and wheel radius differ from the nominal ones the odometry uses.
+    rec = simulate_robot("rich", seed=9, td=0.037, track_width=0.44, wheel_radius=0.101)
+    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, 0.098, 0.37)
+    res = calibrate_closed_form(rec.camera_track(), base, compare=False)
+    assert res.odometry_scale["track_width_m"] == pytest.approx(0.44, rel=0.01)
+    assert res.odometry_scale["wheel_radius_m"] == pytest.approx(0.101, rel=0.01)
+    assert any("track width" in w for w in res.warnings)
+    assert rotation_error_deg(res.R_base_cam, rec.R_base_cam) < 0.5
+    assert np.all(np.abs(res.t_xy - rec.T_base_cam[:2, 3]) < 0.005)
+    # Without the estimation the translation is biased by the wrong turn rate.
+    raw = calibrate_closed_form(rec.camera_track(), base, compare=False, estimate_odometry_scale=False)
+    assert raw.odometry_scale == {"speed": 1.0, "turn_rate": 1.0, "wheel_radius_m": 0.098, "track_width_m": 0.37}
+    assert np.max(np.abs(raw.t_xy - rec.T_base_cam[:2, 3])) > 0.015
+
+
+def test_correct_odometry_gives_unit_scales():
+    rec, base, cam = tracks("rich", seed=10)
+    res = calibrate_closed_form(cam, base, compare=False)
+    assert res.odometry_scale["speed"] == pytest.approx(1.0, abs=0.01)
+    assert res.odometry_scale["turn_rate"] == pytest.approx(1.0, abs=0.01)
+    assert not any("turn rate x" in w for w in res.warnings)
