@@ -85,6 +85,27 @@ def real_odometry() -> None:
           f"RMS {np.std(w):.3f} vs {np.std(w_imu):.3f} rad/s")
 
 
+def scale_errors(seeds: int, duration: float, td: float) -> None:
+    """Odometry with a wrong track width and wheel radius: scale estimates and t_xy with and without correction."""
+    true_b, true_r = 0.44, 0.101
+    est_b, est_r, err_fix, err_raw, rot = [], [], [], [], []
+    for seed in range(seeds):
+        rec = simulate_robot("rich", seed=seed, td=td, duration=duration, track_width=true_b, wheel_radius=true_r)
+        base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, 0.098, 0.37)
+        cam = rec.camera_track(noise_rot_deg=0.1, noise_trans_m=0.002, seed=seed + 100)
+        fixed = calibrate_closed_form(cam, base, compare=False)
+        raw = calibrate_closed_form(cam, base, compare=False, estimate_odometry_scale=False)
+        est_b.append(fixed.odometry_scale["track_width_m"])
+        est_r.append(fixed.odometry_scale["wheel_radius_m"])
+        err_fix.append(1e3 * np.linalg.norm(fixed.t_xy - rec.T_base_cam[:2, 3]))
+        err_raw.append(1e3 * np.linalg.norm(raw.t_xy - rec.T_base_cam[:2, 3]))
+        rot.append(float(rotation_error_deg(fixed.R_base_cam, rec.R_base_cam)))
+    print(f"odometry with r = 0.098 m, b = 0.37 m on a robot with r = {true_r} m, b = {true_b} m (rich, track, "
+          f"{seeds} seeds): estimated r {np.median(est_r):.4f} m, b {np.median(est_b):.4f} m; t_xy error "
+          f"{np.median(err_fix):.1f} mm corrected vs {np.median(err_raw):.1f} mm uncorrected; rotation "
+          f"{np.median(rot):.2f} deg")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=5)
@@ -94,8 +115,12 @@ def main() -> None:
     ap.add_argument("--fronts", default="track,pnp,pnp_5cm")
     ap.add_argument("--motions", default="rich,straight,spin")
     ap.add_argument("--real-odometry", action="store_true", help="only check the real Jackal odometry recording")
+    ap.add_argument("--scale-errors", action="store_true", help="only the odometry scale-error experiment")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
+    if args.scale_errors:
+        scale_errors(args.seeds, args.duration, args.td)
+        return
     if args.real_odometry:
         real_odometry()
         return
