@@ -1,14 +1,21 @@
 """Odometry between-factors with a covariance from the differential-drive error model.
 
-Wheel odometry errors grow like a random walk: the variance of a relative motion grows linearly with
-the distance travelled and with the angle turned. For an edge that travelled ``d`` metres and turned
-``a`` radians (absolute values, summed along the full-rate odometry between the two knots):
+Wheel odometry errors grow like a random walk along the path: for an edge that travelled ``d``
+metres and turned ``a`` radians (absolute values, summed along the full-rate odometry between the
+two knots)
 
-    sigma_xy^2  = sigma_per_metre^2 * d + floor_m^2                      (along and across the motion)
-    sigma_yaw^2 = yaw_per_radian^2 * a + yaw_per_metre^2 * d + floor_rad^2
+    sigma_x^2   = sigma_per_metre^2 * d + floor_m^2                        (along the motion)
+    sigma_yaw^2 = yaw_per_radian^2 * a + yaw_per_metre^2 * d + floor_rad^2   (heading)
+    sigma_y^2   = d^2 sigma_yaw^2 / 3 + lateral_per_metre^2 * d + floor_m^2  (across the motion)
+    cov(y, yaw) = d sigma_yaw^2 / 2
 
-z, roll and pitch get the same sigmas as x, y and yaw: the ground constraint is the separate planar
-prior (factors.planar), so the between-factor does not need to encode it. The floors keep the
+The lateral terms are those of a heading error that grows linearly along the arc (the wheels
+cannot slide sideways, so the robot only drifts sideways by driving with a wrong heading), plus a
+small skid term. Keeping the lateral sigma small matters: it is what ties the heading of the base
+to its direction of travel and so makes the camera yaw observable.
+
+z, roll and pitch get the along-track and heading sigmas: the ground constraint is the separate
+planar prior (factors.planar), so the between-factor does not need to encode it. The floors keep the
 covariance positive definite when the robot stands still.
 """
 
@@ -26,20 +33,22 @@ from plsgraph.errors import InputError
 class OdometryNoise:
     """Differential-drive noise. Units: m/sqrt(m), rad/sqrt(rad), rad/sqrt(m), m, rad."""
 
-    sigma_per_metre: float = 0.02
-    yaw_per_radian: float = 0.02
-    yaw_per_metre: float = 0.01
+    sigma_per_metre: float = 0.01
+    yaw_per_radian: float = 0.01
+    yaw_per_metre: float = 0.02
+    lateral_per_metre: float = 0.002
     floor_m: float = 1e-4
     floor_rad: float = 1e-4
 
     def __post_init__(self) -> None:
-        vals = (self.sigma_per_metre, self.yaw_per_radian, self.yaw_per_metre, self.floor_m, self.floor_rad)
+        vals = (self.sigma_per_metre, self.yaw_per_radian, self.yaw_per_metre, self.lateral_per_metre, self.floor_m,
+                self.floor_rad)
         if not all(np.isfinite(v) and v >= 0 for v in vals) or self.floor_m <= 0 or self.floor_rad <= 0:
             raise InputError("odometry noise: sigmas must be finite and >= 0, floors > 0")
 
 
 def odometry_covariance(distance, angle, noise: OdometryNoise | None = None) -> np.ndarray:
-    """Covariance(s) (..., 6, 6) of relative base motions in Pose3 tangent order (rot xyz, trans xyz).
+    """Covariance(s) (..., 6, 6) of relative base motions in Pose3 tangent order (rot xyz, trans xyz), base axes.
 
     ``distance`` (m) and ``angle`` (rad) are the path length and the absolute angle turned per edge.
     """
@@ -49,12 +58,17 @@ def odometry_covariance(distance, angle, noise: OdometryNoise | None = None) -> 
     if not (np.all(np.isfinite(d)) and np.all(np.isfinite(a))):
         raise InputError("odometry covariance: distance and angle must be finite")
     d, a = np.broadcast_arrays(d, a)
-    var_t = noise.sigma_per_metre**2 * d + noise.floor_m**2
-    var_r = noise.yaw_per_radian**2 * a + noise.yaw_per_metre**2 * d + noise.floor_rad**2
+    var_x = noise.sigma_per_metre**2 * d + noise.floor_m**2
+    var_yaw = noise.yaw_per_radian**2 * a + noise.yaw_per_metre**2 * d + noise.floor_rad**2
+    var_y = d**2 * var_yaw / 3.0 + noise.lateral_per_metre**2 * d + noise.floor_m**2
     cov = np.zeros(d.shape + (6, 6))
-    idx = np.arange(3)
-    cov[..., idx, idx] = var_r[..., None]
-    cov[..., idx + 3, idx + 3] = var_t[..., None]
+    cov[..., 0, 0] = var_yaw  # roll
+    cov[..., 1, 1] = var_yaw  # pitch
+    cov[..., 2, 2] = var_yaw
+    cov[..., 3, 3] = var_x
+    cov[..., 4, 4] = var_y
+    cov[..., 5, 5] = var_x  # z
+    cov[..., 2, 4] = cov[..., 4, 2] = d * var_yaw / 2.0
     return cov
 
 

@@ -77,3 +77,38 @@ def make_height_prior(key: int, height: float, sigma_m: float) -> gtsam.CustomFa
 def make_vertical_board_prior(key: int, sigma: float) -> gtsam.CustomFactor:
     """The board normal (z axis of T_world_board) lies in the floor plane; sigma ~ radians of tilt."""
     return _unary(key, [sigma], vertical_board_residual)
+
+
+def make_subspace_prior(
+    pose_key: int,
+    vec_key: int,
+    T0: np.ndarray,
+    v0: np.ndarray,
+    W: np.ndarray,
+    sigma: float,
+) -> gtsam.CustomFactor:
+    """Prior holding chosen linear combinations of (pose, vector) at (T0, v0).
+
+    Residual ``W @ [Log(T0^-1 T); v - v0]`` (GTSAM tangent of the pose at T0, then the vector), one row
+    per combination, each with ``sigma``. Used to freeze directions the data cannot observe at their
+    seed value so that they do not wander and spoil the linearization of the others.
+    """
+    W = np.atleast_2d(np.asarray(W, dtype=float))
+    v0 = np.atleast_1d(np.asarray(v0, dtype=float))
+    if W.shape[1] != 6 + v0.size:
+        raise ValueError(f"subspace prior: W must have {6 + v0.size} columns, got {W.shape}")
+    P0 = gtsam.Pose3(np.asarray(T0, dtype=float))
+    noise = gtsam.noiseModel.Isotropic.Sigma(W.shape[0], float(sigma))
+
+    def error(this, values, H):
+        keys = this.keys()
+        T = values.atPose3(keys[0])
+        v = values.atVector(keys[1])
+        xi = gtsam.Pose3.Logmap(P0.between(T))
+        r = W @ np.r_[xi, v - v0]
+        if H is not None:
+            H[0] = W[:, :6] @ gtsam.Pose3.LogmapDerivative(xi)
+            H[1] = np.ascontiguousarray(W[:, 6:])
+        return r
+
+    return gtsam.CustomFactor(noise, [int(pose_key), int(vec_key)], error)

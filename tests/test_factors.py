@@ -7,7 +7,7 @@ import pytest
 from factors._lie import so3_right_jacobian, so3_right_jacobian_inv
 from factors.odometry import OdometryNoise, make_odometry_factors, odometry_covariance, path_increments
 from factors.planar import make_planar_factor
-from factors.priors import make_height_prior, make_rotation_prior, make_vertical_board_prior
+from factors.priors import make_height_prior, make_rotation_prior, make_subspace_prior, make_vertical_board_prior
 from factors.reprojection import FrameBatch, ReprojectionFrames, evaluate_frames, make_reprojection_factors
 from plsgraph.board import load_board
 from plsgraph.camera import davis346_default
@@ -206,13 +206,31 @@ def test_prior_jacobians(seed):
         assert_jacobians(f, values)
 
 
+def test_subspace_prior_jacobian_and_zero_at_reference():
+    rng = np.random.default_rng(12)
+    T0 = random_pose(rng)
+    W = rng.normal(size=(2, 7))
+    tk = gtsam.symbol("t", 0)
+    values = gtsam.Values()
+    values.insert(X, gtsam.Pose3(T0))
+    values.insert(tk, np.array([0.02]))
+    f = make_subspace_prior(X, tk, T0, [0.02], W, 0.1)
+    assert np.abs(f.unwhitenedError(values)).max() < 1e-12
+    values.update(X, gtsam.Pose3(T0 @ se3_exp(rng.normal(scale=0.3, size=6))))
+    values.update(tk, np.array([0.05]))
+    assert_jacobians(f, values)
+
+
 def test_odometry_covariance_grows_with_distance_and_angle():
     noise = OdometryNoise(sigma_per_metre=0.05, yaw_per_radian=0.03, yaw_per_metre=0.01)
     c = odometry_covariance([0.0, 1.0, 4.0, 1.0], [0.0, 0.0, 0.0, 2.0], noise)
     assert c.shape == (4, 6, 6)
     assert np.all(np.linalg.eigvalsh(c) > 0)  # positive definite even standing still
-    assert c[2, 3, 3] == pytest.approx(4 * c[1, 3, 3], rel=1e-3)  # variance linear in distance
-    assert c[3, 2, 2] - c[1, 2, 2] == pytest.approx(0.03**2 * 2.0)  # and in the angle turned
+    assert c[2, 3, 3] == pytest.approx(4 * c[1, 3, 3], rel=1e-3)  # along-track variance linear in distance
+    assert c[3, 2, 2] - c[1, 2, 2] == pytest.approx(0.03**2 * 2.0)  # heading variance linear in the angle
+    # Sideways drift comes from driving with a wrong heading: var_y = d^2 var_yaw / 3 (+ skid), far below var_x.
+    assert c[1, 4, 4] == pytest.approx(c[1, 2, 2] / 3 + noise.lateral_per_metre**2 + noise.floor_m**2)
+    assert c[1, 4, 4] < 0.1 * c[1, 3, 3]
 
 
 def test_odometry_between_factors_zero_on_odometry_and_path_increments():

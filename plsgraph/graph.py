@@ -1,0 +1,879 @@
+"""Joint refinement of T_base_cam and td with GTSAM: reprojection + odometry + planar-motion factors.
+
+Graph (see docs/refinement.md):
+
+* variables: base poses ``T_world_base`` at *knots* (odometry samples decimated to
+  ``knot_rate_hz``), ``T_base_cam``, ``T_world_board`` and ``td`` (a gtsam 1-vector);
+* one reprojection factor per detection frame (factors.reprojection), linking the two knots that
+  bracket ``t_cam + td`` with the extrinsic, the board and td;
+* odometry between-factors between consecutive knots, their relative motion composed from the
+  full-rate odometry and their covariance from the differential-drive model (factors.odometry);
+* a planar-motion prior on every knot (factors.planar), an anchor on the first knot (the world frame
+  is the odometry origin; without it the whole scene could slide);
+* weak regularising priors on T_base_cam and td around the seed, so that directions the motion does
+  not excite (camera height under planar motion, always) leave a solvable, honest problem;
+* optional user priors: closed-form rotation (weak), camera height, board-on-the-floor.
+
+Decimation: with knots at 10 Hz instead of 50 Hz a 60 s recording has 600 instead of 3000 base
+poses. The detail of the odometry between two knots is not lost: each frame carries a constant
+correction (odometry pose at its time relative to the knot interpolation), see factors.reprojection.
+
+Seeding: R_base_cam and td from the caller (closed form + correlation); the translation of
+T_base_cam and T_world_board by linear least squares from the PnP poses and the odometry given that
+rotation (the height, unobservable there too, is kept at the seed's by a ridge term).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+
+import gtsam
+import numpy as np
+
+from factors.odometry import OdometryNoise, make_odometry_factors, path_increments
+from factors.planar import make_planar_factor
+from factors.priors import make_height_prior, make_rotation_prior, make_subspace_prior, make_vertical_board_prior
+from factors.reprojection import FrameBatch, ReprojectionFrames, interpolation_jacobians, make_reprojection_factors
+
+from .camera import CameraModel
+from .errors import ConvergenceError, InputError, InsufficientDataError
+from .geometry import inv_T, is_rotation, make_T, project_to_so3, rotation_error_deg
+from .observability import (
+    AXES,
+    OBSERVABLE_RATIO,
+    ObservabilityReport,
+    not_converged_report,
+    observability_report,
+    user_axes_jacobian,
+)
+from .tracks import BaseTrack, CameraTrack
+
+log = logging.getLogger(__name__)
+
+KEY_CAM = gtsam.symbol("c", 0)
+KEY_BOARD = gtsam.symbol("b", 0)
+KEY_TD = gtsam.symbol("t", 0)
+# Sigma (in prior sigmas) of the prior that holds unobservable directions at the seed during the solve.
+_FREEZE_SIGMA = 1e-3
+
+
+def knot_key(k: int) -> int:
+    return gtsam.symbol("x", int(k))
+
+
+@dataclass(frozen=True)
+class RefinementOptions:
+    """Settings of :func:`refine`. Sigmas in SI units (m, rad, s, px)."""
+
+    knot_rate_hz: float | None = 10.0  # None: one base pose per odometry sample
+    sigma_px: float = 0.5
+    robust: str | None = "huber"  # "huber", "cauchy" or None
+    robust_k: float = 1.5  # threshold relative to a frame's expected whitened norm (see reprojection_noise)
+    min_points: int = 6
+    odometry_noise: OdometryNoise = field(default_factory=OdometryNoise)
+    planar: bool = True
+    planar_sigma_z: float = 0.005
+    planar_sigma_tilt: float = 0.005
+    anchor_sigma: float = 1e-4
+    # Regularisation (always on, weak): keeps unobservable directions at the seed.
+    reg_sigma_rot: float = 0.5
+    reg_sigma_trans: float = 1.0
+    reg_sigma_td: float = 0.05
+    # Optional user priors.
+    rotation_prior_sigma: float | None = None  # prior on R_base_cam at the seed (closed form), rad
+    camera_height: float | None = None  # z of the camera in the base frame, m
+    camera_height_sigma: float = 0.01
+    board_height: float | None = None  # z of the board origin above the world floor plane (base z = 0), m
+    board_height_sigma: float = 0.01
+    board_vertical: bool = False  # the board stands upright: its normal is horizontal
+    board_vertical_sigma: float = 0.01
+    # Optimisation.
+    optimizer: str = "lm"  # "lm" or "dogleg"
+    max_iterations: int = 30
+    relative_tol: float = 1e-6
+    absolute_tol: float = 1e-9
+    max_passes: int = 5
+    freeze_unobservable: bool = True  # hold directions the data does not observe at the seed (see refine)
+    freeze_ratio: float = OBSERVABLE_RATIO  # posterior/prior sigma above which a direction is held at the seed
+    reject_px: float = 3.0  # a frame whose RMS exceeds max(reject_px, reject_factor * median) is dropped
+    reject_factor: float = 5.0
+    bracket_margin_s: float = 0.3  # knots extend this far beyond the detections (td may move)
+    marginals: bool = True
+    scale_covariance: bool = True  # inflate the covariance by chi2/dof when the fit is worse than sigma_px says
+
+    def __post_init__(self) -> None:
+        pos = ("sigma_px", "robust_k", "planar_sigma_z", "planar_sigma_tilt", "anchor_sigma", "reg_sigma_rot",
+               "reg_sigma_trans", "reg_sigma_td", "camera_height_sigma", "board_height_sigma", "board_vertical_sigma")
+        for name in pos:
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise InputError(f"refinement option {name} must be a positive number, got {v}")
+        if self.knot_rate_hz is not None and not self.knot_rate_hz > 0:
+            raise InputError("knot_rate_hz must be positive or None (every odometry sample)")
+        if self.optimizer not in ("lm", "dogleg"):
+            raise InputError(f"optimizer must be 'lm' or 'dogleg', got {self.optimizer!r}")
+        if self.max_iterations < 1 or self.max_passes < 1 or self.min_points < 3:
+            raise InputError("max_iterations and max_passes must be >= 1 and min_points >= 3")
+
+
+@dataclass(frozen=True)
+class RefinementResult:
+    """Refined calibration with its uncertainty and the bookkeeping of the solve.
+
+    ``cov`` (7, 7): marginal covariance of (T_base_cam tangent in GTSAM order: rotation, translation,
+    right perturbation, i.e. camera axes; td). ``cov_base_axes`` (7, 7): the same in base axes (rotation
+    about base x/y/z, translation along base x/y/z; td), the axes of the observability report. Both None
+    when the solve did not converge or the marginals failed - never a confident covariance on a bad result.
+    """
+
+    T_base_cam: np.ndarray
+    td: float
+    T_world_board: np.ndarray
+    knot_t: np.ndarray
+    T_world_base: np.ndarray
+    converged: bool
+    iterations: int
+    initial_error: float
+    final_error: float
+    rms_px_initial: float
+    rms_px_final: float
+    n_frames: int
+    n_frames_rejected: int
+    n_frames_dropped: int
+    n_points: int
+    cov: np.ndarray | None = None
+    cov_base_axes: np.ndarray | None = None
+    chi2_per_dof: float = float("nan")
+    observability: ObservabilityReport | None = None
+    warnings: tuple[str, ...] = ()
+    priors: dict = field(default_factory=dict)
+    timing: dict = field(default_factory=dict)
+    seed_T_base_cam: np.ndarray | None = None
+    seed_td: float = float("nan")
+
+    @property
+    def R_base_cam(self) -> np.ndarray:
+        return self.T_base_cam[:3, :3]
+
+    @property
+    def sigma_rot_deg(self) -> np.ndarray | None:
+        """1-sigma of the rotation about base x, y, z (deg), or None."""
+        return None if self.cov_base_axes is None else np.degrees(np.sqrt(np.diag(self.cov_base_axes)[:3]))
+
+    @property
+    def sigma_trans_m(self) -> np.ndarray | None:
+        return None if self.cov_base_axes is None else np.sqrt(np.diag(self.cov_base_axes)[3:6])
+
+    @property
+    def sigma_td(self) -> float | None:
+        return None if self.cov_base_axes is None else float(np.sqrt(self.cov_base_axes[6, 6]))
+
+    def to_dict(self) -> dict:
+        def arr(a):
+            return None if a is None else np.asarray(a).tolist()
+
+        return {
+            "T_base_cam": arr(self.T_base_cam),
+            "td": self.td,
+            "T_world_board": arr(self.T_world_board),
+            "converged": self.converged,
+            "iterations": self.iterations,
+            "initial_error": self.initial_error,
+            "final_error": self.final_error,
+            "rms_px_initial": self.rms_px_initial,
+            "rms_px_final": self.rms_px_final,
+            "n_frames": self.n_frames,
+            "n_frames_rejected": self.n_frames_rejected,
+            "n_frames_dropped": self.n_frames_dropped,
+            "n_points": self.n_points,
+            "chi2_per_dof": self.chi2_per_dof,
+            "cov": arr(self.cov),
+            "cov_base_axes": arr(self.cov_base_axes),
+            "sigma_rot_deg": arr(self.sigma_rot_deg),
+            "sigma_trans_m": arr(self.sigma_trans_m),
+            "sigma_td": self.sigma_td,
+            "observability": None if self.observability is None else self.observability.to_dict(),
+            "warnings": list(self.warnings),
+            "priors": dict(self.priors),
+            "timing": dict(self.timing),
+        }
+
+
+# ---------------------------------------------------------------------------------------------------- set-up
+@dataclass(frozen=True)
+class _Problem:
+    """Everything about a recording that does not change between passes."""
+
+    frames: ReprojectionFrames  # all usable frames; brackets filled per pass
+    frame_t: np.ndarray
+    knot_idx: np.ndarray  # indices into the odometry samples
+    knot_t: np.ndarray
+    T_knots_odo: np.ndarray
+    base_track: BaseTrack
+    n_dropped: int
+    warnings: tuple[str, ...]
+
+
+def _check_seed(seed_T_base_cam: np.ndarray, seed_td: float) -> tuple[np.ndarray, float]:
+    T = np.asarray(seed_T_base_cam, dtype=float)
+    if T.shape == (3, 3):
+        T = make_T(T, np.zeros(3))
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InputError("seed_T_base_cam must be a finite 4 x 4 transform (or a 3 x 3 rotation)")
+    if not is_rotation(T[:3, :3], tol=1e-4):
+        raise InputError("seed_T_base_cam: the rotation block is not a rotation (orthonormal, det +1)")
+    T = make_T(project_to_so3(T[:3, :3]), T[:3, 3])
+    td = float(seed_td)
+    if not np.isfinite(td):
+        raise InputError(f"seed_td must be finite, got {seed_td}")
+    return T, td
+
+
+def _select_knots(base_track: BaseTrack, t_lo: float, t_hi: float, rate: float | None) -> np.ndarray:
+    t = base_track.t
+    i0 = int(max(0, np.searchsorted(t, t_lo, "right") - 1))
+    i1 = int(min(t.size - 1, np.searchsorted(t, t_hi, "left")))
+    if rate is None:
+        return np.arange(i0, i1 + 1)
+    dt = float(np.median(np.diff(t)))
+    step = max(1, int(round(1.0 / (rate * dt))))
+    idx = np.arange(i0, i1 + 1, step)
+    if idx[-1] != i1:
+        idx = np.r_[idx, i1]
+    return idx
+
+
+def _prepare(
+    camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, seed_td: float, opt: RefinementOptions
+) -> _Problem:
+    det = camera_track.detections
+    if det is None or len(det) == 0:
+        raise InputError(
+            "refine needs the pixel detections: camera_track.detections is empty "
+            "(build the camera track with plsgraph.pose.camera_track_from_detections)"
+        )
+    if len(base_track) < 2:
+        raise InsufficientDataError("refine: the base track has fewer than 2 odometry samples")
+    warnings: list[str] = []
+    n_valid = np.all(np.isfinite(det.uv), axis=-1).sum(axis=1)
+    tau = det.t + seed_td
+    t_odo = base_track.t
+    inside = (tau >= t_odo[0]) & (tau <= t_odo[-1])
+    keep = (n_valid >= opt.min_points) & inside
+    try:
+        from .odometry import in_gap
+
+        gap = in_gap(base_track, tau)
+        if np.any(gap & keep):
+            warnings.append(f"{int(np.sum(gap & keep))} frame(s) fall into odometry gaps or jumps and were dropped")
+        keep &= ~gap
+    except ImportError:  # odometry helpers are optional for this module
+        pass
+    if np.sum(~inside):
+        warnings.append(f"{int(np.sum(~inside))} frame(s) lie outside the odometry time span (after td); dropped")
+    if np.sum(n_valid < opt.min_points):
+        warnings.append(f"{int(np.sum(n_valid < opt.min_points))} frame(s) have fewer than {opt.min_points} points")
+    if keep.sum() < 3:
+        raise InsufficientDataError(
+            f"refine: only {int(keep.sum())} detection frame(s) overlap the odometry with >= {opt.min_points} "
+            "points; check td, the recording's topics and the board detections"
+        )
+    t = det.t[keep]
+    knot_idx = _select_knots(base_track, t[0] + seed_td - opt.bracket_margin_s, t[-1] + seed_td + opt.bracket_margin_s,
+                             opt.knot_rate_hz)
+    if knot_idx.size < 2:
+        raise InsufficientDataError("refine: the detections span less than one odometry step")
+    frames = ReprojectionFrames(t, np.zeros(t.size), np.ones(t.size), det.uv[keep], det.board_points, camera)
+    return _Problem(
+        frames=frames,
+        frame_t=t,
+        knot_idx=knot_idx,
+        knot_t=t_odo[knot_idx],
+        T_knots_odo=base_track.T_world_base[knot_idx],
+        base_track=base_track,
+        n_dropped=int((~keep).sum()),
+        warnings=tuple(warnings),
+    )
+
+
+def _brackets(prob: _Problem, td: float, rows: np.ndarray) -> tuple[ReprojectionFrames, np.ndarray]:
+    """Frames ``rows`` with their bracketing knots at ``td`` and the decimation correction."""
+    t = prob.frame_t[rows]
+    tau = np.clip(t + td, prob.knot_t[0], prob.knot_t[-1])
+    a = np.clip(np.searchsorted(prob.knot_t, tau, "right") - 1, 0, prob.knot_t.size - 2)
+    b = a + 1
+    # Correction: odometry pose at tau relative to the interpolation of the odometry knots at tau.
+    s = (tau - prob.knot_t[a]) / (prob.knot_t[b] - prob.knot_t[a])
+    Y = interpolation_jacobians(prob.T_knots_odo[a], prob.T_knots_odo[b], s)[0]
+    T_odo = prob.base_track.poses_at(tau)
+    corr = inv_T(Y) @ T_odo
+    f = prob.frames
+    frames = ReprojectionFrames(t, prob.knot_t[a], prob.knot_t[b], f.uv[rows], f.board_points, f.camera, corr)
+    return frames, np.stack([a, b], axis=1)
+
+
+def _chordal_mean(R: np.ndarray) -> np.ndarray:
+    return project_to_so3(np.sum(R, axis=0))
+
+
+def seed_translation_and_board(
+    camera_track: CameraTrack,
+    base_track: BaseTrack,
+    R_base_cam: np.ndarray,
+    td: float,
+    t_prior: np.ndarray | None = None,
+    prior_weight: float = 1e-3,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Camera translation in the base frame and T_world_board from PnP poses and odometry, given R_base_cam.
+
+    Every frame says ``X_i C T_cam_board_i = B``. With the rotation of C fixed the translation part is
+    linear in (t_C, t_B): ``R_Xi t_C - t_B = -(p_Xi + R_Xi R_C t_cb_i)``. A ridge term (weight
+    ``prior_weight`` relative to all frames together) keeps directions the motion does not determine
+    (the height under planar motion, everything when driving straight) at ``t_prior``. Frames whose
+    residual is far above the median are dropped once.
+    Returns (t_base_cam (3,), T_world_board (4, 4)).
+    """
+    t = camera_track.t + td
+    ok = (t >= base_track.t[0]) & (t <= base_track.t[-1])
+    if ok.sum() < 2:
+        raise InsufficientDataError("seeding: fewer than 2 camera poses overlap the odometry; check td")
+    X = base_track.poses_at(t[ok])
+    T_cb = inv_T(camera_track.T_board_cam[ok])
+    RX, pX = X[:, :3, :3], X[:, :3, 3]
+    R_B = _chordal_mean(RX @ R_base_cam @ T_cb[:, :3, :3])
+    rhs = -(pX + np.einsum("nij,nj->ni", RX @ R_base_cam, T_cb[:, :3, 3]))  # (n, 3)
+    n = rhs.shape[0]
+    t0 = np.zeros(3) if t_prior is None else np.asarray(t_prior, dtype=float)
+    use = np.ones(n, dtype=bool)
+    for _ in range(2):
+        A = np.zeros((3 * int(use.sum()) + 3, 6))
+        A[:-3, :3] = RX[use].reshape(-1, 3)
+        A[:-3, 3:] = np.tile(-np.eye(3), (int(use.sum()), 1))
+        w = np.sqrt(prior_weight * use.sum())
+        A[-3:, :3] = w * np.eye(3)
+        y = np.r_[rhs[use].ravel(), w * t0]
+        sol = np.linalg.lstsq(A, y, rcond=None)[0]
+        res = np.linalg.norm((np.einsum("nij,j->ni", RX, sol[:3]) - sol[3:]) - rhs, axis=1)
+        med = np.median(res[use])
+        new = res <= max(5.0 * med, 1e-3)
+        if np.array_equal(new, use):
+            break
+        use = new
+    return sol[:3], make_T(R_B, sol[3:])
+
+
+# ---------------------------------------------------------------------------------------------------- graph
+def _add_priors(graph: gtsam.NonlinearFactorGraph, C0: np.ndarray, td0: float, opt: RefinementOptions,
+                R_prior: np.ndarray) -> None:
+    reg = np.r_[np.full(3, opt.reg_sigma_rot), np.full(3, opt.reg_sigma_trans)]
+    graph.add(gtsam.PriorFactorPose3(KEY_CAM, gtsam.Pose3(C0), gtsam.noiseModel.Diagonal.Sigmas(reg)))
+    graph.add(gtsam.PriorFactorVector(KEY_TD, np.array([td0]), gtsam.noiseModel.Isotropic.Sigma(1, opt.reg_sigma_td)))
+    if opt.rotation_prior_sigma is not None:
+        graph.add(make_rotation_prior(KEY_CAM, R_prior, opt.rotation_prior_sigma))
+    if opt.camera_height is not None:
+        graph.add(make_height_prior(KEY_CAM, opt.camera_height, opt.camera_height_sigma))
+    if opt.board_height is not None:
+        graph.add(make_height_prior(KEY_BOARD, opt.board_height, opt.board_height_sigma))
+    if opt.board_vertical:
+        graph.add(make_vertical_board_prior(KEY_BOARD, opt.board_vertical_sigma))
+
+
+def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: RefinementOptions,
+                 C_prior: np.ndarray, td_prior: float, R_prior: np.ndarray):
+    frames, kidx = _brackets(prob, td_bracket, rows)
+    keys = np.array([knot_key(k) for k in range(prob.knot_t.size)], dtype=np.int64)
+    batch = FrameBatch(frames, keys, kidx, KEY_CAM, KEY_BOARD, KEY_TD)
+    graph = gtsam.NonlinearFactorGraph()
+    for f in make_reprojection_factors(batch, opt.sigma_px, opt.robust, opt.robust_k):
+        graph.add(f)
+    d, a = path_increments(prob.base_track.t, prob.base_track.T_world_base, prob.knot_idx)
+    for f in make_odometry_factors(keys, prob.T_knots_odo, d, a, opt.odometry_noise):
+        graph.add(f)
+    if opt.planar:
+        for k in keys:
+            graph.add(make_planar_factor(int(k), opt.planar_sigma_z, opt.planar_sigma_tilt, 0.0))
+    anchor = gtsam.noiseModel.Isotropic.Sigma(6, opt.anchor_sigma)
+    graph.add(gtsam.PriorFactorPose3(int(keys[0]), gtsam.Pose3(prob.T_knots_odo[0]), anchor))
+    _add_priors(graph, C_prior, td_prior, opt, R_prior)
+    return graph, batch, keys
+
+
+def _frame_rms(batch: FrameBatch, values: gtsam.Values) -> tuple[np.ndarray, float, int]:
+    """Per-frame RMS (px, of the 2-D error), the overall RMS and the number of points."""
+    r = batch.evaluate_all(values, jacobians=False).residual
+    e2 = np.sum(r**2, axis=-1)  # NaN where not detected
+    n = np.sum(np.isfinite(e2), axis=1)
+    per = np.sqrt(np.nansum(e2, axis=1) / np.maximum(n, 1))
+    total = float(np.sqrt(np.nansum(e2) / max(1, n.sum())))
+    return per, total, int(n.sum())
+
+
+def _optimize(graph, initial: gtsam.Values, opt: RefinementOptions, progress=None) -> tuple[gtsam.Values, int, bool]:
+    if opt.optimizer == "dogleg":
+        params = gtsam.DoglegParams()
+        params.setMaxIterations(opt.max_iterations)
+        optimizer = gtsam.DoglegOptimizer(graph, initial, params)
+    else:
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(opt.max_iterations)
+        optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+    prev = graph.error(initial)
+    converged = False
+    it = 0
+    for it in range(1, opt.max_iterations + 1):
+        optimizer.iterate()
+        err = optimizer.error()
+        log.debug("iteration %d: error %.6g", it, err)
+        if progress is not None:
+            progress(it, opt.max_iterations)
+        if not np.isfinite(err):
+            break
+        dec = prev - err
+        if abs(dec) <= opt.absolute_tol or abs(dec) <= opt.relative_tol * max(prev, 1e-300):
+            converged = True
+            break
+        prev = err
+    return optimizer.values(), it, converged
+
+
+def _values(prob: _Problem, T_knots: np.ndarray, C: np.ndarray, B: np.ndarray, td: float) -> gtsam.Values:
+    v = gtsam.Values()
+    for k in range(prob.knot_t.size):
+        v.insert(knot_key(k), gtsam.Pose3(T_knots[k]))
+    v.insert(KEY_CAM, gtsam.Pose3(C))
+    v.insert(KEY_BOARD, gtsam.Pose3(B))
+    v.insert(KEY_TD, np.array([td]))
+    return v
+
+
+def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int]) -> np.ndarray:
+    """Joint marginal covariance of ``keys`` (tangent order, keys in the given order) at ``values``.
+
+    Computed here rather than with gtsam.Marginals: the weakly regularised unobservable directions make
+    the information matrix span ten orders of magnitude, and GTSAM's Cholesky then reports an
+    indeterminate system although the matrix is positive definite. The Schur complement onto the few
+    calibration variables, with the knot block solved by a sparse LU, is stable for such matrices.
+    """
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    lin = graph.linearize(values)
+    trip = lin.sparseJacobian_()
+    all_keys = sorted(int(k) for k in lin.keyVector())  # GTSAM's default (natural) ordering of the columns
+    dims = [_dim_of(values, k) for k in all_keys]
+    offs = np.r_[0, np.cumsum(dims)]
+    n = int(offs[-1])
+    i, j, v = trip
+    A = sp.csc_matrix((v, (i.astype(np.int64) - 1, j.astype(np.int64) - 1)), shape=(int(i.max()), n + 1))[:, :n]
+    H = (A.T @ A).tocsc()
+    pos = {k: p for p, k in enumerate(all_keys)}
+    sel = np.concatenate([np.arange(offs[pos[k]], offs[pos[k] + 1]) for k in keys])
+    # Eliminate everything else except the (few) variables that connect to all frames as well.
+    dense_keys = [k for k in all_keys if k in (KEY_CAM, KEY_BOARD, KEY_TD) or k in keys]
+    s_idx = np.concatenate([np.arange(offs[pos[k]], offs[pos[k] + 1]) for k in dense_keys])
+    r_idx = np.setdiff1d(np.arange(n), s_idx)
+    Hss = H[s_idx][:, s_idx].toarray()
+    if r_idx.size:
+        Hrr = H[r_idx][:, r_idx].tocsc()
+        Hrs = H[r_idx][:, s_idx].toarray()
+        X = spla.splu(Hrr).solve(Hrs)
+        S = Hss - Hrs.T @ X
+    else:
+        S = Hss
+    S = 0.5 * (S + S.T)
+    w = np.linalg.eigvalsh(S)
+    if not np.all(np.isfinite(w)) or w.min() <= 0:
+        raise np.linalg.LinAlgError(
+            f"information matrix of the calibration is not positive definite (min eig {w.min():.3g})"
+        )
+    cov_s = np.linalg.inv(S)
+    where = {int(c): p for p, c in enumerate(s_idx)}
+    idx = np.array([where[int(c)] for c in sel])
+    return cov_s[np.ix_(idx, idx)]
+
+
+def _dim_of(values: gtsam.Values, key: int) -> int:
+    if key == KEY_TD:
+        return 1
+    try:
+        values.atPose3(key)
+        return 6
+    except RuntimeError:
+        return int(np.size(values.atVector(key)))
+
+
+def _prior_information(opt: RefinementOptions) -> np.ndarray:
+    """Information (7 x 7, user axes) the priors put directly on (T_base_cam, td)."""
+    d = np.r_[np.full(3, opt.reg_sigma_rot**-2), np.full(3, opt.reg_sigma_trans**-2), opt.reg_sigma_td**-2]
+    if opt.rotation_prior_sigma is not None:
+        d[:3] += opt.rotation_prior_sigma**-2
+    if opt.camera_height is not None:
+        d[5] += opt.camera_height_sigma**-2
+    return np.diag(d)
+
+
+def _calibration_covariance(graph, values: gtsam.Values, C: np.ndarray, chi2: float,
+                            opt: RefinementOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Marginal covariance of (T_base_cam, td) in GTSAM axes and in base (user) axes."""
+    cov = joint_marginal_covariance(graph, values, [KEY_CAM, KEY_TD])
+    if opt.scale_covariance and chi2 > 1.0:
+        cov = cov * chi2
+    J = user_axes_jacobian(C[:3, :3])
+    return cov, J @ cov @ J.T
+
+
+def _new_unobservable(
+    cov_user: np.ndarray, prior_info: np.ndarray, frozen: list[np.ndarray], ratio: float
+) -> list[np.ndarray]:
+    """Functionals (7,) in user axes of eigen-directions the data does not observe and that are not frozen yet.
+
+    A functional f measures the component of a change du along the direction in prior sigmas (f @ du).
+    """
+    import scipy.linalg
+
+    S = np.sqrt(np.diag(np.linalg.inv(prior_info)))
+    A = np.linalg.inv(cov_user)
+    lam, V = scipy.linalg.eigh(S[:, None] * A * S[None, :], S[:, None] * prior_info * S[None, :])
+    Z = np.array([f * S for f in frozen]).reshape(-1, 7)  # frozen directions in scaled coordinates
+    out = []
+    for j in np.argsort(lam):
+        if 1.0 / np.sqrt(max(lam[j], 1e-300)) < ratio:
+            break
+        v = V[:, j] / np.linalg.norm(V[:, j])
+        if Z.size:
+            Q = np.linalg.qr(Z.T)[0]
+            if np.linalg.norm(v - Q @ (Q.T @ v)) < 0.5:
+                continue
+        out.append(v / S)
+        Z = np.vstack([Z, v[None]])
+    return out
+
+
+def refine(
+    camera_track: CameraTrack,
+    base_track: BaseTrack,
+    camera: CameraModel,
+    seed_T_base_cam: np.ndarray,
+    seed_td: float,
+    options: RefinementOptions | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> RefinementResult:
+    """Refine T_base_cam and td jointly with the base trajectory and the board pose.
+
+    ``camera_track.detections`` are the pixel measurements (one reprojection factor per frame);
+    ``camera_track.T_board_cam`` seeds the board pose. ``seed_T_base_cam`` (4 x 4, or 3 x 3 rotation)
+    and ``seed_td`` come from the closed form and the time alignment. Raises InputError /
+    InsufficientDataError on unusable input; a solve that does not converge is returned with
+    ``converged=False``, no covariance, and a warning (never a confident covariance on it).
+
+    Passes: solve; drop outlier frames and re-bracket if td moved; then, with ``freeze_unobservable``,
+    directions of (T_base_cam, td) the data does not observe are held at the seed and the solve is
+    repeated from the seed (a wandering unobservable direction would bias the others through the
+    nonlinearity). The covariance is always that of the graph without the freezing prior.
+    """
+    opt = options or RefinementOptions()
+    t_start = time.perf_counter()
+    C_seed, td_seed = _check_seed(seed_T_base_cam, seed_td)
+    prob = _prepare(camera_track, base_track, camera, td_seed, opt)
+    warnings = list(prob.warnings)
+    t_C, B0 = seed_translation_and_board(camera_track, base_track, C_seed[:3, :3], td_seed, C_seed[:3, 3])
+    C0 = make_T(C_seed[:3, :3], t_C)
+    seed_values = _values(prob, prob.T_knots_odo, C0, B0, td_seed)
+    values = seed_values
+    rows = np.arange(len(prob.frames))
+    prior_info = _prior_information(opt)
+    J0 = user_axes_jacobian(C0[:3, :3])
+    t_setup = time.perf_counter() - t_start
+
+    total_it = 0
+    rejected = np.zeros(len(prob.frames), dtype=bool)
+    initial_error = rms0 = None
+    converged = False
+    settled = False
+    td_bracket = td_seed
+    frozen: list[np.ndarray] = []
+    t_opt = 0.0
+    cov = cov_base = None
+    for pas in range(opt.max_passes):
+        graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3])
+        if initial_error is None:
+            initial_error = float(graph.error(values))
+            rms0 = _frame_rms(batch, values)[1]
+            log.info("refine: %d frames, %d knots, initial error %.4g, RMS %.3f px", rows.size, keys.size,
+                     initial_error, rms0)
+        solve_graph = graph
+        if frozen:
+            solve_graph = gtsam.NonlinearFactorGraph(graph)
+            W = np.array(frozen) @ J0  # user-axes functionals -> GTSAM tangent at C0
+            solve_graph.add(make_subspace_prior(KEY_CAM, KEY_TD, C0, [td_seed], W, _FREEZE_SIGMA))
+        t0 = time.perf_counter()
+        values, it, converged = _optimize(solve_graph, values, opt, progress)
+        t_opt += time.perf_counter() - t0
+        total_it += it
+        per, rms, _ = _frame_rms(batch, values)
+        td_now = float(values.atVector(KEY_TD)[0])
+        bad = per > max(opt.reject_px, opt.reject_factor * float(np.median(per)))
+        moved = abs(td_now - td_bracket) > 0.25 * float(np.median(np.diff(prob.knot_t)))
+        log.info("refine pass %d: %d iterations, RMS %.3f px, %d outlier frame(s), td %.5f s, %d frozen", pas + 1,
+                 it, rms, int(bad.sum()), td_now, len(frozen))
+        if bad.any():
+            if rows.size - bad.sum() < 3:
+                raise InsufficientDataError("refine: almost every frame is an outlier; check the seed and intrinsics")
+            rejected[rows[bad]] = True
+            rows = rows[~bad]
+        if moved:
+            td_bracket = td_now
+        if bad.any() or moved:
+            continue
+        if not (converged and opt.freeze_unobservable and opt.marginals):
+            settled = True
+            break
+        # Which directions did the data leave to the prior? Freeze the new ones at the seed and start over.
+        C_now = values.atPose3(KEY_CAM).matrix()
+        try:
+            cov, cov_base = _calibration_covariance(graph, values, C_now, 1.0, opt)
+        except (RuntimeError, np.linalg.LinAlgError) as exc:
+            warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
+            cov = cov_base = None
+            settled = True
+            break
+        new = _new_unobservable(cov_base, prior_info, frozen, opt.freeze_ratio)
+        if not new:
+            settled = True
+            break
+        frozen += new
+        values = seed_values
+        log.info("refine: %d direction(s) not observable; holding them at the seed and solving again", len(new))
+    if not settled:
+        warnings.append("outlier rejection / re-bracketing / freezing did not settle within max_passes")
+
+    final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3])
+    final_error = float(final_graph.error(values))
+    per, rms, n_pts = _frame_rms(batch, values)
+    C = values.atPose3(KEY_CAM).matrix()
+    B = values.atPose3(KEY_BOARD).matrix()
+    td = float(values.atVector(KEY_TD)[0])
+    T_knots = np.stack([values.atPose3(int(k)).matrix() for k in keys])
+    dof = max(1, 2 * n_pts - 6 * keys.size - 13)
+    chi2 = float(np.sum(np.nan_to_num(batch.evaluate_all(values, False).residual) ** 2) / opt.sigma_px**2 / dof)
+    if not np.isfinite(final_error):
+        converged = False
+        warnings.append("the optimisation produced a non-finite error")
+    if not converged:
+        warnings.append(
+            f"the optimisation did not converge in {opt.max_iterations} iterations per pass; the result is not "
+            "reliable and no covariance is given (try a better seed, more iterations or a robust loss)"
+        )
+    if rms > 5 * opt.sigma_px:
+        warnings.append(
+            f"final reprojection RMS {rms:.2f} px is far above the assumed pixel noise {opt.sigma_px} px; "
+            "check intrinsics, td and outliers"
+        )
+
+    t1 = time.perf_counter()
+    cov = cov_base = None
+    report: ObservabilityReport | None = None
+    if converged and opt.marginals:
+        try:
+            cov, cov_base = _calibration_covariance(final_graph, values, C, chi2, opt)
+        except (RuntimeError, np.linalg.LinAlgError) as exc:
+            warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
+    if cov_base is not None:
+        report = observability_report(cov_base, prior_info, converged=True, regularized=True,
+                                      planar_motion=opt.planar, prior_notes=_prior_notes(opt, frozen))
+    elif opt.marginals:
+        report = not_converged_report("the optimisation did not converge" if not converged else "marginals failed")
+    t_marg = time.perf_counter() - t1
+    priors = {
+        "regularisation": {"sigma_rot_rad": opt.reg_sigma_rot, "sigma_trans_m": opt.reg_sigma_trans,
+                           "sigma_td_s": opt.reg_sigma_td, "at": "seed"},
+        "rotation_prior_sigma": opt.rotation_prior_sigma,
+        "camera_height": opt.camera_height,
+        "board_height": opt.board_height,
+        "board_vertical": opt.board_vertical,
+        "planar": opt.planar,
+        "frozen_directions": [dict(zip(AXES, np.round(f / np.linalg.norm(f), 4).tolist(), strict=True))
+                              for f in frozen],
+    }
+    for w in warnings:
+        log.warning(w)
+    return RefinementResult(
+        T_base_cam=C,
+        td=td,
+        T_world_board=B,
+        knot_t=prob.knot_t.copy(),
+        T_world_base=T_knots,
+        converged=bool(converged),
+        iterations=total_it,
+        initial_error=float(initial_error),
+        final_error=final_error,
+        rms_px_initial=float(rms0),
+        rms_px_final=rms,
+        n_frames=int(rows.size),
+        n_frames_rejected=int(rejected.sum()),
+        n_frames_dropped=prob.n_dropped,
+        n_points=n_pts,
+        cov=cov,
+        cov_base_axes=cov_base,
+        chi2_per_dof=chi2,
+        observability=report,
+        warnings=tuple(warnings),
+        priors=priors,
+        timing={"setup_s": t_setup, "optimize_s": t_opt, "marginals_s": t_marg,
+                "total_s": time.perf_counter() - t_start},
+        seed_T_base_cam=C_seed,
+        seed_td=td_seed,
+    )
+
+
+def _prior_notes(opt: RefinementOptions, frozen: list[np.ndarray]) -> dict[str, str]:
+    notes: dict[str, str] = {}
+    if opt.camera_height is not None:
+        notes["z"] = f"Camera height is held by the measured-height prior ({opt.camera_height:.3f} m)."
+    if opt.board_height is not None or opt.board_vertical:
+        notes["z"] = (notes.get("z", "") + " The board-on-the-floor prior informs the camera height through the "
+                      "board.").strip()
+    if opt.rotation_prior_sigma is not None:
+        for ax in ("roll", "pitch", "yaw"):
+            deg = np.degrees(opt.rotation_prior_sigma)
+            notes[ax] = f"A closed-form rotation prior (sigma {deg:.2g} deg) is active."
+    for f in frozen:
+        share = (f / np.linalg.norm(f)) ** 2
+        ax = AXES[int(np.argmax(share))]
+        notes[ax] = (notes.get(ax, "") + " Held at the seed value during the solve (not observable).").strip()
+    return notes
+
+
+def refine_or_raise(*args, **kwargs) -> RefinementResult:
+    """:func:`refine`, raising :class:`ConvergenceError` instead of returning an unconverged result."""
+    res = refine(*args, **kwargs)
+    if not res.converged:
+        raise ConvergenceError("; ".join(res.warnings) or "refinement did not converge")
+    return res
+
+
+# ---------------------------------------------------------------------------------------------------- comparison
+def solution_rms_px(
+    camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, T_base_cam: np.ndarray, td: float,
+    translation_known: bool = True,
+) -> float:
+    """Reprojection RMS (px) of a calibration with the odometry taken as is and the board fitted to it.
+
+    When ``translation_known`` is False (a rotation-only closed form), the camera translation is fitted
+    by least squares first, so that the number compares rotations and td, not a missing translation.
+    """
+    det = camera_track.detections
+    if det is None:
+        raise InputError("solution_rms_px needs camera_track.detections")
+    T = np.asarray(T_base_cam, dtype=float)
+    if T.shape == (3, 3):
+        T, translation_known = make_T(T, np.zeros(3)), False
+    t_C, B = seed_translation_and_board(camera_track, base_track, T[:3, :3], td, T[:3, 3])
+    if translation_known:
+        t_C = T[:3, 3]
+        # Board refit with the given translation: average of the per-frame board positions.
+        tau = camera_track.t + td
+        ok = (tau >= base_track.t[0]) & (tau <= base_track.t[-1])
+        Tw = base_track.poses_at(tau[ok]) @ make_T(T[:3, :3], t_C) @ inv_T(camera_track.T_board_cam[ok])
+        B = make_T(B[:3, :3], np.median(Tw[:, :3, 3], axis=0))
+    C = make_T(T[:3, :3], t_C)
+    tau = det.t + td
+    ok = (tau >= base_track.t[0]) & (tau <= base_track.t[-1])
+    X = base_track.poses_at(tau[ok])
+    T_cam_board = inv_T(X @ C)[:, None] @ B  # (m, 1, 4, 4)
+    P = det.board_points
+    pc = np.einsum("mij,nj->mni", T_cam_board[:, 0, :3, :3], P) + T_cam_board[:, 0, None, :3, 3]
+    pc[..., 2] = np.maximum(pc[..., 2], 1e-3)
+    uv = camera.project(pc.reshape(-1, 3)).reshape(pc.shape[0], -1, 2)
+    e2 = np.sum((uv - det.uv[ok]) ** 2, axis=-1)
+    return float(np.sqrt(np.nanmean(e2)))
+
+
+@dataclass(frozen=True)
+class ComparisonTable:
+    rows: tuple[dict, ...]
+    markdown: str
+
+
+def _as_solution(sol) -> tuple[np.ndarray, float | None, bool]:
+    """(T or R, td or None, translation known) from a RotationResult, RefinementResult, array or dict."""
+    if isinstance(sol, RefinementResult):
+        return sol.T_base_cam, sol.td, True
+    if isinstance(sol, Mapping):
+        if "T_base_cam" in sol:
+            return np.asarray(sol["T_base_cam"], float), sol.get("td"), True
+        R = np.asarray(sol["R_base_cam"], float)
+        t = sol.get("t_base_cam")
+        return (make_T(R, t), sol.get("td"), True) if t is not None else (R, sol.get("td"), False)
+    if hasattr(sol, "R_base_cam"):
+        t = getattr(sol, "t_base_cam", None)
+        R = np.asarray(sol.R_base_cam, float)
+        return (make_T(R, t), getattr(sol, "td", None), True) if t is not None else (R, getattr(sol, "td", None), False)
+    a = np.asarray(sol, float)
+    return a, None, a.shape == (4, 4)
+
+
+def compare_solutions(
+    solutions: Mapping[str, object],
+    refinement: RefinementResult,
+    *,
+    camera_track: CameraTrack | None = None,
+    base_track: BaseTrack | None = None,
+    camera: CameraModel | None = None,
+    truth_T_base_cam: np.ndarray | None = None,
+    truth_td: float | None = None,
+) -> ComparisonTable:
+    """One table comparing closed-form solutions with the refinement.
+
+    ``solutions``: name -> closedform.RotationResult, a 3 x 3 rotation, a 4 x 4 transform or a dict with
+    ``R_base_cam`` / ``T_base_cam`` (and optionally ``t_base_cam``, ``td``). A solution without td uses
+    the refinement's seed td. With truth: rotation error (deg), translation and xy errors (m), td error
+    (ms). Without: differences to the refinement. With the tracks and the camera: reprojection RMS (px).
+    """
+    entries = dict(solutions)
+    entries["refined"] = refinement
+    rows = []
+    have_tracks = camera_track is not None and base_track is not None and camera is not None
+    for name, sol in entries.items():
+        T, td, t_known = _as_solution(sol)
+        td = refinement.seed_td if td is None else float(td)
+        R = T[:3, :3]
+        row: dict = {"method": name}
+        ref_T = refinement.T_base_cam if truth_T_base_cam is None else np.asarray(truth_T_base_cam, float)
+        ref_td = refinement.td if truth_td is None else float(truth_td)
+        key = "err" if truth_T_base_cam is not None else "diff"
+        row[f"rot_{key}_deg"] = float(rotation_error_deg(R, ref_T[:3, :3]))
+        if t_known and T.shape == (4, 4):
+            dt = T[:3, 3] - ref_T[:3, 3]
+            row[f"t_{key}_m"] = float(np.linalg.norm(dt))
+            row[f"t_xy_{key}_m"] = float(np.linalg.norm(dt[:2]))
+        else:
+            row[f"t_{key}_m"] = float("nan")
+            row[f"t_xy_{key}_m"] = float("nan")
+        if truth_td is not None or name != "refined":
+            row[f"td_{key}_ms"] = float(1e3 * (td - ref_td))
+        else:
+            row[f"td_{key}_ms"] = 0.0
+        if have_tracks:
+            try:
+                row["rms_px"] = solution_rms_px(camera_track, base_track, camera, T, td, t_known)
+            except (InputError, InsufficientDataError) as exc:
+                log.warning("rms of %s: %s", name, exc)
+                row["rms_px"] = float("nan")
+        if name == "refined":
+            row["rms_px_graph"] = refinement.rms_px_final
+        rows.append(row)
+    cols = list(dict.fromkeys(k for r in rows for k in r))
+    md = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in rows:
+        cells = [r["method"]] + [("" if k not in r else f"{r[k]:.4g}") for k in cols[1:]]
+        md.append("| " + " | ".join(cells) + " |")
+    return ComparisonTable(tuple(rows), "\n".join(md))
+
+
+def with_options(options: RefinementOptions | None = None, **changes) -> RefinementOptions:
+    """A copy of ``options`` (or the defaults) with some fields changed."""
+    return replace(options or RefinementOptions(), **changes)
