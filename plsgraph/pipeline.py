@@ -157,13 +157,20 @@ def lever_arm_and_odometry_scales(
 
 
 def planar_hand_eye_translation(
-    T_world_base: np.ndarray, T_board_cam: np.ndarray, R_base_cam: np.ndarray, min_angle_deg: float = 2.0
+    T_world_base: np.ndarray,
+    T_board_cam: np.ndarray,
+    R_base_cam: np.ndarray,
+    min_angle_deg: float = 2.0,
+    huber_k: float = 2.0,
+    huber_iterations: int = 5,
 ) -> tuple[np.ndarray, dict]:
     """t_xy from relative motion pairs: (R_A - I)[:2, :2] t_xy = (R t_B - t_A)[:2].
 
     ``T_world_base`` (m, 2, 4, 4) and ``T_board_cam`` (m, 2, 4, 4) hold the start and end pose of each pair.
-    Pairs turning less than ``min_angle_deg`` carry no information and are skipped. Returns t_xy and
-    diagnostics (pairs used, residual RMS, smallest singular value of the system, out-of-plane residual).
+    Pairs turning less than ``min_angle_deg`` carry no information and are skipped; the rest are solved by
+    least squares with Huber weights (``huber_k`` robust sigmas, from the median residual). Returns t_xy and
+    diagnostics (pairs used and downweighted, residual RMS, smallest singular value of the system,
+    out-of-plane residual).
     """
     A = inv_T(T_world_base[:, 0]) @ T_world_base[:, 1]
     B = inv_T(T_board_cam[:, 0]) @ T_board_cam[:, 1]
@@ -179,10 +186,19 @@ def planar_hand_eye_translation(
     rhs_full = np.einsum("ij,nj->ni", R_base_cam, B[:, :3, 3]) - A[:, :3, 3]
     rhs = rhs_full[:, :2].reshape(-1)
     sol, *_ = np.linalg.lstsq(M, rhs, rcond=None)
+    # Huber reweighting per motion pair: a pair spoiled by slip or a bad pose gets a bounded influence.
+    w = np.ones(len(A))
+    for _ in range(huber_iterations):
+        r = np.linalg.norm((M @ sol - rhs).reshape(-1, 2), axis=1)
+        sigma = 1.4826 * np.median(r) + 1e-9
+        w = np.minimum(1.0, huber_k * sigma / np.maximum(r, 1e-12))
+        sw = np.repeat(np.sqrt(w), 2)
+        sol, *_ = np.linalg.lstsq(M * sw[:, None], rhs * sw, rcond=None)
     resid = M @ sol - rhs
     sv = np.linalg.svd(M, compute_uv=False)
     diag = {
         "pairs": int(use.sum()),
+        "pairs_downweighted": int(np.count_nonzero(w < 1.0)),
         "residual_rms_m": float(np.sqrt(np.mean(resid**2))),
         "min_singular_value": float(sv[-1] / np.sqrt(use.sum())),
         # For planar motion the third row must vanish: (R t_B - t_A)_z = 0. Its size checks R and the planarity.

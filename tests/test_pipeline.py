@@ -168,3 +168,22 @@ def test_correct_odometry_gives_unit_scales():
     assert res.odometry_scale["speed"] == pytest.approx(1.0, abs=0.01)
     assert res.odometry_scale["turn_rate"] == pytest.approx(1.0, abs=0.01)
     assert not any("turn rate x" in w for w in res.warnings)
+
+
+def test_planar_hand_eye_is_robust_to_spoiled_pairs():
+    from plsgraph.geometry import inv_T, make_T, rot_z
+    from plsgraph.pipeline import planar_hand_eye_translation
+
+    rec = simulate_robot("rich", seed=11, td=0.0, duration=20.0)
+    t0 = np.arange(0.5, 18.5, 0.1)
+    Tb = np.stack([rec.truth_base.poses_at(t0), rec.truth_base.poses_at(t0 + 1.0)], axis=1)
+    Tc = inv_T(rec.T_world_board) @ Tb @ rec.T_base_cam  # exact camera poses at the same instants
+    t_xy, diag = planar_hand_eye_translation(Tb, Tc, rec.R_base_cam)
+    assert np.allclose(t_xy, rec.T_base_cam[:2, 3], atol=1e-6) and diag["out_of_plane_rms_m"] < 1e-9
+    rng = np.random.default_rng(1)
+    bad = rng.choice(len(t0), size=len(t0) // 10, replace=False)
+    Tb[bad, 1] = Tb[bad, 1] @ make_T(rot_z(rng.normal(0, 0.2, bad.size)), rng.normal(0, 0.2, (bad.size, 3)))
+    t_rob, diag = planar_hand_eye_translation(Tb, Tc, rec.R_base_cam)
+    assert np.all(np.abs(t_rob - rec.T_base_cam[:2, 3]) < 0.01) and diag["pairs_downweighted"] >= 0.8 * bad.size
+    t_ls, _ = planar_hand_eye_translation(Tb, Tc, rec.R_base_cam, huber_iterations=0)
+    assert np.max(np.abs(t_ls - rec.T_base_cam[:2, 3])) > np.max(np.abs(t_rob - rec.T_base_cam[:2, 3]))
