@@ -22,7 +22,12 @@ each detection is stamped with the mean time of the events that formed the detec
 within half a point spacing of the detected points and young enough to be above the rim level
 (for the decaying kinds: younger than tau). For a circle moving at constant speed the inside that
 stayed free of events is centred where the circle was at the middle of that span.
-``timestamp="query"`` stamps t_k, or ``"window_centre"`` t_k - W / 2.
+``timestamp="query"`` stamps t_k, or ``"window_centre"`` the middle of the span the rims show
+(t_k - W / 2 for counts, t_k - tau / 2 for decaying kinds).
+
+Fast motion smears a circle's rim over its whole inside within a full window; a window without a
+detection is therefore retried on the most recent half and quarter of its span
+(:data:`WINDOW_LADDER`); ``info["detected_at_window_fraction"]`` counts which span worked.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 
+import cv2
 import numpy as np
 
 from . import surfaces
@@ -73,30 +79,35 @@ def resolve_kind(kind: str) -> str:
     return k
 
 
-def _rim_image(img: np.ndarray, kind: str, params: dict) -> tuple[np.ndarray, float]:
+def _rim_image(img: np.ndarray, kind: str, params: dict, age_s: float) -> tuple[np.ndarray, float]:
     """The activity image and the level above which a pixel counts as part of a rim.
 
-    Counts: any event. Signed kinds: magnitude. Time surfaces: events younger than tau (exp(-1)),
-    so that old, smeared rims do not close the circles' insides. Polarity-aware surface: the paper's
-    5 x 5 blur spreads a one-pixel rim to about 0.57 at its centre line and an isolated event to about
-    0.32; 0.25 keeps rims. Leaky integrator: |value| above 0.3 contrast steps.
+    Counts and signed sums: any event (the surface is built from the events of the last ``age_s``
+    only). Decaying kinds: events younger than ``age_s``, i.e. a level exp(-age / tau) (times the
+    contrast step for the leaky integrator), so that old, smeared rims do not close the circles'
+    insides. Polarity-aware surface: the paper's 5 x 5 blur spreads a one-pixel rim to about 0.57 at
+    its centre line and an isolated event to about 0.32; 0.25 keeps rims.
     """
-    if kind in ("count",):
+    if kind == "count":
         return img, 0.5
     if kind == "polarity_sum":
         return np.abs(img), 0.5
-    if kind == "time_surface":
-        return np.abs(img), float(np.exp(-1.0))
     if kind == "polarity_aware":
         return np.abs(img), 0.25
-    return np.abs(img), 0.3 * float(params.get("contrast", 0.2))
+    unit = 1.0 if kind == "time_surface" else float(params.get("contrast", 0.2))
+    return np.abs(img), unit * float(np.exp(-age_s / float(params["tau_s"])))
 
 
 def _active_age_s(kind: str, params: dict, window_s: float) -> float:
-    """Age of the oldest events a rim image shows (see :func:`_rim_image`)."""
+    """Nominal age of the oldest events a rim image shows: tau for decaying kinds, else the window."""
     if kind in ("time_surface", "leaky") and params.get("tau_s"):
         return float(params["tau_s"])
     return window_s
+
+
+#: Fractions of the nominal rim age tried in turn: fast motion smears a circle's rim over its whole
+#: inside within a full window, so failed windows are retried on the most recent half and quarter.
+WINDOW_LADDER = (1.0, 0.5, 0.25)
 
 
 def _points_mask(uv: np.ndarray, shape: tuple[int, int], frac: float = 0.5) -> np.ndarray:
@@ -140,19 +151,21 @@ def _event_time(events: EventStream, uv: np.ndarray, t_ref_ns: int, max_age_s: f
 class _WindowJob:
     """The per-window work (surface, detection, time stamp) over a range of windows."""
 
-    def __init__(self, stream, camera, board, kind, params, window_s, min_events, timestamp, tag_layout, border_bits):
+    def __init__(self, stream, camera, board, kind, params, window_s, min_events, timestamp, tag_layout, border_bits,
+                 tag_blur):
         self.stream, self.camera, self.board, self.kind, self.params = stream, camera, board, kind, params
         self.window_s, self.min_events, self.timestamp, self.tag_layout = window_s, min_events, timestamp, tag_layout
-        self.border_bits = border_bits
+        self.border_bits, self.tag_blur = border_bits, float(tag_blur)
 
     def run(self, t_query: np.ndarray, i0s: np.ndarray, i1s: np.ndarray, progress=None):
         stream, board, kind, params = self.stream, self.board, self.kind, self.params
-        window_ns = int(round(self.window_s * 1e9))
         aruco = make_aruco_detector(self.border_bits) if board.pattern == "aprilgrid" else None
         skipped: Counter[str] = Counter()
+        retries: Counter[int] = Counter()
         secs = {"surfaces": 0.0, "detection": 0.0}
         t_out, uv_out = [], []
         n_events = 0
+        det = None
         for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
             if progress is not None:
                 progress(k, t_query.size)
@@ -161,18 +174,33 @@ class _WindowJob:
                 continue
             ev = stream.slice_index(int(i0), int(i1))
             n_events += int(i1 - i0)
-            c0 = time.perf_counter()
-            img = surfaces.surface(ev, kind, int(tq), **params)
-            c1 = time.perf_counter()
-            if board.pattern == "aprilgrid":
-                det = detect_aprilgrid(
-                    surfaces.to_uint8(img), board, self.camera, detector=aruco, layout=self.tag_layout
-                )
-            else:
-                rim, level = _rim_image(img, kind, params)
-                det = detect_circle_grid(rim, board, self.camera, foreground="rims", rim_threshold=level)
-            secs["surfaces"] += c1 - c0
-            secs["detection"] += time.perf_counter() - c1
+            age0 = _active_age_s(kind, params, self.window_s)
+            decaying = kind in ("time_surface", "leaky")
+            img = None
+            for j, frac in enumerate(WINDOW_LADDER if board.pattern == "asymmetric_circles" else (1.0,)):
+                age = frac * age0
+                c0 = time.perf_counter()
+                if img is None or not decaying:
+                    # Non-decaying kinds: rebuild the surface from the most recent events only.
+                    sub = ev if frac == 1.0 else ev.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
+                    if len(sub) < self.min_events:
+                        break
+                    img = surfaces.surface(sub, kind, int(tq), **params)
+                c1 = time.perf_counter()
+                if board.pattern == "aprilgrid":
+                    # A light blur joins the speckled event edges into the solid tag borders aruco looks for.
+                    tag_img = cv2.GaussianBlur(img, (0, 0), self.tag_blur) if self.tag_blur > 0 else img
+                    det = detect_aprilgrid(
+                        surfaces.to_uint8(tag_img), board, self.camera, detector=aruco, layout=self.tag_layout
+                    )
+                else:
+                    rim, level = _rim_image(img, kind, params, age)
+                    det = detect_circle_grid(rim, board, self.camera, foreground="rims", rim_threshold=level)
+                secs["surfaces"] += c1 - c0
+                secs["detection"] += time.perf_counter() - c1
+                if det.reason == REASON_OK:
+                    retries[j] += 1
+                    break
             if det.reason != REASON_OK:
                 skipped[det.reason] += 1
                 continue
@@ -180,12 +208,12 @@ class _WindowJob:
             if self.timestamp == "query":
                 t_det = tq * 1e-9
             elif self.timestamp == "events":
-                t_det = _event_time(ev, det.uv, int(tq), _active_age_s(kind, params, self.window_s))
-            if t_det is None:
-                t_det = (tq - 0.5 * window_ns) * 1e-9
+                t_det = _event_time(ev, det.uv, int(tq), age)
+            if t_det is None:  # "window_centre", or no event near the detection (cannot happen for rims)
+                t_det = tq * 1e-9 - 0.5 * age
             t_out.append(t_det)
             uv_out.append(det.uv)
-        return t_out, uv_out, skipped, secs, n_events
+        return t_out, uv_out, skipped, secs, n_events, retries
 
 
 # The job of the current parallel run; forked workers inherit it instead of receiving a pickled copy.
@@ -232,6 +260,7 @@ def detect_in_events(
     timestamp: str = "events",
     tag_layout: str = "kalibr",
     tag_border_bits: int = 2,
+    tag_blur_sigma: float = 1.0,
     workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[Detections, dict]:
@@ -264,7 +293,10 @@ def detect_in_events(
     t_query = np.arange(stream.t_first + period_ns, stream.t_last + period_ns, period_ns, dtype=np.int64)
     i1s = np.searchsorted(stream.t, t_query, side="right")
     i0s = np.searchsorted(stream.t, t_query - window_ns, side="right")
-    job = _WindowJob(stream, camera, board, kind, params, window_s, min_events, timestamp, tag_layout, tag_border_bits)
+    job = _WindowJob(
+        stream, camera, board, kind, params, window_s, min_events, timestamp, tag_layout, tag_border_bits,
+        tag_blur_sigma,
+    )
     workers = max(1, min(int(workers), t_query.size))
     if workers == 1:
         parts = [job.run(t_query, i0s, i1s, progress)]
@@ -275,8 +307,10 @@ def detect_in_events(
     t_out, uv_out = [], []
     n_events = 0
     last_t = -np.inf
-    for p_t, p_uv, p_skipped, p_secs, p_n in parts:
+    ladder: Counter[int] = Counter()
+    for p_t, p_uv, p_skipped, p_secs, p_n, p_ladder in parts:
         skipped.update(p_skipped)
+        ladder.update(p_ladder)
         n_events += p_n
         for key in secs:
             secs[key] += p_secs[key]
@@ -300,6 +334,7 @@ def detect_in_events(
         "detected": len(t_out),
         "skipped": dict(skipped),
         "events_used": n_events,
+        "detected_at_window_fraction": {str(WINDOW_LADDER[j]): int(c) for j, c in sorted(ladder.items())},
         "seconds": secs,
         "warnings": [],
     }
@@ -333,6 +368,7 @@ def camera_track_from_events(
     sigma_px: float | None = None,
     tag_layout: str = "kalibr",
     tag_border_bits: int = 2,
+    tag_blur_sigma: float = 1.0,
     workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
 ) -> CameraTrack:
@@ -345,8 +381,9 @@ def camera_track_from_events(
     events are skipped. ``timestamp``: how detections are stamped (module docstring). PnP frames
     with reprojection RMS above ``max_rms_px`` are dropped; ``sigma_px`` fixes the pixel noise of the
     covariance (default: estimated per frame). AprilGrids: ``tag_layout`` / ``tag_border_bits`` as
-    in :func:`plsgraph.detect.detect_aprilgrid`. ``workers`` > 1 processes the windows in that many
-    forked processes (Linux; the result is identical). ``progress(done, total)`` is called per window.
+    in :func:`plsgraph.detect.detect_aprilgrid`, the image blurred by ``tag_blur_sigma`` px first.
+    ``workers`` > 1 processes the windows in that many forked processes (Linux; the result is
+    identical). ``progress(done, total)`` is called per window.
 
     Raises :class:`InsufficientDataError` when no window yields a detection or no detection a pose.
     """
@@ -362,6 +399,7 @@ def camera_track_from_events(
         timestamp=timestamp,
         tag_layout=tag_layout,
         tag_border_bits=tag_border_bits,
+        tag_blur_sigma=tag_blur_sigma,
         workers=workers,
         progress=progress,
     )
