@@ -505,9 +505,11 @@ def _dim_of(values: gtsam.Values, key: int) -> int:
         return int(np.size(values.atVector(key)))
 
 
-def _prior_information(opt: RefinementOptions) -> np.ndarray:
-    """Information (7 x 7, user axes) the priors put directly on (T_base_cam, td)."""
+def _prior_information(opt: RefinementOptions, user_priors: bool = True) -> np.ndarray:
+    """Information (7 x 7, user axes) the priors put directly on (T_base_cam, td); optionally only the regulariser."""
     d = np.r_[np.full(3, opt.reg_sigma_rot**-2), np.full(3, opt.reg_sigma_trans**-2), opt.reg_sigma_td**-2]
+    if not user_priors:
+        return np.diag(d)
     if opt.rotation_prior_sigma is not None:
         d[:3] += opt.rotation_prior_sigma**-2
     if opt.camera_height is not None:
@@ -579,7 +581,10 @@ def refine(
     C_seed, td_seed = _check_seed(seed_T_base_cam, seed_td)
     prob = _prepare(camera_track, base_track, camera, td_seed, opt)
     warnings = list(prob.warnings)
-    t_C, B0 = seed_translation_and_board(camera_track, base_track, C_seed[:3, :3], td_seed, C_seed[:3, 3])
+    t_guess = C_seed[:3, 3].copy()
+    if opt.camera_height is not None:
+        t_guess[2] = opt.camera_height
+    t_C, B0 = seed_translation_and_board(camera_track, base_track, C_seed[:3, :3], td_seed, t_guess)
     C0 = make_T(C_seed[:3, :3], t_C)
     seed_values = _values(prob, prob.T_knots_odo, C0, B0, td_seed)
     values = seed_values
@@ -640,7 +645,8 @@ def refine(
             cov = cov_base = None
             settled = True
             break
-        new = _new_unobservable(cov_base, prior_info, frozen, opt.freeze_ratio)
+        # Only what the regulariser alone holds is frozen: a direction a user prior informs stays free.
+        new = _new_unobservable(cov_base, _prior_information(opt, user_priors=False), frozen, opt.freeze_ratio)
         if not new:
             settled = True
             break
