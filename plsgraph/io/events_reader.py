@@ -175,19 +175,20 @@ def _iter_chunks(
     last_t = None
     backwards = 0
     unsorted_msgs = 0
+    overlapped = False
 
-    def flush() -> EventStream:
-        t = np.concatenate([q[0] for q in parts])
-        s = EventStream.from_arrays(
-            t,
+    def flush(overlapped: bool) -> EventStream:
+        s = EventStream(
+            np.concatenate([q[0] for q in parts]),
             np.concatenate([q[1] for q in parts]),
             np.concatenate([q[2] for q in parts]),
             np.concatenate([q[3] for q in parts]),
             dec.width,
             dec.height,
-            validate=False,
         )
-        return s
+        # Messages that overlapped in time are put in order within the chunk (across chunks the warning
+        # below is all that can be done without holding the stream).
+        return s.sorted() if overlapped else s
 
     def decoded():
         for m in src.iter_raw({topic}):
@@ -203,6 +204,7 @@ def _iter_chunks(
             t, x, y, p = t[o], x[o], y[o], p[o]
         if last_t is not None and t[0] < last_t:
             backwards += 1
+            overlapped = True
         last_t = int(t[-1]) if last_t is None else max(last_t, int(t[-1]))
         if t0 is not None or t1 is not None:
             i0 = 0 if t0 is None else int(np.searchsorted(t, t0, "left"))
@@ -215,10 +217,10 @@ def _iter_chunks(
         parts.append((t, x, y, p))
         n_parts += t.size
         if n_parts >= chunk_events:
-            yield flush()
-            parts, n_parts = [], 0
+            yield flush(overlapped)
+            parts, n_parts, overlapped = [], 0, False
     if parts:
-        yield flush()
+        yield flush(overlapped)
     if unsorted_msgs:
         src.log.warn(f"{dec.name}: {unsorted_msgs} messages had events out of time order; sorted within each")
     if backwards:
