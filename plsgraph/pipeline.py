@@ -262,6 +262,53 @@ def _scale_warnings(s_v: float, s_w: float, info: dict) -> list[str]:
     return [msg]
 
 
+def refine_time_offset(
+    cv: CameraVelocities,
+    base: BaseTrack,
+    td0: float,
+    R_base_cam: np.ndarray,
+    t_xy: np.ndarray,
+    speed_scale: float = 1.0,
+    turn_scale: float = 1.0,
+    half_range: float = 0.04,
+    step: float = 0.002,
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """td minimising the full 3-D velocity residual of the calibrated model around ``td0``.
+
+    Once R, t_xy and the odometry scales are known, every shift can be scored by how well the camera's angular
+    and linear velocities are explained: sum |R w_cam - s_w w_base|^2 / var(w_base) plus the same for the linear
+    velocity with the lever arm. Unlike the correlation this uses all axes and the linear velocity too. The
+    samples are the same for every shift; the minimum is refined by a parabola. Returns td, shifts, costs.
+    """
+    shifts = td0 + np.arange(-half_range, half_range + 0.5 * step, step)
+    reach = cv.info["half"] / cv.info["rate"]
+    sel = cv.valid & (cv.t + shifts[0] >= base.t[0] + reach) & (cv.t + shifts[-1] <= base.t[-1] - reach)
+    sub = CameraVelocities(cv.t[sel], cv.omega[sel], cv.v[sel], np.ones(int(sel.sum()), dtype=bool), cv.info)
+    t3 = np.r_[t_xy, 0.0]
+    costs = np.full(shifts.size, np.inf)
+    for i, s in enumerate(shifts):
+        try:
+            p = pair_samples(sub, base, float(s))
+        except PlsgraphError:
+            continue
+        w_b = turn_scale * p.omega_base
+        rw = p.omega_cam @ R_base_cam.T - w_b
+        rv = p.v_cam @ R_base_cam.T - (speed_scale * p.v_base + np.cross(w_b, t3))
+        den_w = np.mean(np.sum(w_b**2, axis=1))
+        den_v = np.mean(np.sum(p.v_base**2, axis=1)) * speed_scale**2
+        costs[i] = np.mean(np.sum(rw**2, axis=1)) / max(den_w, 1e-12) + np.mean(np.sum(rv**2, axis=1)) / max(
+            den_v, 1e-12
+        )
+    j = int(np.argmin(costs))
+    td = float(shifts[j])
+    if 0 < j < shifts.size - 1 and np.all(np.isfinite(costs[j - 1 : j + 2])):
+        y0, y1, y2 = costs[j - 1 : j + 2]
+        den = y0 - 2 * y1 + y2
+        if den > 0:
+            td += 0.5 * step * (y0 - y2) / den
+    return td, shifts, costs
+
+
 def _solve_rotation(
     X: np.ndarray, Y: np.ndarray, method: str, weights: np.ndarray | None = None
 ) -> closedform.RotationResult:
@@ -307,6 +354,7 @@ def calibrate_closed_form(
     raise_on_degenerate: bool = False,
     use_covariance: bool = True,
     estimate_odometry_scale: bool = True,
+    refine_td: bool = True,
 ) -> ClosedFormResult:
     """Closed-form T_base_cam (rotation, floor-plane translation) and td from a camera and a base track.
 
@@ -318,6 +366,8 @@ def calibrate_closed_form(
     ``use_covariance`` weights the velocity rows by the camera poses' covariance when the track has one.
     ``estimate_odometry_scale`` estimates the odometry's speed and turn-rate scale factors (wrong wheel radius,
     effective track width) along with the lever arm, reports them and corrects the odometry for the translation.
+    ``refine_td`` re-estimates td (within +-40 ms of the correlation peak) from the full velocity residual once
+    the rotation is known; ``time_offset`` keeps the correlation search, ``td`` is the refined value.
     Input problems raise (InputError, InsufficientDataError); motion that leaves something undetermined gives
     a result with ``degenerate`` set, or raises DegenerateMotionError with ``raise_on_degenerate``.
     """
@@ -412,6 +462,22 @@ def calibrate_closed_form(
                 t_xy, s_v, s_w = lever_arm_and_odometry_scales(
                     pairs, R, estimate_odometry_scale, cos_vw <= MAX_SPEED_TURN_COSINE
                 )
+            if refine_td and td is None:
+                td_ref, _, costs = refine_time_offset(cv, base_track, td_est, R, t_xy, s_v, s_w)
+                if np.isfinite(costs).sum() >= 3 and abs(td_ref - td_est) < 0.95 * 0.04:
+                    td_est = td_ref
+                    pairs = pair_samples(cv, base_track, td_est)
+                    X, Y, _k = _stack_rows(pairs, t_xy, s_v, s_w)
+                    row_weights = covariance_weights(camera_track, pairs.t) if use_covariance else None
+                    R = _solve_rotation(X, Y, method, row_weights).R_base_cam
+                    t_xy, s_v, s_w = lever_arm_and_odometry_scales(
+                        pairs, R, estimate_odometry_scale, cos_vw <= MAX_SPEED_TURN_COSINE
+                    )
+                else:
+                    warnings.append(
+                        "the model-based time-offset refinement found its minimum at the border of +-40 ms around "
+                        f"the correlation peak ({td_ref:+.4f} s); kept the correlation estimate {td_est:+.4f} s"
+                    )
             t_xy_vel = t_xy.copy()
         except PlsgraphError as exc:
             reasons.append(f"{method}: {exc}")
