@@ -554,6 +554,22 @@ def _new_unobservable(
     return out
 
 
+def _unobservable_at(graph, values: gtsam.Values, opt: RefinementOptions, frozen: list[np.ndarray],
+                     warnings: list[str]) -> list[np.ndarray]:
+    """New directions (user-axes functionals) that only the regulariser holds at ``values``.
+
+    Only what the regulariser alone holds is frozen: a direction a user prior informs (a measured camera
+    height, a closed-form rotation prior) stays free and is pulled by that prior.
+    """
+    C = values.atPose3(KEY_CAM).matrix()
+    try:
+        cov_base = _calibration_covariance(graph, values, C, 1.0, opt)[1]
+    except (RuntimeError, np.linalg.LinAlgError) as exc:
+        warnings.append(f"observability check failed ({exc}); no direction was held at the seed")
+        return []
+    return _new_unobservable(cov_base, _prior_information(opt, user_priors=False), frozen, opt.freeze_ratio)
+
+
 def refine(
     camera_track: CameraTrack,
     base_track: BaseTrack,
@@ -609,6 +625,10 @@ def refine(
             rms0 = _frame_rms(batch, values)[1]
             log.info("refine: %d frames, %d knots, initial error %.4g, RMS %.3f px", rows.size, keys.size,
                      initial_error, rms0)
+        if pas == 0 and opt.freeze_unobservable and opt.marginals:
+            # Which directions does the motion leave to the regulariser? The information structure is set by the
+            # motion, so the seed is a good enough linearization point to find them before they can wander.
+            frozen += _unobservable_at(graph, values, opt, frozen, warnings)
         solve_graph = graph
         if frozen:
             solve_graph = gtsam.NonlinearFactorGraph(graph)
@@ -636,17 +656,8 @@ def refine(
         if not (converged and opt.freeze_unobservable and opt.marginals):
             settled = True
             break
-        # Which directions did the data leave to the prior? Freeze the new ones at the seed and start over.
-        C_now = values.atPose3(KEY_CAM).matrix()
-        try:
-            cov, cov_base = _calibration_covariance(graph, values, C_now, 1.0, opt)
-        except (RuntimeError, np.linalg.LinAlgError) as exc:
-            warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
-            cov = cov_base = None
-            settled = True
-            break
-        # Only what the regulariser alone holds is frozen: a direction a user prior informs stays free.
-        new = _new_unobservable(cov_base, _prior_information(opt, user_priors=False), frozen, opt.freeze_ratio)
+        # Check again at the solution; a direction found only now is frozen and the solve starts over.
+        new = _unobservable_at(graph, values, opt, frozen, warnings)
         if not new:
             settled = True
             break
