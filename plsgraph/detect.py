@@ -430,7 +430,9 @@ def detect_circle_grid(
     then with the slower default one. With ``exhaustive`` the inside of rims (dark blobs) is tried
     as well. With ``refine`` each centre becomes the weighted centroid of the weight image in a
     disk of half the distance to its nearest neighbour (a rim, even smeared by motion, is centred
-    on the circle). The order check of :func:`check_grid_order` decides what is returned.
+    on the circle). The order check of :func:`check_grid_order` decides what is returned. When
+    OpenCV's finder fails (it needs every circle), the blobs are labelled by :func:`label_circle_grid`,
+    which accepts a partly visible board (unseen points NaN, at least ``min_points`` seen).
 
     ``foreground="rims"`` (event-activity images): pixels above ``rim_threshold`` are active; the
     circle centres are the centroids of the holes inside the rims (:func:`rim_holes`). Between
@@ -470,6 +472,22 @@ def detect_circle_grid(
             return GridDetection(uv, True, REASON_OK, rms)
         last_reason, last_rms = reason, rms
         log.debug("circle grid rejected (%s, homography rms %.2f px)", reason, rms)
+    # OpenCV's grid finder needs every circle. For a board partly out of view (or partly hidden) label the
+    # blobs with the lattice method instead, which allows missing circles but never guesses an order.
+    kp = _blob_detector(img8.shape, 255).detect(img8)
+    if len(kp) >= 6:
+        pts = np.array([k.pt for k in kp], dtype=float)
+        det = label_circle_grid(pts, board, camera, min_points=min_points, max_rms_px=max_homography_rms_px)
+        if det.ok:
+            uv = det.uv
+            if refine:
+                seen = np.all(np.isfinite(uv), axis=1)
+                uv = uv.copy()
+                uv[seen] = refine_centroids(weight, uv[seen], 0.5 * _neighbour_distance(uv[seen]))
+            reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_homography_rms_px)
+            if reason == REASON_OK:
+                return GridDetection(uv, True, REASON_OK, rms)
+        last_reason = det.reason if last_reason == REASON_NOT_FOUND else last_reason
     return _fail(n, last_reason, last_rms)
 
 

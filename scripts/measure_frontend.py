@@ -246,6 +246,8 @@ def sim_part(quick: bool) -> dict:
         ev = simulate_board_events(poses, t, cam, board)
         sim_s = time.perf_counter() - c0
         row = {"events": len(ev), "sim_seconds": sim_s}
+        if name == "moderate":
+            save_sim_pictures(ev, t, poses, cam, board)
         for kind in SIM_KINDS:
             res = {}
             for stamp in ("events", "query"):
@@ -282,6 +284,33 @@ def sim_part(quick: bool) -> dict:
                   f"{q.get('centre_err_px_median', float('nan')):>16.3f}")
         out[name] = row
     return out
+
+
+def save_sim_pictures(ev, t, poses, cam, board) -> None:
+    """docs/img/sim_<kind>.png: each representation of one 30 Hz window, with the true circle centres (green)
+    and the detected ones (red) where the front end finds the board."""
+    from plsgraph.detect import detect_circle_grid
+    from plsgraph.frontend import DEFAULT_PARAMS, _rim_image
+
+    IMG_DIR.mkdir(parents=True, exist_ok=True)
+    tq = ev.t_first + 12 * int(round(1e9 / 30))
+    T = _interp_poses(t, poses, np.array([tq * 1e-9 - 1 / 60]))[0]
+    truth = cam.project(transform_points(inv_T(T), board.points))
+    for kind in SIM_KINDS:
+        params = DEFAULT_PARAMS[kind]
+        kw = {"window_ns": 33_333_333} if kind in ("count", "polarity_aware") else {}
+        img = surfaces.surface_at(ev, int(tq), kind, **kw, **params)
+        vis = cv2.cvtColor(surfaces.to_uint8(img), cv2.COLOR_GRAY2BGR)
+        age = params.get("tau_s", 1 / 30)
+        rim, level = _rim_image(img, kind, params, age)
+        det = detect_circle_grid(rim, board, cam, foreground="rims", rim_threshold=level)
+        vis = cv2.resize(vis, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+        for p in truth:
+            cv2.circle(vis, tuple(np.round(2 * p + 0.5).astype(int)), 2, (0, 200, 0), -1)
+        for p in det.uv[np.isfinite(det.uv[:, 0])]:
+            cv2.circle(vis, tuple(np.round(2 * p + 0.5).astype(int)), 3, (0, 0, 255), 1)
+        cv2.putText(vis, f"{kind}: {det.reason}", (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 255, 255), 1)
+        cv2.imwrite(str(IMG_DIR / f"sim_{kind}.png"), vis)
 
 
 def _interp_poses(t: np.ndarray, poses: np.ndarray, tq: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ import pytest
 from plsgraph.board import Board, load_board
 from plsgraph.camera import CameraModel, davis346_default
 from plsgraph.detect import (
+    REASON_AMBIGUOUS,
     REASON_EMPTY,
     REASON_MIRRORED,
     REASON_OK,
@@ -64,11 +65,25 @@ def test_circle_grid_bad_windows():
     blank = np.zeros((CAM.height, CAM.width), np.float32)
     det = detect_circle_grid(blank, CIRCLES, CAM)
     assert not det.ok and det.reason == REASON_EMPTY and np.isnan(det.uv).all() and det.uv.shape == (n, 2)
-    # Board half outside the image: a circle grid needs every circle, so no detection (and no error).
+    # Board cut by the image border: the circles in view could be any block of the grid's columns, so
+    # the labelling is ambiguous and there is no detection (never a guessed order).
     T = pose_facing(CIRCLES, 0.45, (0.1, 0.2, 0.0), front_z=-1) @ make_T(np.eye(3), np.array([0.3, 0.0, 0.0]))
-    u = truth_pixels(T, CIRCLES)[:, 0]
-    assert 5 < np.count_nonzero(u < 0) < 30  # the set-up really cuts the board
-    assert not detect_circle_grid(render_log_intensity(T, CAM, CIRCLES), CIRCLES, CAM, foreground="dark").ok
+    assert 5 < np.count_nonzero(truth_pixels(T, CIRCLES)[:, 0] < 0) < 30  # the set-up really cuts the board
+    det = detect_circle_grid(render_log_intensity(T, CAM, CIRCLES), CIRCLES, CAM, foreground="dark")
+    assert not det.ok and det.reason == REASON_AMBIGUOUS
+    # Circles hidden inside the board (a finger, a reflection): the outline still fixes the labels.
+    T = pose_facing(CIRCLES, 0.6, (0.2, -0.3, 0.1), front_z=-1)
+    img = render_log_intensity(T, CAM, CIRCLES)
+    truth = truth_pixels(T, CIRCLES)
+    hidden = [13, 18, 26]
+    for k in hidden:
+        u, v = np.round(truth[k]).astype(int)
+        img[v - 4 : v + 5, u - 4 : u + 5] = img[v - 4 : v + 5, u - 4 : u + 5].max()  # paper white
+    det = detect_circle_grid(img, CIRCLES, CAM, foreground="dark")
+    assert det.ok
+    seen = np.all(np.isfinite(det.uv), axis=1)
+    assert not seen[hidden].any() and seen.sum() == CIRCLES.n_points - len(hidden)
+    assert np.max(np.linalg.norm(det.uv[seen] - truth[seen], axis=1)) < 0.3
     # A board definition that does not match what is seen (3 instead of 4 circles per row).
     wrong = Board(pattern="asymmetric_circles", cols=3, rows=11, square_size=0.025, circle_diameter=0.03)
     T = pose_facing(CIRCLES, 0.7, (0.2, -0.3, 0.1), front_z=-1)
