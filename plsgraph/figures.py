@@ -1,0 +1,224 @@
+"""Pictures for report.html: trajectories, residuals, time-offset curve, observability, method comparison."""
+
+from __future__ import annotations
+
+import html
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .geometry import inv_T, rotation_error_deg
+from .report import html_report, html_table, status_colour, write_text
+
+log = logging.getLogger(__name__)
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def frame_residuals(run: Any, T_base_cam: np.ndarray, td: float, T_world_board: np.ndarray):
+    """Per-frame reprojection RMS (px) and all residual vectors (n, 2) of the detections under a calibration."""
+    det = run.camera_track.detections
+    base = run.base_track
+    if det is None or len(det) == 0:
+        return np.zeros(0), np.zeros(0), np.zeros((0, 2))
+    t_odom = det.t + td
+    ok = (t_odom >= base.t[0]) & (t_odom <= base.t[-1])
+    T_wb = base.poses_at(t_odom[ok])
+    T_cam_board = inv_T(T_wb @ T_base_cam) @ T_world_board
+    pts = det.board_points
+    p_cam = np.einsum("fij,nj->fni", T_cam_board[:, :3, :3], pts) + T_cam_board[:, None, :3, 3]
+    valid = p_cam[..., 2] > 1e-6
+    uv = np.full(p_cam.shape[:2] + (2,), np.nan)
+    uv[valid] = run.camera.project(p_cam[valid])
+    r = uv - det.uv[ok]
+    rms = np.sqrt(np.nanmean(np.sum(r**2, axis=-1), axis=1))
+    flat = r.reshape(-1, 2)
+    return det.t[ok], rms, flat[np.all(np.isfinite(flat), axis=1)]
+
+
+def _fig_trajectories(run: Any, out: Path) -> str | None:
+    ref = run.refinement
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.2, 4.2))
+    bt = run.base_track.T_world_base[:, :3, 3]
+    ax.plot(bt[:, 0], bt[:, 1], "-", lw=1, color="#555", label="base (odometry)")
+    if ref is not None:
+        T_wc_vis = ref.T_world_board @ run.camera_track.T_board_cam
+        t_odom = run.camera_track.t + ref.td
+        ok = (t_odom >= run.base_track.t[0]) & (t_odom <= run.base_track.t[-1])
+        T_wc_odo = run.base_track.poses_at(t_odom[ok]) @ ref.T_base_cam
+        ax.plot(T_wc_odo[:, 0, 3], T_wc_odo[:, 1, 3], "-", lw=1.5, color="#1565c0", label="camera via odometry")
+        ax.plot(T_wc_vis[:, 0, 3], T_wc_vis[:, 1, 3], ".", ms=2, color="#e65100", label="camera via board (PnP)")
+        b = ref.T_world_board[:3, 3]
+        ax.plot([b[0]], [b[1]], "ks", label="board origin")
+    ax.set_xlabel("world x (m)")
+    ax.set_ylabel("world y (m)")
+    ax.axis("equal")
+    ax.legend(fontsize=7)
+    ax.set_title("aligned trajectories (top view)")
+    fig.tight_layout()
+    fig.savefig(out / "trajectories.png", dpi=110)
+    plt.close(fig)
+    return "trajectories.png"
+
+
+def _fig_residuals(run: Any, out: Path) -> str | None:
+    ref = run.refinement
+    if ref is None:
+        return None
+    t, rms, r = frame_residuals(run, ref.T_base_cam, ref.td, ref.T_world_board)
+    if rms.size == 0:
+        return None
+    plt = _plt()
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(8.5, 3.4))
+    a1.plot(t - t[0], rms, ".", ms=3)
+    a1.set_xlabel("camera time (s)")
+    a1.set_ylabel("frame RMS (px)")
+    a1.set_title("reprojection RMS per frame")
+    lim = max(1.0, float(np.nanpercentile(np.abs(r), 99))) if r.size else 1.0
+    a2.hist2d(r[:, 0], r[:, 1], bins=60, range=[[-lim, lim], [-lim, lim]], cmap="Blues")
+    a2.set_xlabel("u residual (px)")
+    a2.set_ylabel("v residual (px)")
+    a2.set_title("residual distribution")
+    fig.tight_layout()
+    fig.savefig(out / "residuals.png", dpi=110)
+    plt.close(fig)
+    return "residuals.png"
+
+
+def _fig_time_offset(run: Any, out: Path) -> str | None:
+    to = run.closed_form.time_offset if run.closed_form is not None else None
+    if to is None or to.shifts is None or len(to.shifts) == 0:
+        return None
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.2, 3.4))
+    order = np.argsort(to.shifts)
+    ax.plot(1e3 * np.asarray(to.shifts)[order], np.asarray(to.values)[order], "-", lw=1.2)
+    ax.axvline(1e3 * to.td, color="#c62828", lw=1, label=f"closed form {1e3 * to.td:.1f} ms")
+    if run.refinement is not None:
+        ax.axvline(1e3 * run.refinement.td, color="#2e7d32", lw=1, ls="--",
+                   label=f"refined {1e3 * run.refinement.td:.1f} ms")
+    ax.set_xlabel("time offset td (ms)")
+    ax.set_ylabel(f"score ({to.method})")
+    ax.set_title("time-offset search")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "time_offset.png", dpi=110)
+    plt.close(fig)
+    return "time_offset.png"
+
+
+def _fig_observability(run: Any, out: Path) -> str | None:
+    ref = run.refinement
+    if ref is None or ref.observability is None or not ref.observability.axes:
+        return None
+    axes = ref.observability.axes
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.6, 3.4))
+    ratios = [max(a.ratio, 1e-6) for a in axes]
+    ax.bar(range(len(axes)), ratios, color=[status_colour(a.status) for a in axes])
+    ax.set_yscale("log")
+    ax.set_xticks(range(len(axes)), [a.name for a in axes], rotation=30, fontsize=8)
+    ax.set_ylabel("posterior sigma / prior sigma")
+    ax.set_title("observability (green observable, yellow weak, red unobservable)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(out / "observability.png", dpi=110)
+    plt.close(fig)
+    return "observability.png"
+
+
+def _fig_methods(run: Any, out: Path, truth_T: np.ndarray | None) -> str | None:
+    cf = run.closed_form
+    if cf is None:
+        return None
+    ref_T = truth_T if truth_T is not None else (run.refinement.T_base_cam if run.refinement is not None else None)
+    if ref_T is None:
+        return None
+    names, errs = [], []
+    for name, m in cf.methods.items():
+        if m.R_base_cam is not None:
+            names.append(name)
+            errs.append(float(rotation_error_deg(m.R_base_cam, ref_T[:3, :3])))
+    if truth_T is not None and run.refinement is not None:
+        names.append("refined")
+        errs.append(float(rotation_error_deg(run.refinement.R_base_cam, truth_T[:3, :3])))
+    if not names:
+        return None
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.6, 3.4))
+    ax.bar(range(len(names)), errs, color=["#2e7d32" if n == "refined" else "#1565c0" for n in names])
+    ax.set_xticks(range(len(names)), names, rotation=35, fontsize=7, ha="right")
+    ax.set_yscale("symlog", linthresh=0.1)
+    ax.set_ylabel("rotation error (deg)" if truth_T is not None else "rotation difference to refined (deg)")
+    ax.set_title("closed form vs refined")
+    fig.tight_layout()
+    fig.savefig(out / "methods.png", dpi=110)
+    plt.close(fig)
+    return "methods.png"
+
+
+def write_html_report(out: Path, run: Any, report: dict) -> Path:
+    """Render the figures (PNG) and report.html into ``out``. A figure that fails is logged, not fatal."""
+    truth_T = None if run.truth is None else np.asarray(run.truth["T_base_cam"], dtype=float)
+    images: list[tuple[str, str]] = []
+    makers = [
+        ("aligned trajectories", lambda: _fig_trajectories(run, out)),
+        ("reprojection residuals after refinement", lambda: _fig_residuals(run, out)),
+        ("time-offset correlation curve", lambda: _fig_time_offset(run, out)),
+        ("per-direction sigma with observability colours", lambda: _fig_observability(run, out)),
+        ("closed form vs refined", lambda: _fig_methods(run, out, truth_T)),
+    ]
+    for caption, make in makers:
+        try:
+            f = make()
+        except Exception as exc:  # a picture must never cost the user the numbers
+            log.warning("figure '%s' failed: %s", caption, exc)
+            report.setdefault("warnings", []).append(f"figure '{caption}' could not be drawn: {exc}")
+            continue
+        if f:
+            images.append((caption, f))
+    c = report["calibration"]
+    sections = []
+    status = "OK" if report["ok"] else "FLAGGED: " + "; ".join(report["problems"])
+    sections.append(("Result", f"<p><b>{html.escape(status)}</b> (from {html.escape(c['source'])})</p>"
+                     + "<pre>" + html.escape(_result_block(c)) + "</pre>"))
+    if c["observability"]:
+        sections.append(("Observability", html_table(c["observability"], ["direction", "status", "sigma", "unit",
+                                                                            "note"])))
+    rows = []
+    for name, m in report["closed_form"].items():
+        rows.append({"method": name, "status": "error" if m["error"] else "ok", "detail": m["error"] or "",
+                     "warnings": "; ".join(m["warnings"])})
+    sections.append(("Closed-form solvers", html_table(rows, ["method", "status", "detail", "warnings"])))
+    if "truth_errors" in report:
+        sections.append(("Errors against truth", html_table(
+            [{"quantity": k, "value": v} for k, v in report["truth_errors"].items()], ["quantity", "value"])))
+    if report["discarded"]:
+        sections.append(("Discarded", "<pre>" + html.escape(_pretty(report["discarded"])) + "</pre>"))
+    if report["warnings"]:
+        sections.append(("Warnings", "<ul>" + "".join(f"<li class='warn'>{html.escape(w)}</li>"
+                                                      for w in report["warnings"]) + "</ul>"))
+    page = html_report(f"plsgraph calibration of {Path(report['recording']).name}", sections, images)
+    write_text(out / "report.html", page)
+    return out / "report.html"
+
+
+def _result_block(c: dict) -> str:
+    T = "\n".join("  " + " ".join(f"{v:10.6f}" for v in row) for row in c["T_base_cam"])
+    return (f"T_base_cam =\n{T}\nquaternion xyzw = {c['quaternion_xyzw']}\ntime offset = {c['time_offset_s']} s"
+            f" ({c['time_offset_convention']})\n\n{c['ros_static_transform']}")
+
+
+def _pretty(d: dict) -> str:
+    import json
+
+    return json.dumps(d, indent=2, default=str)
