@@ -115,6 +115,7 @@ def main() -> None:
     ap.add_argument("--fronts", default="track,pnp,pnp_5cm")
     ap.add_argument("--motions", default="rich,straight,spin")
     ap.add_argument("--real-odometry", action="store_true", help="only check the real Jackal odometry recording")
+    ap.add_argument("--no-covariance", action="store_true", help="do not weight rows by the pose covariance")
     ap.add_argument("--scale-errors", action="store_true", help="only the odometry scale-error experiment")
     args = ap.parse_args()
     logging.basicConfig(level=logging.ERROR)
@@ -152,7 +153,7 @@ def main() -> None:
                     except PlsgraphError:
                         td_alt[label].append(np.nan)
                 t0 = time.perf_counter()
-                res = calibrate_closed_form(cam, base, window_s=args.window)
+                res = calibrate_closed_form(cam, base, window_s=args.window, use_covariance=not args.no_covariance)
                 secs.append(time.perf_counter() - t0)
                 degenerate += int(res.degenerate)
                 tdz.append(1e3 * abs(res.td - args.td))
