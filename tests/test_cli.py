@@ -18,7 +18,7 @@ def test_help_and_bad_flags_exit_cleanly(capsys):
     with pytest.raises(SystemExit) as e:
         main(["calibrate"])  # no recording, no --out
     assert e.value.code == 2
-    assert "see 'plsgraph --help'" in capsys.readouterr().err
+    assert "plsgraph calibrate --help" in capsys.readouterr().err
     with pytest.raises(SystemExit) as e:
         main(["simulate", "--motion", "sideways", "--out", "x.mcap"])
     assert e.value.code == 2
