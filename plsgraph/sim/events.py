@@ -1,0 +1,274 @@
+"""ESIM-style event simulator: render the board in log intensity along a camera trajectory and emit an event
+whenever a pixel's log intensity moves a contrast threshold away from its reference level.
+
+Model (per pixel, between two consecutive renders at t_a and t_b the log intensity is taken as linear):
+
+* a pixel keeps a reference level ``ref``, initialised to the first render; an ON event fires each time
+  L - ref reaches +C_on, an OFF event each time it reaches -C_off, and ``ref`` moves by that threshold, so a
+  large change gives several events, spaced by linear interpolation of their crossing times in [t_a, t_b];
+* thresholds differ per pixel (mismatch): C = N(C_nominal, sigma_C), clipped at ``contrast_min``, drawn once;
+* refractory period: a crossing less than ``refractory_s`` after the pixel's previous event is dropped;
+  its contrast is lost (``ref`` still moves), as a real pixel is blind while it resets;
+* background-activity noise: Poisson events at ``noise_rate_hz`` per pixel, uniform in time and space, ON
+  with probability ``noise_on_fraction``; they do not disturb the pixel's reference.
+
+Render times are adaptive: the camera path is probed at ``probe_rate_hz`` and at the given camera stamps;
+each probe interval is cut into steps so that the image of the scene plane moves at most
+``max_px_per_step`` pixels per step (measured on a grid of pixels), between ``min_rate_hz`` and
+``max_rate_hz``. ``fixed_rate_hz`` replaces this with a fixed rate. Work is chunked by ``chunk_steps``
+render steps, so memory holds one frame pair plus the events.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..board import Board
+from ..camera import CameraModel
+from ..errors import InputError
+from ..events import EventStream
+from ..geometry import interpolate_poses, inv_T
+from .render import BoardRenderer, RenderParams
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class EventSimParams:
+    """Parameters of :func:`simulate_events` (see the module docstring and docs/surfaces_and_event_sim.md)."""
+
+    contrast_on: float = 0.25
+    contrast_off: float = 0.25
+    contrast_sigma: float = 0.03  # per-pixel threshold mismatch (std, log units)
+    contrast_min: float = 0.05
+    refractory_s: float = 1e-4
+    noise_rate_hz: float = 0.1  # background activity per pixel
+    noise_on_fraction: float = 0.5
+    max_px_per_step: float = 0.5
+    probe_rate_hz: float = 200.0
+    min_rate_hz: float = 200.0
+    max_rate_hz: float = 20000.0
+    fixed_rate_hz: float | None = None
+    chunk_steps: int = 256
+    render: RenderParams = field(default_factory=RenderParams)
+
+    def __post_init__(self) -> None:
+        positive = ("contrast_on", "contrast_off", "contrast_min", "max_px_per_step", "probe_rate_hz")
+        for name in positive + ("min_rate_hz", "max_rate_hz"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise InputError(f"EventSimParams: {name} must be positive, got {v}")
+        for name in ("contrast_sigma", "refractory_s", "noise_rate_hz"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v < 0:
+                raise InputError(f"EventSimParams: {name} must be >= 0, got {v}")
+        if not 0.0 <= self.noise_on_fraction <= 1.0:
+            raise InputError(f"EventSimParams: noise_on_fraction must be in [0, 1], got {self.noise_on_fraction}")
+        if self.min_rate_hz > self.max_rate_hz:
+            raise InputError("EventSimParams: min_rate_hz must not exceed max_rate_hz")
+        if self.fixed_rate_hz is not None and not self.fixed_rate_hz > 0:
+            raise InputError(f"EventSimParams: fixed_rate_hz must be positive, got {self.fixed_rate_hz}")
+        if self.chunk_steps < 1:
+            raise InputError(f"EventSimParams: chunk_steps must be >= 1, got {self.chunk_steps}")
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    t: np.ndarray  # float64 seconds relative to the start
+    pix: np.ndarray
+    p: np.ndarray
+
+
+def _check_trajectory(t_cam: np.ndarray, T_board_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    t = np.asarray(t_cam, dtype=np.float64).ravel()
+    T = np.asarray(T_board_cam, dtype=np.float64)
+    if T.ndim != 3 or T.shape[1:] != (4, 4) or T.shape[0] != t.size:
+        raise InputError(f"simulate_events: T_board_cam must be (n, 4, 4) with n = len(t_cam) = {t.size}")
+    if t.size < 2:
+        raise InputError("simulate_events: need at least two camera poses")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(T))):
+        raise InputError("simulate_events: camera times or poses contain NaN or inf")
+    if np.any(np.diff(t) <= 0):
+        raise InputError("simulate_events: camera times must be strictly increasing")
+    return t, T
+
+
+def render_times(
+    t_cam: np.ndarray, T_board_cam: np.ndarray, camera: CameraModel, params: EventSimParams
+) -> np.ndarray:
+    """Render times (s, absolute, increasing, from t_cam[0] to t_cam[-1]) chosen as the module docstring says."""
+    t, T = _check_trajectory(t_cam, T_board_cam)
+    t0, t1 = t[0], t[-1]
+    if params.fixed_rate_hz is not None:
+        n = max(1, int(np.ceil((t1 - t0) * params.fixed_rate_hz)))
+        return np.linspace(t0, t1, n + 1)
+    n_probe = max(1, int(np.ceil((t1 - t0) * params.probe_rate_hz)))
+    probe = np.union1d(np.linspace(t0, t1, n_probe + 1), t)
+    Tp = interpolate_poses(probe, t, T)
+    # Image motion of the scene plane z = 0 at a grid of pixels: back-project at the earlier pose,
+    # project at the later one. Rays that miss the plane, or hit it very far away, are skipped.
+    gu, gv = np.meshgrid(np.linspace(0, camera.width - 1, 9), np.linspace(0, camera.height - 1, 7))
+    xn = camera.undistort_pixels(np.stack([gu.ravel(), gv.ravel()], axis=-1))
+    rays = np.concatenate([xn, np.ones((xn.shape[0], 1))], axis=1)  # (g, 3) in the camera
+    R, o = Tp[:-1, :3, :3], Tp[:-1, :3, 3]
+    d = np.einsum("kij,gj->kgi", R, rays)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = -o[:, None, 2] / d[:, :, 2]
+    ok = np.isfinite(s) & (s > 0) & (s < 50.0)
+    P = o[:, None, :] + np.where(ok, s, 0.0)[:, :, None] * d  # (k, g, 3) board points
+    T_cam_board = inv_T(Tp[1:])
+    Pc = np.einsum("kij,kgj->kgi", T_cam_board[:, :3, :3], P) + T_cam_board[:, None, :3, 3]
+    ok &= Pc[:, :, 2] > 1e-3
+    uv0 = np.broadcast_to(np.stack([gu.ravel(), gv.ravel()], axis=-1), Pc.shape[:2] + (2,))
+    uv1 = camera.project(np.where(ok[:, :, None], Pc, [0.0, 0.0, 1.0]).reshape(-1, 3)).reshape(uv0.shape)
+    disp = np.where(ok, np.linalg.norm(uv1 - uv0, axis=-1), 0.0)
+    # Rotation alone moves every pixel, even those that see no plane: |omega| f dt bounds that part.
+    rotvec_angle = np.arccos(np.clip((np.einsum("kii->k", R.transpose(0, 2, 1) @ Tp[1:, :3, :3]) - 1) / 2, -1, 1))
+    disp_max = np.maximum(disp.max(axis=1), rotvec_angle * max(camera.fx, camera.fy))
+    dt = np.diff(probe)
+    n_steps = np.ceil(disp_max / params.max_px_per_step)
+    n_steps = np.clip(n_steps, np.ceil(dt * params.min_rate_hz), np.maximum(1.0, np.floor(dt * params.max_rate_hz)))
+    n_steps = np.maximum(n_steps, 1).astype(np.int64)
+    # Steps of interval k: probe[k] + dt_k * j / n_k, j = 0..n_k - 1, then the final end time.
+    k = np.repeat(np.arange(n_steps.size), n_steps)
+    j = np.arange(k.size) - np.repeat(np.cumsum(n_steps) - n_steps, n_steps)
+    times = probe[k] + dt[k] * (j / n_steps[k])
+    return np.append(times, t1)
+
+
+def _pixel_thresholds(params: EventSimParams, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    c_on = params.contrast_on + params.contrast_sigma * rng.standard_normal(n)
+    c_off = params.contrast_off + params.contrast_sigma * rng.standard_normal(n)
+    return np.maximum(c_on, params.contrast_min), np.maximum(c_off, params.contrast_min)
+
+
+def _step_events(
+    L0: np.ndarray,
+    L1: np.ndarray,
+    ta: float,
+    tb: float,
+    ref: np.ndarray,
+    last_t: np.ndarray,
+    c_on: np.ndarray,
+    c_off: np.ndarray,
+    refractory: float,
+) -> _Chunk | None:
+    """Events of one render step (log intensity L0 at ta to L1 at tb); updates ``ref`` and ``last_t`` in place."""
+    dL = L1 - ref
+    idx = np.flatnonzero((dL >= c_on) | (dL <= -c_off))
+    if idx.size == 0:
+        return None
+    d = dL[idx]
+    on = d > 0
+    C = np.where(on, c_on[idx], c_off[idx])
+    sgn = np.where(on, 1.0, -1.0)
+    n = np.floor(np.abs(d) / C).astype(np.int64)
+    l0, l1, r = L0[idx].astype(np.float64), L1[idx].astype(np.float64), ref[idx]
+    slope = (l1 - l0) / (tb - ta)  # log intensity per second; nonzero and of sign sgn for these pixels
+    # Crossing j (0-based) sits at level r + sgn C (j + 1), reached at ta + (level - l0) / slope.
+    t_first = ta + (r + sgn * C - l0) / slope
+    spacing = C / np.abs(slope)
+    ref[idx] = r + sgn * C * n  # every crossing moves the reference, emitted or not
+    pix = np.repeat(idx, n)
+    j = np.arange(pix.size) - np.repeat(np.cumsum(n) - n, n)
+    t_ev = np.repeat(t_first, n) + j * np.repeat(spacing, n)
+    if refractory > 0:
+        # First crossing past the pixel's refractory time, then every ceil(refractory / spacing) crossings.
+        j0 = np.maximum(0.0, np.ceil((last_t[idx] + refractory - t_first) / spacing - 1e-9))
+        stride = np.maximum(1.0, np.ceil(refractory / spacing - 1e-9))
+        jj = j - np.repeat(j0, n)
+        keep = (jj >= 0) & (np.mod(jj, np.repeat(stride, n)) == 0)
+        pix, t_ev, j = pix[keep], t_ev[keep], j[keep]
+        p_ev = np.repeat(sgn, n)[keep]
+    else:
+        p_ev = np.repeat(sgn, n)
+    if pix.size == 0:
+        return None
+    np.clip(t_ev, ta, tb, out=t_ev)  # guard against rounding at the interval ends
+    np.maximum.at(last_t, pix, t_ev)
+    return _Chunk(t_ev, pix, p_ev.astype(np.int8))
+
+
+def _noise(
+    t_a: float, t_b: float, n_pixels: int, params: EventSimParams, rng: np.random.Generator
+) -> _Chunk | None:
+    lam = params.noise_rate_hz * n_pixels * (t_b - t_a)
+    if lam <= 0:
+        return None
+    k = int(rng.poisson(lam))
+    if k == 0:
+        return None
+    t = rng.uniform(t_a, t_b, k)
+    pix = rng.integers(0, n_pixels, k)
+    p = np.where(rng.random(k) < params.noise_on_fraction, 1, -1).astype(np.int8)
+    return _Chunk(t, pix, p)
+
+
+def simulate_events(
+    t_cam: np.ndarray,
+    T_board_cam: np.ndarray,
+    camera: CameraModel,
+    board: Board,
+    params: EventSimParams | None = None,
+    seed: int = 0,
+    progress: Callable[[int, int], None] | None = None,
+) -> EventStream:
+    """Events (t in int64 ns, same clock as ``t_cam``) of ``camera`` moving along T_board_cam(t_cam).
+
+    ``t_cam`` (n,) seconds, strictly increasing; ``T_board_cam`` (n, 4, 4) camera poses in the board frame,
+    interpolated in between (slerp + linear). Deterministic for a given ``seed``.
+    """
+    params = params or EventSimParams()
+    t, T = _check_trajectory(t_cam, T_board_cam)
+    rng = np.random.default_rng(seed)
+    renderer = BoardRenderer(camera, board, params.render)
+    n_pix = camera.width * camera.height
+    # Work in seconds relative to the first stamp: absolute epoch seconds in float64 lose sub-microsecond detail.
+    t_origin_ns = int(round(t[0] * 1e9))
+    times = render_times(t, T, camera, params)
+    rel = times - t[0]
+    c_on, c_off = _pixel_thresholds(params, n_pix, rng)
+    n_steps = times.size - 1
+    log.info("simulating events: %d renders over %.3f s (%.0f Hz mean)", times.size, rel[-1], n_steps / rel[-1])
+    L_prev = renderer.log_intensity(T[0]).ravel()
+    ref = L_prev.astype(np.float64)
+    last_t = np.full(n_pix, -np.inf)
+    chunks: list[EventStream] = []
+    for c0 in range(0, n_steps, params.chunk_steps):
+        c1 = min(n_steps, c0 + params.chunk_steps)
+        poses = interpolate_poses(times[c0 + 1 : c1 + 1], t, T)
+        parts: list[_Chunk] = []
+        for k in range(c1 - c0):
+            L = renderer.log_intensity(poses[k]).ravel()
+            ev = _step_events(
+                L_prev, L, rel[c0 + k], rel[c0 + k + 1], ref, last_t, c_on, c_off, params.refractory_s
+            )
+            if ev is not None:
+                parts.append(ev)
+            L_prev = L
+        noise = _noise(rel[c0], rel[c1], n_pix, params, rng)
+        if noise is not None:
+            parts.append(noise)
+        if parts:
+            chunks.append(_to_stream(parts, t_origin_ns, camera))
+        if progress is not None:
+            progress(c1, n_steps)
+    if not chunks:
+        return EventStream.empty(camera.width, camera.height)
+    out = EventStream.concatenate(chunks)
+    log.info("simulated %d events (%.1f%% ON)", len(out), 100.0 * out.n_on / max(1, len(out)))
+    return out
+
+
+def _to_stream(parts: list[_Chunk], t_origin_ns: int, camera: CameraModel) -> EventStream:
+    t = np.concatenate([c.t for c in parts])
+    pix = np.concatenate([c.pix for c in parts])
+    p = np.concatenate([c.p for c in parts])
+    t_ns = np.rint(t * 1e9).astype(np.int64) + t_origin_ns
+    order = np.argsort(t_ns, kind="stable")
+    y, x = np.divmod(pix[order], camera.width)
+    return EventStream.from_arrays(t_ns[order], x, y, p[order], camera.width, camera.height, validate=False)
