@@ -6,11 +6,13 @@ Variables of the factor for frame i (camera time t_i):
 * ``C`` = ``T_base_cam``, ``B`` = ``T_world_board``,
 * ``td`` (a 1-vector): the camera sample at ``t_i`` belongs to odometry time ``t_i + td``.
 
-The base pose at ``tau = t_i + td`` is ``X(tau) = Y(s) * K_i`` with ``s = (tau - t_a) / (t_b - t_a)``,
+The base pose at ``tau = t_i + td`` is ``X(tau) = Y(s) * K(tau)`` with ``s = (tau - t_a) / (t_b - t_a)``,
 ``Y(s)`` = slerp of the rotations and linear interpolation of the positions of ``X_a`` and ``X_b`` (the
-same scheme as :func:`plsgraph.geometry.interpolate_poses`), and ``K_i`` a constant correction that puts
-back the detail of the full-rate odometry between two knots when the knots are decimated (identity when
-they are not). ``td`` acts only through ``s``: the frame slides along the base motion.
+same scheme as :func:`plsgraph.geometry.interpolate_poses`), and ``K(tau)`` the detail of the full-rate
+odometry between the two knots: ``K = Y_odo(s)^-1 odo(tau)``, the odometry pose at ``tau`` relative to
+the same interpolation of the odometry's own poses at the knot times (identity without odometry, or
+when every odometry sample is a knot). ``td`` acts through ``s`` and through ``K``: the frame slides
+along the base motion, and to first order the pose moves with the odometry's body twist at ``tau``.
 
 A board point P is predicted at ``project(C^-1 X(tau)^-1 B P)``; the residual is predicted minus
 measured pixels, (u, v) per visible point. Points with NaN pixels are dropped when the factor is built.
@@ -43,12 +45,43 @@ _MIN_DEPTH = 1e-3
 
 
 @dataclass(frozen=True)
+class OdometryDetail:
+    """Full-rate odometry ``T`` (n, 4, 4) at times ``t`` (n,), and per frame its poses at the two knots."""
+
+    t: np.ndarray
+    T: np.ndarray
+    T_a: np.ndarray
+    T_b: np.ndarray
+
+    def take(self, idx) -> OdometryDetail:
+        return OdometryDetail(self.t, self.T, self.T_a[idx], self.T_b[idx])
+
+
+def odometry_detail(
+    odo: OdometryDetail, tau: np.ndarray, s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``K(tau)`` (m, 4, 4), the odometry body twist at ``tau`` (m, 6) and ``d eta(Y_odo) / ds`` (m, 6).
+
+    Outside the odometry span the end samples' motion is extrapolated (the same interpolation formula).
+    """
+    t = odo.t
+    j = np.clip(np.searchsorted(t, tau, "right") - 1, 0, t.size - 2)
+    dt = t[j + 1] - t[j]
+    u = (tau - t[j]) / dt
+    odo_tau, _, _, a_u = interpolation_jacobians(odo.T[j], odo.T[j + 1], u)
+    Y_odo, _, _, a_s = interpolation_jacobians(odo.T_a, odo.T_b, s)
+    K = inv_T(Y_odo) @ odo_tau
+    twist_odo = a_u / dt[:, None]  # body twist of the odometry at tau
+    return K, twist_odo, a_s
+
+
+@dataclass(frozen=True)
 class ReprojectionFrames:
     """Static data of m detection frames sharing one board and one camera.
 
     ``t`` (m,) camera times; ``t_a``, ``t_b`` (m,) odometry times of the bracketing knots;
     ``uv`` (m, N, 2) measured pixels (NaN = not seen); ``board_points`` (N, 3);
-    ``T_corr`` (m, 4, 4) the decimation correction K_i (identity if None).
+    ``odometry``: full-rate odometry for the detail between knots (None: K = identity).
     """
 
     t: np.ndarray
@@ -57,7 +90,7 @@ class ReprojectionFrames:
     uv: np.ndarray
     board_points: np.ndarray
     camera: CameraModel
-    T_corr: np.ndarray | None = None
+    odometry: OdometryDetail | None = None
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=float).ravel()
@@ -70,10 +103,10 @@ class ReprojectionFrames:
             raise InputError(f"reprojection frames: inconsistent shapes t {t.shape}, uv {uv.shape}, points {pts.shape}")
         if np.any(t_b - t_a <= 0):
             raise InputError("reprojection frames: each bracket needs t_b > t_a")
-        T_corr = np.broadcast_to(np.eye(4), (m, 4, 4)) if self.T_corr is None else np.asarray(self.T_corr, float)
-        if T_corr.shape != (m, 4, 4):
-            raise InputError(f"reprojection frames: T_corr must be ({m}, 4, 4), got {T_corr.shape}")
-        for name, v in (("t", t), ("t_a", t_a), ("t_b", t_b), ("uv", uv), ("board_points", pts), ("T_corr", T_corr)):
+        odo = self.odometry
+        if odo is not None and (odo.T_a.shape != (m, 4, 4) or odo.T_b.shape != (m, 4, 4) or odo.t.size < 2):
+            raise InputError("reprojection frames: odometry detail needs >= 2 samples and knot poses per frame")
+        for name, v in (("t", t), ("t_a", t_a), ("t_b", t_b), ("uv", uv), ("board_points", pts)):
             object.__setattr__(self, name, v)
 
     def __len__(self) -> int:
@@ -87,7 +120,8 @@ class ReprojectionFrames:
     def take(self, idx) -> ReprojectionFrames:
         idx = np.atleast_1d(idx)
         return ReprojectionFrames(
-            self.t[idx], self.t_a[idx], self.t_b[idx], self.uv[idx], self.board_points, self.camera, self.T_corr[idx]
+            self.t[idx], self.t_a[idx], self.t_b[idx], self.uv[idx], self.board_points, self.camera,
+            None if self.odometry is None else self.odometry.take(idx),
         )
 
 
@@ -150,9 +184,15 @@ def evaluate_frames(
     ``Xa``, ``Xb`` (m, 4, 4) are the bracketing knot poses of each frame. Vectorized over frames and points.
     """
     h = frames.t_b - frames.t_a
-    s = (frames.t + td - frames.t_a) / h
+    tau = frames.t + td
+    s = (tau - frames.t_a) / h
     Y, A_a, A_b, a_s = interpolation_jacobians(np.asarray(Xa, float), np.asarray(Xb, float), s)
-    X = Y @ frames.T_corr
+    if frames.odometry is None:
+        K = np.broadcast_to(np.eye(4), Y.shape)
+        twist_odo = a_s_odo = None
+    else:
+        K, twist_odo, a_s_odo = odometry_detail(frames.odometry, tau, s)
+    X = Y @ K
     RX, pX = X[:, :3, :3], X[:, :3, 3]
     RC, pC = T_base_cam[:3, :3], T_base_cam[:3, 3]
     RB, pB = T_world_board[:3, :3], T_world_board[:3, 3]
@@ -178,13 +218,16 @@ def evaluate_frames(
     RM = RC.T @ np.swapaxes(RX, 1, 2) @ RB  # (m, 3, 3)
     JpRM = Jp @ RM[:, None, :, :]  # (m, n, 2, 3)
     J_board = np.concatenate([-JpRM @ hat(P)[None], JpRM], axis=-1)
-    # d pc / d(X perturbation) = RC^T [hat(q), -I]; X = Y K, so eta_X = Ad(K^-1) eta_Y
+    # d pc / d(X perturbation) = RC^T [hat(q), -I]; X = Y K, so eta_X = Ad(K^-1) eta_Y + K^-1 dK
     JpRC = Jp @ RC.T
     J_X = np.concatenate([JpRC @ hat(q), -np.broadcast_to(JpRC, (m, n, 2, 3))], axis=-1)
-    AdKi = pose_adjoint(inv_T(frames.T_corr))
+    AdKi = pose_adjoint(inv_T(K))
     J_a = J_X @ (AdKi @ A_a)[:, None]
     J_b = J_X @ (AdKi @ A_b)[:, None]
-    g_td = np.einsum("mij,mj->mi", AdKi, a_s) / h[:, None]  # d eta_X / d td
+    g_td = np.einsum("mij,mj->mi", AdKi, a_s) / h[:, None]  # d eta_X / d td through s
+    if twist_odo is not None:
+        # K = Y_odo(s)^-1 odo(tau): K^-1 dK/dtau = twist_odo - Ad(K^-1) a_s_odo / h
+        g_td = g_td + twist_odo - np.einsum("mij,mj->mi", AdKi, a_s_odo) / h[:, None]
     J_td = np.einsum("mnij,mj->mni", J_X, g_td)[..., None]
     return FrameEvaluation(uv - frames.uv, J_a, J_b, J_cam, J_board, J_td)
 

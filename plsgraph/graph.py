@@ -15,8 +15,9 @@ Graph (see docs/refinement.md):
 * optional user priors: closed-form rotation (weak), camera height, board-on-the-floor.
 
 Decimation: with knots at 10 Hz instead of 50 Hz a 60 s recording has 600 instead of 3000 base
-poses. The detail of the odometry between two knots is not lost: each frame carries a constant
-correction (odometry pose at its time relative to the knot interpolation), see factors.reprojection.
+poses. The detail of the odometry between two knots is not lost: each frame's base pose is the knot
+interpolation times the full-rate odometry's deviation from the same interpolation of its own knot
+poses, evaluated at the frame's current odometry time (so it moves with td), see factors.reprojection.
 
 Seeding: R_base_cam and td from the caller (closed form + correlation); the translation of
 T_base_cam and T_world_board by linear least squares from the PnP poses and the odometry given that
@@ -36,7 +37,7 @@ import numpy as np
 from factors.odometry import OdometryNoise, make_odometry_factors, path_increments
 from factors.planar import make_planar_factor
 from factors.priors import make_height_prior, make_rotation_prior, make_subspace_prior, make_vertical_board_prior
-from factors.reprojection import FrameBatch, ReprojectionFrames, interpolation_jacobians, make_reprojection_factors
+from factors.reprojection import FrameBatch, OdometryDetail, ReprojectionFrames, make_reprojection_factors
 
 from .camera import CameraModel
 from .errors import ConvergenceError, InputError, InsufficientDataError
@@ -300,18 +301,15 @@ def _prepare(
 
 
 def _brackets(prob: _Problem, td: float, rows: np.ndarray) -> tuple[ReprojectionFrames, np.ndarray]:
-    """Frames ``rows`` with their bracketing knots at ``td`` and the decimation correction."""
+    """Frames ``rows`` with their bracketing knots at ``td`` and the full-rate odometry for the detail between knots."""
     t = prob.frame_t[rows]
     tau = np.clip(t + td, prob.knot_t[0], prob.knot_t[-1])
     a = np.clip(np.searchsorted(prob.knot_t, tau, "right") - 1, 0, prob.knot_t.size - 2)
     b = a + 1
-    # Correction: odometry pose at tau relative to the interpolation of the odometry knots at tau.
-    s = (tau - prob.knot_t[a]) / (prob.knot_t[b] - prob.knot_t[a])
-    Y = interpolation_jacobians(prob.T_knots_odo[a], prob.T_knots_odo[b], s)[0]
-    T_odo = prob.base_track.poses_at(tau)
-    corr = inv_T(Y) @ T_odo
+    bt = prob.base_track
+    odo = OdometryDetail(bt.t, bt.T_world_base, prob.T_knots_odo[a], prob.T_knots_odo[b])
     f = prob.frames
-    frames = ReprojectionFrames(t, prob.knot_t[a], prob.knot_t[b], f.uv[rows], f.board_points, f.camera, corr)
+    frames = ReprojectionFrames(t, prob.knot_t[a], prob.knot_t[b], f.uv[rows], f.board_points, f.camera, odo)
     return frames, np.stack([a, b], axis=1)
 
 

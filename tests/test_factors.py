@@ -8,7 +8,13 @@ from factors._lie import so3_right_jacobian, so3_right_jacobian_inv
 from factors.odometry import OdometryNoise, make_odometry_factors, odometry_covariance, path_increments
 from factors.planar import make_planar_factor
 from factors.priors import make_height_prior, make_rotation_prior, make_subspace_prior, make_vertical_board_prior
-from factors.reprojection import FrameBatch, ReprojectionFrames, evaluate_frames, make_reprojection_factors
+from factors.reprojection import (
+    FrameBatch,
+    OdometryDetail,
+    ReprojectionFrames,
+    evaluate_frames,
+    make_reprojection_factors,
+)
 from plsgraph.board import load_board
 from plsgraph.camera import davis346_default
 from plsgraph.geometry import inv_T, make_T, se3_exp, so3_exp
@@ -60,12 +66,20 @@ def random_pose(rng, rot=np.pi, trans=2.0):
     return se3_exp(np.concatenate([rng.normal(size=3) * rot / 2, rng.normal(size=3) * trans]))
 
 
+def odometry_track(rng, t0=-1.0, t1=2.0, rate=50.0):
+    """A smooth full-rate odometry trajectory (constant-ish twist with wiggles)."""
+    t = np.arange(t0, t1, 1.0 / rate)
+    w = rng.normal(scale=0.5, size=6)
+    xi = np.outer(t, w) + 0.05 * np.sin(np.outer(t, rng.uniform(1, 5, 6)))
+    return t, se3_exp(xi)
+
+
 def reprojection_case(rng, m=3, corr=True, holes=True):
     """m frames of a board in front of a camera mounted on a moving base, at a random state."""
     camera = davis346_default()
     board = load_board("acircles_4x11")
     P = board.points
-    t = np.sort(rng.uniform(0.0, 1.0, m))
+    t = np.sort(rng.uniform(0.0, 1.0, m)) + 1e-3 * rng.uniform(0.1, 0.9)  # off the odometry sample grid
     h = rng.uniform(0.05, 0.2, m)
     t_a = t - rng.uniform(0.1, 0.9, m) * h
     t_b = t_a + h
@@ -73,24 +87,34 @@ def reprojection_case(rng, m=3, corr=True, holes=True):
     C = make_T(so3_exp(rng.normal(size=3)), rng.normal(scale=0.3, size=3))
     Xa = np.stack([random_pose(rng) for _ in range(m)])
     Xb = Xa @ se3_exp(rng.normal(scale=0.2, size=(m, 6)))
-    K = se3_exp(rng.normal(scale=0.02, size=(m, 6))) if corr else None
-    # Board about 1 m in front of the first frame's camera, facing it.
-    from plsgraph.geometry import interpolate_poses
+    odo = None
+    if corr:
+        from plsgraph.geometry import interpolate_poses
 
-    Xs = interpolate_poses(t[0] + td, np.array([t_a[0], t_b[0]]), np.stack([Xa[0], Xb[0]]))[0]
-    Kc = np.eye(4) if K is None else K[0]
+        to, To = odometry_track(rng)
+        odo = OdometryDetail(to, To, interpolate_poses(t_a, to, To), interpolate_poses(t_b, to, To))
+    # Board about 1 m in front of the camera of frame 0, facing it.
+    frames = ReprojectionFrames(t, t_a, t_b, np.zeros((m, len(P), 2)), P, camera, odo)
     T_cam_board = make_T(so3_exp(rng.normal(scale=0.2, size=3)), np.array([-0.15, -0.1, 1.0]))
-    B = Xs @ Kc @ C @ T_cam_board
-    frames_uv = np.zeros((m, len(P), 2))
-    frames = ReprojectionFrames(t, t_a, t_b, frames_uv, P, camera, K)
+    X0 = _frame_base_pose(frames, Xa, Xb, td)[0]
+    B = X0 @ C @ T_cam_board
     # Measurements: the prediction at a nearby state plus noise, so residuals are small but not zero.
-    ev = evaluate_frames(frames, Xa, Xb, C, B, td, jacobians=False)
-    uv = ev.residual + rng.normal(scale=0.5, size=ev.residual.shape)
-    # Keep every frame in front of the camera: later frames use the same relative geometry.
+    pred = evaluate_frames(frames, Xa, Xb, C, B, td, jacobians=False).residual
+    uv = pred + rng.normal(scale=0.5, size=pred.shape)
     if holes:
         uv[0, :5] = np.nan
-    frames = ReprojectionFrames(t, t_a, t_b, uv, P, camera, K)
+    frames = ReprojectionFrames(t, t_a, t_b, uv, P, camera, odo)
     return frames, Xa, Xb, C, B, td
+
+
+def _frame_base_pose(frames, Xa, Xb, td):
+    from factors.reprojection import interpolation_jacobians, odometry_detail
+
+    s = (frames.t + td - frames.t_a) / (frames.t_b - frames.t_a)
+    Y = interpolation_jacobians(Xa, Xb, s)[0]
+    if frames.odometry is None:
+        return Y
+    return Y @ odometry_detail(frames.odometry, frames.t + td, s)[0]
 
 
 def reprojection_values(frames, Xa, Xb, C, B, td):
@@ -126,7 +150,8 @@ def test_reprojection_residual_zero_at_truth_and_nan_points_dropped():
     clean = evaluate_frames(frames, Xa, Xb, C, B, td, jacobians=False).residual + frames.uv
     uv = clean.copy()
     uv[1, [3, 7]] = np.nan
-    frames = ReprojectionFrames(frames.t, frames.t_a, frames.t_b, uv, frames.board_points, frames.camera, frames.T_corr)
+    frames = ReprojectionFrames(frames.t, frames.t_a, frames.t_b, uv, frames.board_points, frames.camera,
+                                frames.odometry)
     batch, values = reprojection_values(frames, Xa, Xb, C, B, td)
     f0, f1 = make_reprojection_factors(batch, sigma_px=1.0, robust=None)
     assert np.abs(f0.unwhitenedError(values)).max() < 1e-9
@@ -252,6 +277,22 @@ def test_odometry_between_factors_zero_on_odometry_and_path_increments():
     v2 = gtsam.Values(values)
     v2.update(keys[2], gtsam.Pose3(T[knots[2]] @ make_T(np.eye(3), np.array([0.01, 0, 0]))))
     assert fs[1].error(v2) > 0
+
+
+def test_odometry_detail_makes_the_base_pose_follow_the_odometry():
+    """With the graph knots equal to the odometry's, a frame's base pose is the odometry pose at t + td."""
+    from plsgraph.geometry import interpolate_poses
+
+    rng = np.random.default_rng(21)
+    to, To = odometry_track(rng)
+    t = np.array([0.1234, 0.5678])
+    t_a, t_b = t - 0.06, t + 0.05
+    odo = OdometryDetail(to, To, interpolate_poses(t_a, to, To), interpolate_poses(t_b, to, To))
+    P = load_board("acircles_4x11").points
+    frames = ReprojectionFrames(t, t_a, t_b, np.zeros((2, len(P), 2)), P, davis346_default(), odo)
+    for td in (0.0, 0.013, -0.02):
+        X = _frame_base_pose(frames, odo.T_a, odo.T_b, td)
+        assert np.allclose(X, interpolate_poses(t + td, to, To), atol=1e-12)
 
 
 def test_inv_T_consistent_with_corr_adjoint():
