@@ -194,8 +194,14 @@ class _WindowJob:
                         surfaces.to_uint8(tag_img), board, self.camera, detector=aruco, layout=self.tag_layout
                     )
                 else:
-                    rim, level = _rim_image(img, kind, params, age)
-                    det = detect_circle_grid(rim, board, self.camera, foreground="rims", rim_threshold=level)
+                    det = None
+                    if kind == "leaky":
+                        # The leaky integrator approximates log intensity (circles dark) once the board has
+                        # moved by more than a circle within tau; try it as an image first.
+                        det = detect_circle_grid(img, board, self.camera, foreground="dark")
+                    if det is None or det.reason != REASON_OK:
+                        rim, level = _rim_image(img, kind, params, age)
+                        det = detect_circle_grid(rim, board, self.camera, foreground="rims", rim_threshold=level)
                 secs["surfaces"] += c1 - c0
                 secs["detection"] += time.perf_counter() - c1
                 if det.reason == REASON_OK:
