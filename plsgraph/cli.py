@@ -52,8 +52,9 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
     p.add_argument(
         "--surface",
         default="polarity",
-        choices=["polarity", "time", "count"],
-        help="event representation for detection (default: %(default)s, the paper's polarity-aware surface)",
+        choices=["polarity", "classic", "count", "leaky"],
+        help="event representation for detection: polarity (the paper's polarity-aware surface, default), "
+        "classic (exponential time surface), count (event count frame), leaky (leaky polarity integrator)",
     )
     p.add_argument("--rate", type=float, default=30.0, help="detection rate in Hz (default: %(default)s)")
     p.add_argument(
