@@ -51,6 +51,8 @@ log = logging.getLogger(__name__)
 MIN_TURN_RATE = 0.05
 #: RMS forward speed (m/s) below which the linear velocity says nothing about yaw.
 MIN_SPEED = 0.05
+#: Huber threshold in robust sigmas for the velocity rows and the td refinement.
+HUBER_K = 2.5
 #: |cosine| between forward speed and turn rate above which the driving is constant-curvature.
 MAX_SPEED_TURN_COSINE = 0.98
 
@@ -124,7 +126,11 @@ def lever_arm_from_velocities(pairs: PairedSamples, R_base_cam: np.ndarray) -> n
 
 
 def lever_arm_and_odometry_scales(
-    pairs: PairedSamples, R_base_cam: np.ndarray, estimate_scales: bool = True, estimate_speed_scale: bool = True
+    pairs: PairedSamples,
+    R_base_cam: np.ndarray,
+    estimate_scales: bool = True,
+    estimate_speed_scale: bool = True,
+    weights: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, float, float]:
     """Camera position t_xy and the odometry's speed and turn-rate scale factors from paired velocities.
 
@@ -132,13 +138,15 @@ def lever_arm_and_odometry_scales(
     robot's effective track width), R omega_cam = s_w omega_base and R v_cam = s_v v_base + s_w omega_base x t.
     s_w comes from the first equation; s_v, t_x, t_y jointly from the second by least squares. Without
     ``estimate_scales`` both are 1; without ``estimate_speed_scale`` s_v is 1 (needed when speed and turn rate
-    are proportional, which makes s_v and t_y inseparable).
+    are proportional, which makes s_v and t_y inseparable). ``weights`` = (angular, linear) per-sample weights.
     """
+    n = pairs.t.size
+    ww_, wv_ = (np.ones(n), np.ones(n)) if weights is None else weights
     w = pairs.omega_base[:, 2]
-    ww = float(w @ w)
+    ww = float(ww_ @ (w * w))
     if not ww > 0:
         raise DegenerateMotionError("lever arm: the base never turns, so the camera position is unobservable")
-    s_w = float((pairs.omega_cam @ R_base_cam.T)[:, 2] @ w / ww) if estimate_scales else 1.0
+    s_w = float(ww_ @ ((pairs.omega_cam @ R_base_cam.T)[:, 2] * w) / ww) if estimate_scales else 1.0
     if not s_w > 0:
         raise DegenerateMotionError(
             f"the camera turns against the odometry (turn-rate scale {s_w:.3f}); check the wheel order/signs"
@@ -146,14 +154,35 @@ def lever_arm_and_odometry_scales(
     r = pairs.v_cam @ R_base_cam.T
     vx, vy = pairs.v_base[:, 0], pairs.v_base[:, 1]
     z = np.zeros_like(w)
+    sq = np.sqrt(np.r_[wv_, wv_])
     if estimate_scales and estimate_speed_scale:
         # Unknowns (s_v, t_x, t_y): x rows s_v v_x - s_w w t_y, y rows s_v v_y + s_w w t_x.
         A = np.vstack([np.column_stack([vx, z, -s_w * w]), np.column_stack([vy, s_w * w, z])])
-        sol, *_ = np.linalg.lstsq(A, np.r_[r[:, 0], r[:, 1]], rcond=None)
+        sol, *_ = np.linalg.lstsq(A * sq[:, None], np.r_[r[:, 0], r[:, 1]] * sq, rcond=None)
         return sol[1:], float(sol[0]), s_w
     A = np.vstack([np.column_stack([z, -s_w * w]), np.column_stack([s_w * w, z])])
-    sol, *_ = np.linalg.lstsq(A, np.r_[r[:, 0] - vx, r[:, 1] - vy], rcond=None)
+    sol, *_ = np.linalg.lstsq(A * sq[:, None], np.r_[r[:, 0] - vx, r[:, 1] - vy] * sq, rcond=None)
     return sol, 1.0, s_w
+
+
+def model_residuals(
+    pairs: PairedSamples, R_base_cam: np.ndarray, t_xy: np.ndarray, speed_scale: float, turn_scale: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-sample residual norms of the calibrated model: angular (rad/s) and linear (m/s)."""
+    w_b = turn_scale * pairs.omega_base
+    rw = pairs.omega_cam @ R_base_cam.T - w_b
+    rv = pairs.v_cam @ R_base_cam.T - (speed_scale * pairs.v_base + np.cross(w_b, np.r_[t_xy, 0.0]))
+    return np.linalg.norm(rw, axis=1), np.linalg.norm(rv, axis=1)
+
+
+def _robust_sigma(e: np.ndarray) -> float:
+    """Scale of residual norms of 3-vectors: their median over that of a 3-D unit Gaussian's norm (1.538)."""
+    return float(np.median(e) / 1.538) + 1e-12
+
+
+def huber_weights(e: np.ndarray, sigma: float, k: float = HUBER_K) -> np.ndarray:
+    """IRLS weights of the Huber loss for residual norms ``e`` with scale ``sigma``."""
+    return np.minimum(1.0, k * sigma / np.maximum(e, 1e-15))
 
 
 def planar_hand_eye_translation(
@@ -270,43 +299,61 @@ def refine_time_offset(
     t_xy: np.ndarray,
     speed_scale: float = 1.0,
     turn_scale: float = 1.0,
-    half_range: float = 0.04,
-    step: float = 0.002,
+    half_range: float = 0.1,
+    coarse_step: float = 0.005,
+    step: float = 0.001,
 ) -> tuple[float, np.ndarray, np.ndarray]:
-    """td minimising the full 3-D velocity residual of the calibrated model around ``td0``.
+    """td minimising the full 3-D velocity residual of the calibrated model within ``half_range`` of ``td0``.
 
     Once R, t_xy and the odometry scales are known, every shift can be scored by how well the camera's angular
-    and linear velocities are explained: sum |R w_cam - s_w w_base|^2 / var(w_base) plus the same for the linear
-    velocity with the lever arm. Unlike the correlation this uses all axes and the linear velocity too. The
-    samples are the same for every shift; the minimum is refined by a parabola. Returns td, shifts, costs.
+    and linear velocities are explained: the Huber loss of |R w_cam - s_w w_base| plus that of the linear
+    velocity residual with the lever arm, each in robust sigmas of the starting shift. Unlike the correlation
+    this uses all axes and the linear velocity too. The samples are the same for every shift; a coarse grid,
+    then a fine one around its minimum, then a parabola. Returns td and the sorted shifts and costs.
     """
-    shifts = td0 + np.arange(-half_range, half_range + 0.5 * step, step)
     reach = cv.info["half"] / cv.info["rate"]
-    sel = cv.valid & (cv.t + shifts[0] >= base.t[0] + reach) & (cv.t + shifts[-1] <= base.t[-1] - reach)
+    lo, hi = td0 - half_range, td0 + half_range
+    sel = cv.valid & (cv.t + lo >= base.t[0] + reach) & (cv.t + hi <= base.t[-1] - reach)
     sub = CameraVelocities(cv.t[sel], cv.omega[sel], cv.v[sel], np.ones(int(sel.sum()), dtype=bool), cv.info)
-    t3 = np.r_[t_xy, 0.0]
-    costs = np.full(shifts.size, np.inf)
-    for i, s in enumerate(shifts):
+
+    def residuals(shift: float) -> tuple[np.ndarray, np.ndarray] | None:
         try:
-            p = pair_samples(sub, base, float(s))
+            return model_residuals(pair_samples(sub, base, shift), R_base_cam, t_xy, speed_scale, turn_scale)
         except PlsgraphError:
-            continue
-        w_b = turn_scale * p.omega_base
-        rw = p.omega_cam @ R_base_cam.T - w_b
-        rv = p.v_cam @ R_base_cam.T - (speed_scale * p.v_base + np.cross(w_b, t3))
-        den_w = np.mean(np.sum(w_b**2, axis=1))
-        den_v = np.mean(np.sum(p.v_base**2, axis=1)) * speed_scale**2
-        costs[i] = np.mean(np.sum(rw**2, axis=1)) / max(den_w, 1e-12) + np.mean(np.sum(rv**2, axis=1)) / max(
-            den_v, 1e-12
-        )
-    j = int(np.argmin(costs))
-    td = float(shifts[j])
-    if 0 < j < shifts.size - 1 and np.all(np.isfinite(costs[j - 1 : j + 2])):
-        y0, y1, y2 = costs[j - 1 : j + 2]
+            return None
+
+    # Huber loss with scales fixed at the starting shift, so that a few samples the model cannot explain
+    # (slip bursts) do not pull the minimum.
+    mid = residuals(float(td0))
+    if mid is None:
+        return float(td0), np.array([td0]), np.array([np.inf])
+    sig = (_robust_sigma(mid[0]), _robust_sigma(mid[1]))
+
+    def cost(shift: float) -> float:
+        r = residuals(shift)
+        if r is None:
+            return np.inf
+        total = 0.0
+        for e, sigma in zip(r, sig, strict=True):
+            x = e / sigma
+            total += float(np.mean(np.where(x <= HUBER_K, 0.5 * x * x, HUBER_K * (x - 0.5 * HUBER_K))))
+        return total
+
+    s_coarse = td0 + np.arange(-half_range, half_range + 0.5 * coarse_step, coarse_step)
+    c_coarse = np.array([cost(float(x)) for x in s_coarse])
+    i0 = int(np.argmin(c_coarse))
+    s_fine = s_coarse[i0] + np.arange(-coarse_step, coarse_step + 0.5 * step, step)
+    c_fine = np.array([cost(float(x)) for x in s_fine])
+    j = int(np.argmin(c_fine))
+    td = float(s_fine[j])
+    if 0 < j < s_fine.size - 1 and np.all(np.isfinite(c_fine[j - 1 : j + 2])):
+        y0, y1, y2 = c_fine[j - 1 : j + 2]
         den = y0 - 2 * y1 + y2
         if den > 0:
             td += 0.5 * step * (y0 - y2) / den
-    return td, shifts, costs
+    shifts = np.r_[s_coarse, s_fine]
+    order = np.argsort(shifts, kind="stable")
+    return td, shifts[order], np.r_[c_coarse, c_fine][order]
 
 
 def _solve_rotation(
@@ -355,6 +402,7 @@ def calibrate_closed_form(
     use_covariance: bool = True,
     estimate_odometry_scale: bool = True,
     refine_td: bool = True,
+    robust_iterations: int = 3,
 ) -> ClosedFormResult:
     """Closed-form T_base_cam (rotation, floor-plane translation) and td from a camera and a base track.
 
@@ -366,8 +414,10 @@ def calibrate_closed_form(
     ``use_covariance`` weights the velocity rows by the camera poses' covariance when the track has one.
     ``estimate_odometry_scale`` estimates the odometry's speed and turn-rate scale factors (wrong wheel radius,
     effective track width) along with the lever arm, reports them and corrects the odometry for the translation.
-    ``refine_td`` re-estimates td (within +-40 ms of the correlation peak) from the full velocity residual once
+    ``refine_td`` re-estimates td (within +-100 ms of the correlation peak) from the full velocity residual once
     the rotation is known; ``time_offset`` keeps the correlation search, ``td`` is the refined value.
+    ``robust_iterations`` Huber reweightings of the velocity samples the model does not explain (0 = plain
+    least squares); the count of downweighted samples is in ``discarded["velocity_samples_downweighted"]``.
     Input problems raise (InputError, InsufficientDataError); motion that leaves something undetermined gives
     a result with ``degenerate`` set, or raises DegenerateMotionError with ``raise_on_degenerate``.
     """
@@ -447,7 +497,6 @@ def calibrate_closed_form(
         vertical = vertical / np.linalg.norm(vertical)
 
     # 3. Rotation and lever arm, alternating.
-    row_weights = covariance_weights(camera_track, pairs.t) if use_covariance else None
     methods: dict[str, MethodResult] = {}
     R = None
     t_xy = np.zeros(2)
@@ -456,29 +505,40 @@ def calibrate_closed_form(
     he_diag: dict = {}
     if full_rotation:
         try:
-            for _ in range(max(1, iterations)):
-                X, Y, _k = _stack_rows(pairs, t_xy, s_v, s_w)
-                R = _solve_rotation(X, Y, method, row_weights).R_base_cam
-                t_xy, s_v, s_w = lever_arm_and_odometry_scales(
-                    pairs, R, estimate_odometry_scale, cos_vw <= MAX_SPEED_TURN_COSINE
-                )
+            speed_ok = cos_vw <= MAX_SPEED_TURN_COSINE
+
+            def solve_model(pairs: PairedSamples, n_iter: int, t_xy, s_v, s_w):
+                """Alternate rotation and lever arm / scales, with Huber reweighting of the velocity samples."""
+                weights = covariance_weights(camera_track, pairs.t) if use_covariance else None
+                rob = (np.ones(pairs.t.size), np.ones(pairs.t.size))
+                for _ in range(n_iter + robust_iterations):
+                    X, Y, _k = _stack_rows(pairs, t_xy, s_v, s_w)
+                    W = np.r_[rob[0], rob[1]] if weights is None else weights * np.r_[rob[0], rob[1]]
+                    R = _solve_rotation(X, Y, method, W).R_base_cam
+                    t_xy, s_v, s_w = lever_arm_and_odometry_scales(pairs, R, estimate_odometry_scale, speed_ok, rob)
+                    if robust_iterations:
+                        e_w, e_v = model_residuals(pairs, R, t_xy, s_v, s_w)
+                        rob = (huber_weights(e_w, _robust_sigma(e_w)), huber_weights(e_v, _robust_sigma(e_v)))
+                return R, t_xy, s_v, s_w, int(np.count_nonzero((rob[0] < 1) | (rob[1] < 1)))
+
+            R, t_xy, s_v, s_w, downweighted = solve_model(pairs, max(1, iterations), t_xy, s_v, s_w)
             if refine_td and td is None:
-                td_ref, _, costs = refine_time_offset(cv, base_track, td_est, R, t_xy, s_v, s_w)
-                if np.isfinite(costs).sum() >= 3 and abs(td_ref - td_est) < 0.95 * 0.04:
+                # Two rounds: the first may move td far enough that the model is worth re-solving before the second.
+                for half_range in (0.1, 0.02):
+                    td_ref, _, costs = refine_time_offset(
+                        cv, base_track, td_est, R, t_xy, s_v, s_w, half_range=half_range
+                    )
+                    if not (np.isfinite(costs).sum() >= 3 and abs(td_ref - td_est) < 0.95 * half_range):
+                        warnings.append(
+                            f"the model-based time-offset refinement found its minimum at the border of "
+                            f"+-{1e3 * half_range:.0f} ms around {td_est:+.4f} s; kept that estimate"
+                        )
+                        break
                     td_est = td_ref
                     pairs = pair_samples(cv, base_track, td_est)
-                    X, Y, _k = _stack_rows(pairs, t_xy, s_v, s_w)
-                    row_weights = covariance_weights(camera_track, pairs.t) if use_covariance else None
-                    R = _solve_rotation(X, Y, method, row_weights).R_base_cam
-                    t_xy, s_v, s_w = lever_arm_and_odometry_scales(
-                        pairs, R, estimate_odometry_scale, cos_vw <= MAX_SPEED_TURN_COSINE
-                    )
-                else:
-                    warnings.append(
-                        "the model-based time-offset refinement found its minimum at the border of +-40 ms around "
-                        f"the correlation peak ({td_ref:+.4f} s); kept the correlation estimate {td_est:+.4f} s"
-                    )
+                    R, t_xy, s_v, s_w, downweighted = solve_model(pairs, 1, t_xy, s_v, s_w)
             t_xy_vel = t_xy.copy()
+            discarded["velocity_samples_downweighted"] = downweighted
         except PlsgraphError as exc:
             reasons.append(f"{method}: {exc}")
             R = None
@@ -506,6 +566,7 @@ def calibrate_closed_form(
     # 4. Every solver for comparison, on the same rows (the headline method's entry carries its translation).
     X, Y, _k = _stack_rows(pairs, t_xy, s_v, s_w) if R is not None else _stack_rows(pairs, np.zeros(2))
     caveat = [] if full_rotation else ["the motion does not determine the full rotation: this answer is arbitrary"]
+    row_weights = covariance_weights(camera_track, pairs.t) if use_covariance else None
     for name in rot_methods if compare else (method,):
         try:
             rr = _solve_rotation(X, Y, name, row_weights)

@@ -198,3 +198,18 @@ def test_model_based_time_offset_refinement_converges_from_an_offset_start():
     td, shifts, costs = refine_time_offset(cv, rec.truth_base, 0.03, rec.R_base_cam, rec.T_base_cam[:2, 3])
     assert abs(td - 0.05) < 2e-3
     assert shifts.size == costs.size and np.argmin(costs) not in (0, costs.size - 1)
+
+
+def test_wheel_slip_bursts_are_downweighted():
+    rec, _, cam = tracks("rich", seed=3)
+    right = rec.wheel_right.copy()
+    for c in np.random.default_rng(3).uniform(2, 18, 6):  # six 0.4 s bursts of one wheel spinning 0.5 rad extra
+        right += np.clip((rec.wheel_t - c) / 0.4, 0, 1) * 0.5
+    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, right)
+    res = calibrate_closed_form(cam, base, compare=False)
+    assert res.discarded["velocity_samples_downweighted"] > 0
+    assert rotation_error_deg(res.R_base_cam, rec.R_base_cam) < 0.7
+    assert abs(res.td - 0.037) < 6e-3
+    assert np.all(np.abs(res.t_xy - rec.T_base_cam[:2, 3]) < 0.025)
+    plain = calibrate_closed_form(cam, base, compare=False, robust_iterations=0)
+    assert rotation_error_deg(plain.R_base_cam, rec.R_base_cam) > rotation_error_deg(res.R_base_cam, rec.R_base_cam)
