@@ -12,11 +12,12 @@ Model (per pixel, between two consecutive renders at t_a and t_b the log intensi
 * background-activity noise: Poisson events at ``noise_rate_hz`` per pixel, uniform in time and space, ON
   with probability ``noise_on_fraction``; they do not disturb the pixel's reference.
 
-Render times are adaptive: the camera path is probed at ``probe_rate_hz`` and at the given camera stamps;
-each probe interval is cut into steps so that the image of the scene plane moves at most
-``max_px_per_step`` pixels per step (measured on a grid of pixels), between ``min_rate_hz`` and
-``max_rate_hz``. ``fixed_rate_hz`` replaces this with a fixed rate. Work is chunked by ``chunk_steps``
-render steps, so memory holds one frame pair plus the events.
+Render times are adaptive: the camera path is probed at ``probe_rate_hz``; on each probe interval the
+wanted render rate is the image motion of the scene plane (measured on a grid of pixels, plus |rotation| f
+for rays that miss the plane) divided by ``max_px_per_step``, clipped to [``min_rate_hz``, ``max_rate_hz``];
+steps are placed where the integral of that rate crosses whole numbers. ``fixed_rate_hz`` replaces this
+with a fixed rate. Work is chunked by ``chunk_steps`` render steps, so memory holds one frame pair, the
+per-pixel state and the events.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ class EventSimParams:
     noise_on_fraction: float = 0.5
     max_px_per_step: float = 0.5
     probe_rate_hz: float = 200.0
-    min_rate_hz: float = 200.0
+    min_rate_hz: float = 50.0
     max_rate_hz: float = 20000.0
     fixed_rate_hz: float | None = None
     chunk_steps: int = 256
@@ -107,7 +108,7 @@ def render_times(
         n = max(1, int(np.ceil((t1 - t0) * params.fixed_rate_hz)))
         return np.linspace(t0, t1, n + 1)
     n_probe = max(1, int(np.ceil((t1 - t0) * params.probe_rate_hz)))
-    probe = np.union1d(np.linspace(t0, t1, n_probe + 1), t)
+    probe = np.linspace(t0, t1, n_probe + 1)
     Tp = interpolate_poses(probe, t, T)
     # Image motion of the scene plane z = 0 at a grid of pixels: back-project at the earlier pose,
     # project at the later one. Rays that miss the plane, or hit it very far away, are skipped.
@@ -130,20 +131,22 @@ def render_times(
     rotvec_angle = np.arccos(np.clip((np.einsum("kii->k", R.transpose(0, 2, 1) @ Tp[1:, :3, :3]) - 1) / 2, -1, 1))
     disp_max = np.maximum(disp.max(axis=1), rotvec_angle * max(camera.fx, camera.fy))
     dt = np.diff(probe)
-    n_steps = np.ceil(disp_max / params.max_px_per_step)
-    n_steps = np.clip(n_steps, np.ceil(dt * params.min_rate_hz), np.maximum(1.0, np.floor(dt * params.max_rate_hz)))
-    n_steps = np.maximum(n_steps, 1).astype(np.int64)
-    # Steps of interval k: probe[k] + dt_k * j / n_k, j = 0..n_k - 1, then the final end time.
-    k = np.repeat(np.arange(n_steps.size), n_steps)
-    j = np.arange(k.size) - np.repeat(np.cumsum(n_steps) - n_steps, n_steps)
-    times = probe[k] + dt[k] * (j / n_steps[k])
-    return np.append(times, t1)
+    # Wanted render rate on each probe interval; the step count N(t) = integral of the rate is piecewise
+    # linear, and steps are placed where it crosses whole numbers (a slow stretch may span several probes).
+    rate = np.clip(disp_max / params.max_px_per_step / dt, params.min_rate_hz, params.max_rate_hz)
+    cum = np.concatenate([[0.0], np.cumsum(rate * dt)])
+    n = max(1, int(np.ceil(cum[-1] - 1e-9)))
+    return np.interp(np.linspace(0.0, cum[-1], n + 1), cum, probe)
 
 
 def _pixel_thresholds(params: EventSimParams, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     c_on = params.contrast_on + params.contrast_sigma * rng.standard_normal(n)
     c_off = params.contrast_off + params.contrast_sigma * rng.standard_normal(n)
-    return np.maximum(c_on, params.contrast_min), np.maximum(c_off, params.contrast_min)
+    # float32 like the rendered log intensity: the per-step comparison over all pixels is the hot loop.
+    return (
+        np.maximum(c_on, params.contrast_min).astype(np.float32),
+        np.maximum(c_off, params.contrast_min).astype(np.float32),
+    )
 
 
 def _step_events(
@@ -164,10 +167,10 @@ def _step_events(
         return None
     d = dL[idx]
     on = d > 0
-    C = np.where(on, c_on[idx], c_off[idx])
+    C = np.where(on, c_on[idx], c_off[idx]).astype(np.float64)
     sgn = np.where(on, 1.0, -1.0)
     n = np.floor(np.abs(d) / C).astype(np.int64)
-    l0, l1, r = L0[idx].astype(np.float64), L1[idx].astype(np.float64), ref[idx]
+    l0, l1, r = L0[idx].astype(np.float64), L1[idx].astype(np.float64), ref[idx].astype(np.float64)
     slope = (l1 - l0) / (tb - ta)  # log intensity per second; nonzero and of sign sgn for these pixels
     # Crossing j (0-based) sits at level r + sgn C (j + 1), reached at ta + (level - l0) / slope.
     t_first = ta + (r + sgn * C - l0) / slope
@@ -180,8 +183,8 @@ def _step_events(
         # First crossing past the pixel's refractory time, then every ceil(refractory / spacing) crossings.
         j0 = np.maximum(0.0, np.ceil((last_t[idx] + refractory - t_first) / spacing - 1e-9))
         stride = np.maximum(1.0, np.ceil(refractory / spacing - 1e-9))
-        jj = j - np.repeat(j0, n)
-        keep = (jj >= 0) & (np.mod(jj, np.repeat(stride, n)) == 0)
+        jj = j - np.repeat(j0, n).astype(np.int64)
+        keep = (jj >= 0) & (jj % np.repeat(stride, n).astype(np.int64) == 0)
         pix, t_ev, j = pix[keep], t_ev[keep], j[keep]
         p_ev = np.repeat(sgn, n)[keep]
     else:
@@ -235,7 +238,7 @@ def simulate_events(
     n_steps = times.size - 1
     log.info("simulating events: %d renders over %.3f s (%.0f Hz mean)", times.size, rel[-1], n_steps / rel[-1])
     L_prev = renderer.log_intensity(T[0]).ravel()
-    ref = L_prev.astype(np.float64)
+    ref = L_prev.copy()
     last_t = np.full(n_pix, -np.inf)
     chunks: list[EventStream] = []
     for c0 in range(0, n_steps, params.chunk_steps):
