@@ -114,3 +114,21 @@ def test_bad_arguments_raise():
         simulate_robot(duration=0.5)
     with pytest.raises(InputError):
         simulate_robot(T_base_cam=np.eye(3))
+
+
+def test_events_follow_the_board_in_the_camera_clock():
+    rec = simulate_robot("rich", duration=1.2, seed=2)
+    ev = rec.events(seed=1)
+    t = ev.t * 1e-9
+    assert len(ev) > 1000 and t.min() >= rec.cam_t[0] - 1e-6 and t.max() <= rec.cam_t[-1] + 1e-6
+    # Around a mid stamp the events crowd on the projected board (the textured wall around it fires less).
+    tm = rec.cam_t[len(rec.cam_t) // 2]
+    sel = np.abs(t - tm) < 0.01
+    T_cam_board = inv_T(rec.camera_poses_at(np.array([tm]))[0])
+    uv = rec.camera.project(rec.board.points @ T_cam_board[:3, :3].T + T_cam_board[:3, 3])
+    lo, hi = uv.min(axis=0) - 8, uv.max(axis=0) + 8
+    x, y = ev.x[sel], ev.y[sel]
+    inside = (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1])
+    area = np.prod(hi - lo) / (rec.camera.width * rec.camera.height)
+    assert inside.mean() / area > 3.0
+    assert np.allclose(rec.camera_poses_at(rec.cam_t), rec.T_board_cam, atol=1e-12)

@@ -215,19 +215,31 @@ class SimRecording:
         """True base poses at odometry times (interpolated from the high-rate truth)."""
         return self.truth_base.poses_at(t_odom)
 
-    def events(self, **options):
-        """Event stream of the board seen along the true camera trajectory (needs plsgraph.sim.events)."""
+    def camera_poses_at(self, t_cam: np.ndarray) -> np.ndarray:
+        """True T_board_cam at camera stamps (camera clock), from the high-rate base truth."""
+        t_cam = np.asarray(t_cam, dtype=float)
+        return inv_T(self.T_world_board) @ self.truth_base.poses_at(t_cam + self.td) @ self.T_base_cam
+
+    def events(self, trajectory_rate: float = 500.0, **options):
+        """Event stream (camera clock) of the board seen along the true camera trajectory.
+
+        Calls ``plsgraph.sim.events.simulate_events`` with the true camera poses sampled at
+        ``trajectory_rate`` Hz over the camera stamps (the simulator interpolates between them linearly, so a
+        dense trajectory keeps the motion's curvature); ``options`` (params, seed, progress) are passed on.
+        """
         try:
-            from . import events as sim_events
-        except ImportError as exc:  # the event simulator is an optional, separately written module
+            from .events import simulate_events
+        except ImportError as exc:  # the event simulator is a separately written module
             raise InputError(
-                "the event-level simulation needs plsgraph.sim.events, which is not available; "
+                "the event-level simulation needs plsgraph.sim.events.simulate_events, which is not available; "
                 "use detections() or camera_track() instead"
             ) from exc
-        fn = getattr(sim_events, "simulate_events", None)
-        if fn is None:
-            raise InputError("plsgraph.sim.events has no simulate_events(); use detections() instead")
-        return fn(self.cam_t, self.T_board_cam, self.camera, self.board, **options)
+        if trajectory_rate <= 0:
+            raise InputError(f"trajectory_rate must be positive, got {trajectory_rate}")
+        t0, t1 = float(self.cam_t[0]), float(self.cam_t[-1])
+        t = np.r_[np.arange(t0, t1, 1.0 / trajectory_rate), t1]
+        t = t[np.r_[np.diff(t) > 1e-9, True]]
+        return simulate_events(t, self.camera_poses_at(t), self.camera, self.board, **options)
 
 
 def simulate_robot(
@@ -305,8 +317,7 @@ def simulate_robot(
     cam_t = np.arange(phase - td, duration - td, 1.0 / cam_rate)
     # Stamps stay non-negative in both clocks: recordings store unsigned nanoseconds.
     cam_t = cam_t[(cam_t + td >= t[0]) & (cam_t + td <= t[-1]) & (cam_t >= 0.0)]
-    T_world_cam = truth_base.poses_at(cam_t + td) @ T_base_cam
-    T_board_cam = inv_T(T_world_board) @ T_world_cam
+    T_board_cam = inv_T(T_world_board) @ truth_base.poses_at(cam_t + td) @ T_base_cam
 
     # Wheels: exact angles from arc length and heading, then slip and quantization.
     wheel_t = np.arange(int(np.floor(duration * odom_rate)) + 1) / odom_rate
