@@ -84,6 +84,25 @@ def test_rendered_aprilgrid_tags_decode_with_kalibr_corner_order():
     assert ids_back is None
 
 
+def test_kalibr_tag_layout_has_a_two_bit_border_and_turned_codes():
+    grid = Board(pattern="aprilgrid", cols=4, rows=3, tag_size=0.05, tag_spacing=0.3)
+    cam = davis346_default()
+    T = _facing(grid, 0.45, (0.1, 0.15, 0.05), flip=True)
+    img = render_intensity_u8(T, cam, grid, RenderParams(tag_layout="kalibr"))
+    params = cv2.aruco.DetectorParameters()
+    params.markerBorderBits = 2
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), params)
+    corners, ids, _ = det.detectMarkers(img)
+    assert ids is not None and sorted(ids.ravel().tolist()) == list(range(12))
+    uv = cam.project(transform_points(inv_T(T), grid.points)).reshape(2 * grid.rows, 2 * grid.cols, 2)
+    for c, k in zip(corners, ids.ravel(), strict=True):
+        r, q = divmod(int(k), grid.cols)
+        # Turned by 180 degrees: OpenCV's corner 0 is the printed tag's bottom-right.
+        expect = np.array([uv[2 * r, 2 * q + 1], uv[2 * r, 2 * q], uv[2 * r + 1, 2 * q], uv[2 * r + 1, 2 * q + 1]])
+        assert np.abs(c.reshape(4, 2) - expect).max() < 1.5
+
+
 def test_analytic_antialiasing_agrees_with_supersampling(board, small_cam):
     T = _facing(board, 0.6, (0.3, 0.4, 0.2))
     one = BoardRenderer(small_cam, board, RenderParams(supersample=1)).intensity(T)

@@ -41,12 +41,13 @@ class RenderParams:
     white: float = 0.9
     black: float = 0.05
     background: float = 0.35
-    background_texture: float = 0.3  # relative amplitude of the wall texture, 0 for a flat wall
+    background_texture: float = 0.15  # relative amplitude of the wall texture, 0 for a flat wall
     texture_wavelength_m: float = 0.12
     margin_m: float | None = None  # white border around the pattern; None: one square (circles) / half a tag
     illumination: float = 1.0
     log_eps: float = 1e-3  # log(I + eps), as sensors and ESIM do, so black stays finite
     supersample: int = 1  # s x s rays per pixel; 1 is enough with the analytic anti-aliasing
+    tag_layout: str = "opencv"  # AprilGrid print: "opencv" (1-bit border, upright) or "kalibr" (2-bit, turned)
 
     def __post_init__(self) -> None:
         for name in ("white", "black", "background", "illumination", "texture_wavelength_m", "log_eps"):
@@ -57,6 +58,8 @@ class RenderParams:
             raise InputError(f"RenderParams: background_texture must be in [0, 1), got {self.background_texture}")
         if self.margin_m is not None and self.margin_m < 0:
             raise InputError(f"RenderParams: margin_m must be >= 0, got {self.margin_m}")
+        if self.tag_layout not in TAG_LAYOUTS:
+            raise InputError(f"RenderParams: tag_layout must be one of {TAG_LAYOUTS}, got {self.tag_layout!r}")
         if int(self.supersample) < 1:
             raise InputError(f"RenderParams: supersample must be >= 1, got {self.supersample}")
 
@@ -87,16 +90,26 @@ def camera_rays(camera: CameraModel, supersample: int = 1) -> tuple[np.ndarray, 
     )
 
 
+TAG_LAYOUTS = ("opencv", "kalibr")
+
+
 @lru_cache(maxsize=4)
-def _tag36h11_bits(n: int) -> np.ndarray:
-    """(n, 8, 8) float32 reflectance masks of tag36h11 ids 0..n-1 incl. the black border: 1 white, 0 black."""
+def _tag36h11_bits(n: int, layout: str = "opencv") -> np.ndarray:
+    """(n, m, m) float32 reflectance masks of tag36h11 ids 0..n-1 incl. the black border: 1 white, 0 black.
+
+    ``"opencv"``: OpenCV's marker images upright with a 1-bit border (m = 8). ``"kalibr"``: as Kalibr prints
+    AprilGrids, a 2-bit border (m = 10) and each code turned by 180 degrees relative to OpenCV's image.
+    """
     import cv2
 
     d = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
     if n > d.bytesList.shape[0]:
         raise InputError(f"aprilgrid: {n} tags exceed the {d.bytesList.shape[0]} ids of tag36h11")
-    out = np.stack([cv2.aruco.generateImageMarker(d, k, 8, borderBits=1) for k in range(n)])
-    return (out > 127).astype(np.float32)
+    border = 1 if layout == "opencv" else 2
+    out = np.stack([cv2.aruco.generateImageMarker(d, k, 6 + 2 * border, borderBits=border) for k in range(n)])
+    if layout == "kalibr":
+        out = out[:, ::-1, ::-1]
+    return np.ascontiguousarray(out > 127).astype(np.float32)
 
 
 def _ramp(sd: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -126,7 +139,7 @@ class BoardRenderer:
         else:
             lo, hi = p[:, :2].min(axis=0), p[:, :2].max(axis=0)
             margin = 0.5 * board.tag_size if self.params.margin_m is None else self.params.margin_m
-            self.tag_bits = _tag36h11_bits(board.rows * board.cols)
+            self.tag_bits = _tag36h11_bits(board.rows * board.cols, self.params.tag_layout)
         self.board_lo = lo - margin
         self.board_hi = hi + margin
 
@@ -150,14 +163,15 @@ class BoardRenderer:
         return _ramp(np.sqrt(d2) - r, w)
 
     def _tags_ink(self, X: np.ndarray, Y: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Ink coverage (0..1) of AprilGrid tags, box-filtered separably over the 8 x 8 cells of each tag."""
+        """Ink coverage (0..1) of AprilGrid tags, box-filtered separably over the m x m cells of each tag."""
         b = self.board
         size = b.tag_size
         pitch = (1.0 + b.tag_spacing) * size
-        cell = size / 8.0
+        m = self.tag_bits.shape[1]
+        cell = size / m
         c = np.floor(X / pitch)
         r = np.floor(Y / pitch)
-        u = (X - c * pitch) / cell  # tag-local cell coordinates, 0..8 inside the tag
+        u = (X - c * pitch) / cell  # tag-local cell coordinates, 0..m inside the tag
         v = (Y - r * pitch) / cell
         in_grid = (c >= 0) & (c < b.cols) & (r >= 0) & (r < b.rows)
         tag = np.where(in_grid, r * b.cols + c, 0).astype(np.intp)
@@ -173,9 +187,9 @@ class BoardRenderer:
         bits = self.tag_bits
 
         def white(ci: np.ndarray, ri: np.ndarray) -> np.ndarray:
-            inside = in_grid & (ci >= 0) & (ci < 8) & (ri >= 0) & (ri < 8)
+            inside = in_grid & (ci >= 0) & (ci < m) & (ri >= 0) & (ri < m)
             # Marker image row 0 is the tag's top edge, at the largest board y.
-            val = bits[tag, np.clip(7 - ri, 0, 7), np.clip(ci, 0, 7)]
+            val = bits[tag, np.clip(m - 1 - ri, 0, m - 1), np.clip(ci, 0, m - 1)]
             return np.where(inside, val, 1.0)
 
         refl = (1 - wv) * ((1 - wu) * white(ua, va) + wu * white(ub, va)) + wv * (
@@ -203,13 +217,14 @@ class BoardRenderer:
         half = (0.5 * (self.board_hi - self.board_lo)).astype(X.dtype)
         sd_rect = np.maximum(np.abs(X - centre[0]) - half[0], np.abs(Y - centre[1]) - half[1])
         on_board = _ramp(sd_rect, w)
-        # The pattern is evaluated only where the board is seen and the wall only where it is not (speed).
-        ib = np.flatnonzero(on_board > 0)
-        iw = np.flatnonzero(on_board < 1)
-        out = np.zeros_like(X)
-        ink = self._ink(X[ib], Y[ib], w[ib])
-        out[ib] = on_board[ib] * (p.white + (p.black - p.white) * ink)
-        out[iw] += (1.0 - on_board[iw]) * self._wall(X[iw], Y[iw], w[iw])
+        # The wall is computed everywhere (cheaper than gathering the usually large part of the image that
+        # sees it); the pattern only where the board is seen.
+        out = self._wall(X, Y, w)
+        ib = np.flatnonzero(on_board)
+        if ib.size:
+            out *= 1.0 - on_board
+            ink = self._ink(X[ib], Y[ib], w[ib])
+            out[ib] += on_board[ib] * (p.white + (p.black - p.white) * ink)
         return out
 
     def _ink(self, X: np.ndarray, Y: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -231,7 +246,9 @@ class BoardRenderer:
         with np.errstate(divide="ignore", invalid="ignore"):
             s = -o[2] / dz
         hit = (s > 0) & np.isfinite(s)
-        s[~hit] = 0.0
+        all_hit = bool(hit.all())
+        if not all_hit:
+            s[~hit] = 0.0
         X = (R[0, 0] * rx + R[0, 1] * ry + R[0, 2]) * s + o[0]
         Y = (R[1, 0] * rx + R[1, 1] * ry + R[1, 2]) * s + o[1]
         # Footprint on the plane: range * angular size, stretched by 1/sqrt(cos(incidence)) (the geometric
@@ -241,7 +258,8 @@ class BoardRenderer:
         w = s * self._w_scale / np.sqrt(dz)
         np.maximum(w, np.float32(1e-9), out=w)
         refl = self.reflectance(X, Y, w)
-        refl[~hit] = self.params.background
+        if not all_hit:
+            refl[~hit] = self.params.background
         img = refl.reshape(self.camera.height, self.camera.width, self.ss * self.ss)
         img = img.mean(axis=2) if self.ss > 1 else img[:, :, 0]
         if self.params.illumination != 1.0:
