@@ -450,37 +450,29 @@ def _values(prob: _Problem, T_knots: np.ndarray, C: np.ndarray, B: np.ndarray, t
 def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int]) -> np.ndarray:
     """Joint marginal covariance of ``keys`` (tangent order, keys in the given order) at ``values``.
 
-    Computed here rather than with gtsam.Marginals: the weakly regularised unobservable directions make
-    the information matrix span ten orders of magnitude, and GTSAM's Cholesky then reports an
-    indeterminate system although the matrix is positive definite. The Schur complement onto the few
-    calibration variables, with the knot block solved by a sparse LU, is stable for such matrices.
+    Not gtsam.Marginals: the weakly regularised unobservable directions make the information span ten
+    orders of magnitude, and GTSAM's Cholesky then reports an indeterminate system although the matrix is
+    positive definite. Here GTSAM eliminates only the well-conditioned variables (the base knots) and the
+    small Schur complement on the calibration variables (T_base_cam, T_world_board, td and ``keys``) is
+    inverted with numpy. If that elimination fails, a sparse LU on the full information matrix is used.
     """
-    import scipy.sparse as sp
-    import scipy.sparse.linalg as spla
-
     lin = graph.linearize(values)
-    trip = lin.sparseJacobian_()
-    all_keys = sorted(int(k) for k in lin.keyVector())  # GTSAM's default (natural) ordering of the columns
-    dims = [_dim_of(values, k) for k in all_keys]
-    offs = np.r_[0, np.cumsum(dims)]
-    n = int(offs[-1])
-    i, j, v = trip
-    A = sp.csc_matrix((v, (i.astype(np.int64) - 1, j.astype(np.int64) - 1)), shape=(int(i.max()), n + 1))[:, :n]
-    H = (A.T @ A).tocsc()
-    pos = {k: p for p, k in enumerate(all_keys)}
-    sel = np.concatenate([np.arange(offs[pos[k]], offs[pos[k] + 1]) for k in keys])
-    # Eliminate everything else except the (few) variables that connect to all frames as well.
-    dense_keys = [k for k in all_keys if k in (KEY_CAM, KEY_BOARD, KEY_TD) or k in keys]
-    s_idx = np.concatenate([np.arange(offs[pos[k]], offs[pos[k] + 1]) for k in dense_keys])
-    r_idx = np.setdiff1d(np.arange(n), s_idx)
-    Hss = H[s_idx][:, s_idx].toarray()
-    if r_idx.size:
-        Hrr = H[r_idx][:, r_idx].tocsc()
-        Hrs = H[r_idx][:, s_idx].toarray()
-        X = spla.splu(Hrr).solve(Hrs)
-        S = Hss - Hrs.T @ X
-    else:
-        S = Hss
+    all_keys = [int(k) for k in lin.keyVector()]
+    keep = [k for k in (KEY_BOARD, KEY_CAM, KEY_TD) if k in all_keys]
+    keep += [int(k) for k in keys if int(k) not in keep]
+    elim = [k for k in all_keys if k not in keep]
+    try:
+        if elim:
+            rest = lin.eliminatePartialMultifrontal(elim)[1]
+        else:
+            rest = lin
+        order = gtsam.Ordering()
+        for k in keep:
+            order.push_back(k)
+        S = rest.hessian(order)[0]
+    except RuntimeError as exc:
+        log.debug("partial elimination failed (%s); using the sparse Schur complement", exc)
+        S = _schur_sparse(lin, values, keep)
     S = 0.5 * (S + S.T)
     w = np.linalg.eigvalsh(S)
     if not np.all(np.isfinite(w)) or w.min() <= 0:
@@ -488,9 +480,31 @@ def joint_marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.V
             f"information matrix of the calibration is not positive definite (min eig {w.min():.3g})"
         )
     cov_s = np.linalg.inv(S)
-    where = {int(c): p for p, c in enumerate(s_idx)}
-    idx = np.array([where[int(c)] for c in sel])
+    offs = np.r_[0, np.cumsum([_dim_of(values, k) for k in keep])]
+    idx = np.concatenate([np.arange(offs[keep.index(int(k))], offs[keep.index(int(k)) + 1]) for k in keys])
     return cov_s[np.ix_(idx, idx)]
+
+
+def _schur_sparse(lin: gtsam.GaussianFactorGraph, values: gtsam.Values, keep: list[int]) -> np.ndarray:
+    """Schur complement of the information matrix onto ``keep`` with scipy (GTSAM-independent fallback)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    i, j, v = lin.sparseJacobian_()
+    all_keys = sorted(int(k) for k in lin.keyVector())  # GTSAM's default (natural) ordering of the columns
+    offs = np.r_[0, np.cumsum([_dim_of(values, k) for k in all_keys])]
+    n = int(offs[-1])
+    A = sp.csc_matrix((v, (i.astype(np.int64) - 1, j.astype(np.int64) - 1)), shape=(int(i.max()), n + 1))[:, :n]
+    H = (A.T @ A).tocsc()
+    pos = {k: p for p, k in enumerate(all_keys)}
+    s_idx = np.concatenate([np.arange(offs[pos[k]], offs[pos[k] + 1]) for k in keep])
+    r_idx = np.setdiff1d(np.arange(n), s_idx)
+    Hss = H[s_idx][:, s_idx].toarray()
+    if not r_idx.size:
+        return Hss
+    Hrs = H[r_idx][:, s_idx].toarray()
+    X = spla.splu(H[r_idx][:, r_idx].tocsc()).solve(Hrs)
+    return Hss - Hrs.T @ X
 
 
 def _dim_of(values: gtsam.Values, key: int) -> int:
@@ -553,19 +567,21 @@ def _new_unobservable(
 
 
 def _unobservable_at(graph, values: gtsam.Values, opt: RefinementOptions, frozen: list[np.ndarray],
-                     warnings: list[str]) -> list[np.ndarray]:
-    """New directions (user-axes functionals) that only the regulariser holds at ``values``.
+                     warnings: list[str]) -> tuple[list[np.ndarray], np.ndarray | None]:
+    """New directions (user-axes functionals) that only the regulariser holds at ``values``, and the
+    (unscaled, GTSAM-axes) covariance they were found from.
 
     Only what the regulariser alone holds is frozen: a direction a user prior informs (a measured camera
     height, a closed-form rotation prior) stays free and is pulled by that prior.
     """
     C = values.atPose3(KEY_CAM).matrix()
     try:
-        cov_base = _calibration_covariance(graph, values, C, 1.0, opt)[1]
+        cov, cov_base = _calibration_covariance(graph, values, C, 1.0, opt)
     except (RuntimeError, np.linalg.LinAlgError) as exc:
         warnings.append(f"observability check failed ({exc}); no direction was held at the seed")
-        return []
-    return _new_unobservable(cov_base, _prior_information(opt, user_priors=False), frozen, opt.freeze_ratio)
+        return [], None
+    reg = _prior_information(opt, user_priors=False)
+    return _new_unobservable(cov_base, reg, frozen, opt.freeze_ratio), cov
 
 
 def refine(
@@ -615,7 +631,7 @@ def refine(
     td_bracket = td_seed
     frozen: list[np.ndarray] = []
     t_opt = 0.0
-    cov = cov_base = None
+    cov = cov_base = cov_check = None
     for pas in range(opt.max_passes):
         graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3])
         if initial_error is None:
@@ -626,7 +642,7 @@ def refine(
         if pas == 0 and opt.freeze_unobservable and opt.marginals:
             # Which directions does the motion leave to the regulariser? The information structure is set by the
             # motion, so the seed is a good enough linearization point to find them before they can wander.
-            frozen += _unobservable_at(graph, values, opt, frozen, warnings)
+            frozen += _unobservable_at(graph, values, opt, frozen, warnings)[0]
         solve_graph = graph
         if frozen:
             solve_graph = gtsam.NonlinearFactorGraph(graph)
@@ -649,23 +665,28 @@ def refine(
             rows = rows[~bad]
         if moved:
             td_bracket = td_now
+        cov_check = None
         if bad.any() or moved:
             continue
         if not (converged and opt.freeze_unobservable and opt.marginals):
             settled = True
             break
         # Check again at the solution; a direction found only now is frozen and the solve starts over.
-        new = _unobservable_at(graph, values, opt, frozen, warnings)
+        new, cov_check = _unobservable_at(graph, values, opt, frozen, warnings)
         if not new:
             settled = True
             break
         frozen += new
         values = seed_values
+        cov_check = None
         log.info("refine: %d direction(s) not observable; holding them at the seed and solving again", len(new))
     if not settled:
         warnings.append("outlier rejection / re-bracketing / freezing did not settle within max_passes")
 
-    final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3])
+    if settled:
+        final_graph = graph  # same frames and brackets as the last solve
+    else:
+        final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3])
     final_error = float(final_graph.error(values))
     per, rms, n_pts = _frame_rms(batch, values)
     C = values.atPose3(KEY_CAM).matrix()
@@ -693,7 +714,12 @@ def refine(
     report: ObservabilityReport | None = None
     if converged and opt.marginals:
         try:
-            cov, cov_base = _calibration_covariance(final_graph, values, C, chi2, opt)
+            if cov_check is not None:  # computed at these values on this same graph by the last check
+                cov = cov_check * (chi2 if opt.scale_covariance and chi2 > 1.0 else 1.0)
+                J = user_axes_jacobian(C[:3, :3])
+                cov_base = J @ cov @ J.T
+            else:
+                cov, cov_base = _calibration_covariance(final_graph, values, C, chi2, opt)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
     if cov_base is not None:

@@ -193,6 +193,17 @@ def test_robust_reprojection_noise_keeps_inliers_at_full_weight():
     assert huber.error(values) == pytest.approx(plain.error(values), rel=1e-9)
 
 
+def test_fast_projection_matches_camera_model():
+    from factors.reprojection import _project_with_jacobian
+
+    rng = np.random.default_rng(13)
+    cam = davis346_default()
+    p = np.c_[rng.normal(scale=0.4, size=(50, 2)), rng.uniform(0.5, 3.0, 50)]
+    uv, J = cam.project(p, with_jacobian=True)
+    uv2, J2 = _project_with_jacobian(cam, p)
+    assert np.allclose(uv, uv2, atol=1e-10) and np.allclose(J, J2, atol=1e-10)
+
+
 def test_so3_jacobians_match_gtsam_and_are_inverse():
     rng = np.random.default_rng(11)
     w = np.concatenate([rng.normal(size=(5, 3)), 1e-9 * rng.normal(size=(2, 3))])
