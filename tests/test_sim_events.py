@@ -246,3 +246,20 @@ def test_bad_trajectories_raise(board, small_cam):
         simulate_events(np.array([0.0, 0.1]), T, small_cam, board)
     with pytest.raises(InputError):
         EventSimParams(contrast_on=0.0)
+
+
+def test_leaky_surface_of_simulated_events_shows_the_board_where_it_is(board):
+    # End to end: simulated events -> leaky integrator -> OpenCV's circle-grid finder, against the true pose.
+    from plsgraph.surfaces import leaky_integrator, to_uint8
+
+    cam = davis346_default()
+    R = so3_exp([0.1, -0.2, 0.05])
+    t = T0 + np.linspace(0.0, 0.15, 16)
+    c = board.points.mean(axis=0)
+    T = np.stack([make_T(R, c + R @ [0, 0, -0.5] + [0.4 * (s - t[0]) - 0.03, 0.1 * (s - t[0]), 0]) for s in t])
+    ev = simulate_events(t, T, cam, board, EventSimParams(), seed=0)
+    img = to_uint8(leaky_integrator(ev, tau_s=0.05))
+    ok, centres = cv2.findCirclesGrid(img, board.pattern_size, flags=cv2.CALIB_CB_ASYMMETRIC_GRID)
+    assert ok
+    uv = cam.project(transform_points(inv_T(T[-1]), board.points))
+    assert np.abs(centres.reshape(-1, 2) - uv).max() < 1.0
