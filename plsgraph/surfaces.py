@@ -120,6 +120,19 @@ def time_surface(
     return img.reshape(s.height, s.width)
 
 
+def time_surface_pair(stream: EventStream, t_ref_ns: int | None = None, tau_s: float = 0.03) -> np.ndarray:
+    """Both per-polarity time surfaces of Eq. (1) in one pass: (2, height, width), [0] OFF, [1] ON."""
+    tau_s = _check_positive("tau_s", tau_s)
+    s, t_ref = _until(stream, t_ref_ns)
+    n = s.width * s.height
+    last = _last_index(pixel_index(s) * 2 + (s.p > 0), 2 * n)
+    has = last >= 0
+    img = np.zeros(2 * n, dtype=np.float32)
+    img[has] = np.exp(-((t_ref - s.t[last[has]]).astype(np.float64) * 1e-9) / tau_s)
+    # Key 2 u + [p > 0] interleaves the channels per pixel; split them into two images.
+    return np.ascontiguousarray(img.reshape(s.height, s.width, 2).transpose(2, 0, 1))
+
+
 def polarity_aware_surface(
     stream: EventStream,
     alpha: float = 0.1,
@@ -285,7 +298,9 @@ def windows(
     Exactly one of ``duration_ns`` (windows [t0 + k step, t0 + k step + duration), t_ref = window end)
     or ``count`` (windows of ``count`` events starting every ``step`` events, t_ref = last event's time).
     ``step`` defaults to the window size (no overlap); a smaller step gives overlapping windows.
-    A trailing partial window is yielded only for duration windows that contain events.
+    Duration windows without events are skipped. Count windows are all full, except that a stream with
+    fewer than ``count`` events gives one window holding all of them; the events after the last full
+    count window are not yielded.
     """
     if (duration_ns is None) == (count is None):
         raise InputError("windows: give exactly one of duration_ns or count")

@@ -65,6 +65,14 @@ def test_time_surface_by_hand():
     assert np.count_nonzero(signed) == 4
 
 
+def test_time_surface_pair_matches_single_polarities():
+    s = _random_stream(2000)
+    pair = S.time_surface_pair(s, t_ref_ns=40 * MS, tau_s=0.01)
+    assert pair.shape == (2, 30, 40)
+    np.testing.assert_allclose(pair[0], S.time_surface(s, 40 * MS, 0.01, "off"))
+    np.testing.assert_allclose(pair[1], S.time_surface(s, 40 * MS, 0.01, "on"))
+
+
 def test_time_surface_ignores_events_after_reference():
     s = _stream(HAND)
     ts = S.time_surface(s, t_ref_ns=5 * MS, tau_s=0.01, polarity="any")
