@@ -76,7 +76,8 @@ class ClosedFormResult:
     position in the floor plane (None if unobservable) and ``t_base_cam`` (3,) with z = NaN (the height is not
     observable from planar motion); ``td`` (s, t_odom = t_cam + td) with the search in ``time_offset``;
     ``methods`` every solver's answer (pls, pls_paper, cca, procrustes, hand_eye_*); ``vertical_axis_cam`` the
-    base's up axis seen in the camera frame (from turning alone, available even when the yaw is not);
+    base's up axis seen in the camera frame (from turning alone, available even when the yaw is not) and
+    ``forward_axis_cam`` its forward axis (from driving alone, available even when the roll is not);
     ``observable`` per axis (roll, pitch, yaw, x, y, z, td); ``n_pairs`` paired samples used and
     ``discarded`` counts of what was dropped; ``degenerate`` with ``degenerate_reasons`` when a quantity the
     result reports could not be determined; ``warnings`` everything else worth a look.
@@ -90,6 +91,7 @@ class ClosedFormResult:
     time_offset: TimeOffsetResult | None
     methods: dict[str, MethodResult]
     vertical_axis_cam: np.ndarray | None
+    forward_axis_cam: np.ndarray | None
     observable: dict[str, bool]
     excitation: dict[str, float]
     n_pairs: int
@@ -481,9 +483,10 @@ def calibrate_closed_form(
         )
     full_rotation = turning and driving
     observable = {
-        "roll": full_rotation,
+        # Turning fixes the base's up axis in the camera frame (roll, pitch); driving its forward axis (yaw, pitch).
+        "roll": turning,
         "pitch": turning or driving,
-        "yaw": full_rotation,
+        "yaw": driving,
         "x": full_rotation,
         "y": full_rotation,
         "z": False,
@@ -495,6 +498,12 @@ def calibrate_closed_form(
     if turning:
         vertical = pairs.omega_cam.T @ w
         vertical = vertical / np.linalg.norm(vertical)
+    # Likewise the forward axis from driving alone (exact without turning; the lever-arm term averages out
+    # unless speed and turn rate are correlated).
+    forward = None
+    if driving:
+        forward = pairs.v_cam.T @ v
+        forward = forward / np.linalg.norm(forward)
 
     # 3. Rotation and lever arm, alternating.
     methods: dict[str, MethodResult] = {}
@@ -613,6 +622,7 @@ def calibrate_closed_form(
         time_offset=to_res,
         methods=methods,
         vertical_axis_cam=vertical,
+        forward_axis_cam=forward,
         observable=observable,
         excitation=excitation,
         n_pairs=int(n),

@@ -50,6 +50,10 @@ def test_straight_driving_is_degenerate():
     assert res.degenerate and res.R_base_cam is None and res.t_xy is None
     assert any("no turning" in r for r in res.degenerate_reasons)
     assert not res.observable["roll"] and not res.observable["x"]
+    assert res.observable["yaw"] and res.observable["pitch"]  # the driving direction is still seen
+    fwd_cam = rec.R_base_cam.T @ np.array([1.0, 0.0, 0.0])
+    assert np.degrees(np.arccos(np.clip(res.forward_axis_cam @ fwd_cam, -1, 1))) < 1.0
+    assert res.vertical_axis_cam is None
     with pytest.raises(DegenerateMotionError, match="no turning"):
         calibrate_closed_form(cam, base, compare=False, raise_on_degenerate=True)
 
@@ -59,7 +63,7 @@ def test_spin_in_place_is_degenerate_but_gives_the_tilt():
     res = calibrate_closed_form(cam, base)
     assert res.degenerate and res.R_base_cam is None
     assert any("yaw is unobservable" in r for r in res.degenerate_reasons)
-    assert not res.observable["yaw"] and res.observable["pitch"]
+    assert not res.observable["yaw"] and res.observable["pitch"] and res.observable["roll"]
     up_cam = rec.R_base_cam.T @ np.array([0.0, 0.0, 1.0])
     assert np.degrees(np.arccos(np.clip(res.vertical_axis_cam @ up_cam, -1, 1))) < 1.0
     # Solvers that still return a matrix are marked as arbitrary.
