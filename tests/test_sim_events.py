@@ -263,3 +263,30 @@ def test_leaky_surface_of_simulated_events_shows_the_board_where_it_is(board):
     assert ok
     uv = cam.project(transform_points(inv_T(T[-1]), board.points))
     assert np.abs(centres.reshape(-1, 2) - uv).max() < 1.0
+
+
+def test_leaky_surface_of_simulated_events_shows_aprilgrid_tags():
+    from plsgraph.surfaces import leaky_integrator, to_uint8
+
+    grid = Board(pattern="aprilgrid", cols=4, rows=3, tag_size=0.05, tag_spacing=0.3)
+    cam = davis346_default()
+    t = T0 + np.linspace(0.0, 0.1, 11)
+    T = np.stack([_facing(grid, 0.45, (0.1, -0.2, 0.05), (0.4 * (s - t[0]), 0.1 * (s - t[0]), 0), True) for s in t])
+    ev = simulate_events(t, T, cam, grid, EventSimParams(), seed=0)
+    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11))
+    _, ids, _ = det.detectMarkers(to_uint8(leaky_integrator(ev, tau_s=0.05)))
+    assert ids is not None and len(ids) >= 6 and set(ids.ravel().tolist()) <= set(range(12))
+
+
+def test_invalid_rotations_are_rejected(board, small_cam):
+    T = np.stack([_facing(board, 0.5)] * 2)
+    T[1, :3, :3] *= 1.1
+    with pytest.raises(InputError):
+        simulate_events(T0 + np.array([0.0, 0.1]), T, small_cam, board)
+
+
+def test_warns_when_the_board_is_never_in_view(board, small_cam, caplog):
+    T = np.stack([_facing(board, 0.5, (0.0, np.pi, 0.0))] * 2)  # looking away from the board
+    with caplog.at_level("WARNING", logger="plsgraph.sim.events"):
+        simulate_events(T0 + np.array([0.0, 0.05]), T, small_cam, board, EventSimParams(noise_rate_hz=0.0))
+    assert "never in view" in caplog.text

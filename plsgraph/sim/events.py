@@ -95,6 +95,14 @@ def _check_trajectory(t_cam: np.ndarray, T_board_cam: np.ndarray) -> tuple[np.nd
         raise InputError("simulate_events: camera times or poses contain NaN or inf")
     if np.any(np.diff(t) <= 0):
         raise InputError("simulate_events: camera times must be strictly increasing")
+    R = T[:, :3, :3]
+    orth = np.abs(R @ R.transpose(0, 2, 1) - np.eye(3)).max(axis=(1, 2))
+    bad = np.flatnonzero((orth > 1e-6) | (np.linalg.det(R) < 0))
+    if bad.size:
+        raise InputError(
+            f"simulate_events: {bad.size} poses (first at index {bad[0]}) have no proper rotation; "
+            "re-orthonormalize them (plsgraph.geometry.project_to_so3)"
+        )
     return t, T
 
 
@@ -237,6 +245,8 @@ def simulate_events(
     c_on, c_off = _pixel_thresholds(params, n_pix, rng)
     n_steps = times.size - 1
     log.info("simulating events: %d renders over %.3f s (%.0f Hz mean)", times.size, rel[-1], n_steps / rel[-1])
+    if not _board_ever_visible(T, camera, board):
+        log.warning("simulate_events: the board is never in view along this trajectory; only the wall gives events")
     L_prev = renderer.log_intensity(T[0]).ravel()
     ref = L_prev.copy()
     last_t = np.full(n_pix, -np.inf)
@@ -265,6 +275,17 @@ def simulate_events(
     out = EventStream.concatenate(chunks)
     log.info("simulated %d events (%.1f%% ON)", len(out), 100.0 * out.n_on / max(1, len(out)))
     return out
+
+
+def _board_ever_visible(T_board_cam: np.ndarray, camera: CameraModel, board: Board) -> bool:
+    """True if some board point projects into the image, in front of the camera, at some given pose."""
+    T_cam_board = inv_T(T_board_cam)
+    P = np.einsum("kij,nj->kni", T_cam_board[:, :3, :3], board.points) + T_cam_board[:, None, :3, 3]
+    front = P[:, :, 2] > 1e-3
+    if not front.any():
+        return False
+    uv = camera.project(P[front])
+    return bool(np.any((uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)))
 
 
 def _to_stream(parts: list[_Chunk], t_origin_ns: int, camera: CameraModel) -> EventStream:
