@@ -286,7 +286,8 @@ def test_invalid_rotations_are_rejected(board, small_cam):
 
 
 def test_warns_when_the_board_is_never_in_view(board, small_cam, caplog):
-    T = np.stack([_facing(board, 0.5, (0.0, np.pi, 0.0))] * 2)  # looking away from the board
+    away = make_T(so3_exp([0.0, np.pi, 0.0]), board.points.mean(axis=0) + [0.0, 0.0, -0.5])
+    T = np.stack([away] * 2)  # in front of the board, looking away from it
     with caplog.at_level("WARNING", logger="plsgraph.sim.events"):
         simulate_events(T0 + np.array([0.0, 0.05]), T, small_cam, board, EventSimParams(noise_rate_hz=0.0))
     assert "never in view" in caplog.text
