@@ -157,7 +157,7 @@ def main() -> None:
         for front in fronts:
             rot: dict[str, list[float]] = defaultdict(list)
             refused: dict[str, int] = defaultdict(int)
-            txy, txy_vel, tilt, tdz, degenerate, secs = [], [], [], [], 0, []
+            txy, txy_vel, tilt, fwd, tdz, degenerate, secs = [], [], [], [], [], 0, []
             td_alt: dict[str, list[float]] = defaultdict(list)
             visible, ranges, margins = [], [], []
             for seed in range(args.seeds):
@@ -189,6 +189,9 @@ def main() -> None:
                 if res.vertical_axis_cam is not None:
                     up = rec.R_base_cam[2]  # the base's z axis in camera coordinates
                     tilt.append(float(np.degrees(np.arccos(np.clip(res.vertical_axis_cam @ up, -1.0, 1.0)))))
+                if res.forward_axis_cam is not None:
+                    ahead = rec.R_base_cam[0]  # the base's x axis in camera coordinates
+                    fwd.append(float(np.degrees(np.arccos(np.clip(res.forward_axis_cam @ ahead, -1.0, 1.0)))))
                 for name in METHODS:
                     m = res.methods.get(name)
                     if m is None or m.R_base_cam is None:
@@ -206,6 +209,7 @@ def main() -> None:
             txy_s = f"{np.median(txy):.1f} mm ({len(txy)}/{n})" if txy else "-"
             txy_v = f"{np.median(txy_vel):.1f} mm" if txy_vel else "-"
             tilt_s = f"{np.median(tilt):.2f} deg" if tilt else "-"
+            tilt_s += f"  forward-axis err {np.median(fwd):.2f} deg" if fwd else "  forward-axis err -"
             print(
                 f"{motion:8s} {front:8s} degenerate {degenerate}/{n}  td err {np.median(tdz):.2f} ms  "
                 f"t_xy err {txy_s} (velocity lever arm {txy_v})  tilt err {tilt_s}  "
