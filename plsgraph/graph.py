@@ -82,7 +82,10 @@ class RefinementOptions:
     # Regularisation (always on, weak): keeps unobservable directions at the seed.
     reg_sigma_rot: float = 0.5
     reg_sigma_trans: float = 1.0
-    reg_sigma_td: float = 0.05
+    reg_sigma_td: float = 0.1
+    # Added in quadrature to the reported td sigma (not to the estimate): wheel slip the odometry model treats
+    # as independent per edge biases td by a few ms in simulation (docs/refinement.md, measure_refinement.py).
+    td_model_sigma: float = 0.005
     # Optional user priors.
     rotation_prior_sigma: float | None = None  # prior on R_base_cam at the seed (closed form), rad
     camera_height: float | None = None  # z of the camera in the base frame, m
@@ -106,6 +109,8 @@ class RefinementOptions:
     scale_covariance: bool = True  # inflate the covariance by chi2/dof when the fit is worse than sigma_px says
 
     def __post_init__(self) -> None:
+        if not (np.isfinite(self.td_model_sigma) and self.td_model_sigma >= 0):
+            raise InputError("refinement option td_model_sigma must be >= 0")
         pos = ("sigma_px", "robust_k", "planar_sigma_z", "planar_sigma_tilt", "anchor_sigma", "reg_sigma_rot",
                "reg_sigma_trans", "reg_sigma_td", "camera_height_sigma", "board_height_sigma", "board_vertical_sigma")
         for name in pos:
@@ -566,6 +571,26 @@ def _new_unobservable(
     return out
 
 
+def _honest_covariance(cov_user: np.ndarray, opt: RefinementOptions, frozen: bool) -> np.ndarray:
+    """The reported covariance: directions held at the seed get the regulariser's sigma back, td its model floor.
+
+    A direction the solve held at the seed carries the seed's value, so the data's (weak) information on it
+    must not shrink its sigma. Every eigen-direction whose posterior/prior sigma ratio is at or above
+    ``freeze_ratio`` (exactly those the freezing rule holds) is reset to the prior along it.
+    """
+    import scipy.linalg
+
+    cov = 0.5 * (cov_user + cov_user.T)
+    if frozen and opt.freeze_unobservable:
+        Lp = _prior_information(opt, user_priors=False)
+        lam, V = scipy.linalg.eigh(np.linalg.inv(cov), Lp)  # V^T Lp V = I, cov = V diag(1/lam) V^T
+        lam = np.where(1.0 / np.sqrt(np.maximum(lam, 1e-300)) >= opt.freeze_ratio, 1.0, lam)
+        cov = (V / lam) @ V.T
+    cov = cov.copy()
+    cov[6, 6] += opt.td_model_sigma**2
+    return cov
+
+
 def _unobservable_at(graph, values: gtsam.Values, opt: RefinementOptions, frozen: list[np.ndarray],
                      warnings: list[str]) -> tuple[list[np.ndarray], np.ndarray | None]:
     """New directions (user-axes functionals) that only the regulariser holds at ``values``, and the
@@ -723,6 +748,9 @@ def refine(
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
     if cov_base is not None:
+        cov_base = _honest_covariance(cov_base, opt, bool(frozen))
+        Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
+        cov = Ji @ cov_base @ Ji.T
         report = observability_report(cov_base, prior_info, converged=True, regularized=True,
                                       planar_motion=opt.planar, prior_notes=_prior_notes(opt, frozen))
     elif opt.marginals:
