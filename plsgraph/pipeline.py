@@ -434,7 +434,8 @@ def calibrate_closed_form(
     if cv.info.get("outliers"):
         # The relative motions for the translation must not use the poses the differentiation rejected.
         keep = ~cv.info["outlier_mask"]
-        camera_track = CameraTrack(camera_track.t[keep], camera_track.T_board_cam[keep])
+        cov = None if camera_track.cov is None else camera_track.cov[keep]
+        camera_track = CameraTrack(camera_track.t[keep], camera_track.T_board_cam[keep], cov=cov)
 
     # 1. Time offset.
     to_res: TimeOffsetResult | None = None
