@@ -501,6 +501,10 @@ def _detect_rims(
     active = (image > threshold).astype(np.uint8)
     if not np.any(active):
         return _fail(n, REASON_EMPTY)
+    # Sensor noise is mostly isolated pixels, rims are connected curves: drop active pixels without an
+    # active 8-neighbour before the dilation below turns noise into walls across the circles' insides.
+    neighbours = cv2.boxFilter(active, cv2.CV_16U, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    active &= (neighbours >= 2).astype(np.uint8)
     # Where the circle's edge runs along the motion it produces no events, so each rim has two breaks
     # through which its inside would leak into the background. Thickening the rims by k pixels closes
     # breaks up to 2k + 1 wide and shrinks every hole evenly (its centroid stays). k = 2 closes most
