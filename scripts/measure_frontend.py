@@ -149,58 +149,13 @@ def main() -> None:
     print(f"wrote {out.relative_to(REPO)}")
 
 
-def simulate_board_events(
-    poses: np.ndarray, t: np.ndarray, camera, board, contrast: float = 0.2, noise_hz: float = 0.0, seed: int = 0
-):
-    """Events of the board seen from poses T_board_cam (m, 4, 4) at times t (m,), by threshold crossing.
+def simulate_board_events(poses: np.ndarray, t: np.ndarray, camera, board, seed: int = 0):
+    """Events of the board seen from poses T_board_cam (m, 4, 4) at times t (m,): the project's event
+    simulator (plsgraph.sim.events, default parameters: C = 0.25 +- 0.03, 0.1 Hz/pixel noise, 0.1 ms
+    refractory period, adaptive render times)."""
+    from plsgraph.sim.events import simulate_events
 
-    Each pixel keeps a reference log intensity; when the rendered log intensity moves ``contrast``
-    away from it an event fires, its time interpolated linearly between the two renders. Uses
-    plsgraph.sim.events.simulate_events when that module exists (the project's event simulator).
-    """
-    try:
-        from plsgraph.sim.events import simulate_events
-
-        return simulate_events(t, poses, camera, board)
-    except ImportError:
-        pass
-    from plsgraph.events import EventStream
-    from plsgraph.sim.render import BoardRenderer
-
-    rng = np.random.default_rng(seed)
-    r = BoardRenderer(camera, board)
-    ref = r.log_intensity(poses[0]).astype(np.float64).ravel()
-    prev = ref.copy()
-    chunks = []
-    for k in range(1, t.size):
-        cur = r.log_intensity(poses[k]).astype(np.float64).ravel()
-        d = cur - ref
-        n = np.floor(np.abs(d) / contrast).astype(np.int64)
-        pix = np.flatnonzero(n)
-        if pix.size:
-            cnt = n[pix]
-            rep = np.repeat(pix, cnt)
-            j = np.arange(rep.size) - np.repeat(np.cumsum(cnt) - cnt, cnt) + 1  # 1..cnt per pixel
-            sgn = np.sign(d[rep])
-            level = ref[rep] + sgn * j * contrast
-            step = cur[rep] - prev[rep]
-            frac = np.clip((level - prev[rep]) / np.where(np.abs(step) > 1e-12, step, 1.0), 0.0, 1.0)
-            chunks.append((t[k - 1] + frac * (t[k] - t[k - 1]), rep, sgn))
-            ref[pix] += np.sign(d[pix]) * cnt * contrast
-        prev = cur
-    tt = np.concatenate([c[0] for c in chunks])
-    pp = np.concatenate([c[1] for c in chunks])
-    ss = np.concatenate([c[2] for c in chunks])
-    if noise_hz > 0:
-        m = rng.poisson(noise_hz * camera.width * camera.height * (t[-1] - t[0]))
-        tt = np.r_[tt, rng.uniform(t[0], t[-1], m)]
-        pp = np.r_[pp, rng.integers(0, camera.width * camera.height, m)]
-        ss = np.r_[ss, rng.choice([-1.0, 1.0], m)]
-    o = np.argsort(tt, kind="stable")
-    return EventStream.from_arrays(
-        np.round(tt[o] * 1e9).astype(np.int64), pp[o] % camera.width, pp[o] // camera.width, ss[o],
-        camera.width, camera.height,
-    )
+    return simulate_events(t, poses, camera, board, seed=seed)
 
 
 def board_motion(board, speed: float, duration: float, dt: float, seed: int = 0):

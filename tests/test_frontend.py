@@ -11,7 +11,7 @@ from plsgraph.errors import InputError, InsufficientDataError
 from plsgraph.events import EventStream
 from plsgraph.frontend import camera_track_from_events
 from plsgraph.geometry import interpolate_poses, inv_T, make_T, rotation_error_deg, so3_exp, transform_points
-from plsgraph.sim.render import BoardRenderer
+from plsgraph.sim.events import simulate_events
 
 CAM = davis346_default()
 BOARD = load_board("acircles_4x11")
@@ -25,40 +25,11 @@ def camera_motion(t: np.ndarray) -> np.ndarray:
     return make_T(R, BOARD.points.mean(axis=0) + np.array([-0.02, 0.0, -0.6]) + p)
 
 
-def events_from_renders(t: np.ndarray, poses: np.ndarray, contrast: float = 0.2) -> EventStream:
-    """Threshold-crossing events between consecutive renders (times interpolated linearly)."""
-    r = BoardRenderer(CAM, BOARD)
-    ref = r.log_intensity(poses[0]).astype(np.float64).ravel()
-    prev = ref.copy()
-    ts, ps, ss = [], [], []
-    for k in range(1, t.size):
-        cur = r.log_intensity(poses[k]).astype(np.float64).ravel()
-        d = cur - ref
-        n = np.floor(np.abs(d) / contrast).astype(np.int64)
-        pix = np.flatnonzero(n)
-        cnt = n[pix]
-        rep = np.repeat(pix, cnt)
-        j = np.arange(rep.size) - np.repeat(np.cumsum(cnt) - cnt, cnt) + 1
-        sgn = np.sign(d[rep])
-        step = cur[rep] - prev[rep]
-        frac = np.clip((ref[rep] + sgn * j * contrast - prev[rep]) / np.where(step != 0, step, 1.0), 0, 1)
-        ts.append(t[k - 1] + frac * (t[k] - t[k - 1]))
-        ps.append(rep)
-        ss.append(sgn)
-        ref[pix] += np.sign(d[pix]) * cnt * contrast
-        prev = cur
-    tt, pp, sg = np.concatenate(ts), np.concatenate(ps), np.concatenate(ss)
-    o = np.argsort(tt, kind="stable")
-    return EventStream.from_arrays(
-        np.round(tt[o] * 1e9).astype(np.int64), pp[o] % CAM.width, pp[o] // CAM.width, sg[o], CAM.width, CAM.height
-    )
-
-
 @pytest.fixture(scope="module")
 def sim():
     t = np.arange(0.0, 0.3 + 1e-9, 0.002)
     poses = camera_motion(t)
-    return t, poses, events_from_renders(t, poses)
+    return t, poses, simulate_events(t, poses, CAM, BOARD, seed=0)
 
 
 def errors(track, t, poses):
