@@ -191,6 +191,19 @@ def test_aprilgrid_corner_numbering_matches_kalibr_print():
         assert not detect_aprilgrid(img, board, cam, detector=make_aruco_detector(border_bits=2), layout="opencv").ok
 
 
+def test_aprilgrid_on_simulator_kalibr_print():
+    """The simulator's Kalibr print (2-bit border, codes turned) is read with the default Kalibr layout."""
+    from plsgraph.sim.render import RenderParams
+
+    T = pose_facing(GRID, 0.7, (-0.2, 0.3, 0.4), front_z=1)
+    u8 = render_intensity_u8(T, CAM, GRID, RenderParams(tag_layout="kalibr"))
+    det = detect_aprilgrid(u8, GRID, CAM, detector=make_aruco_detector(border_bits=2), layout="kalibr")
+    assert det.ok
+    seen = np.all(np.isfinite(det.uv), axis=1)
+    assert seen.sum() >= 4 * 25
+    assert np.median(np.linalg.norm(det.uv[seen] - truth_pixels(T, GRID)[seen], axis=1)) < 0.2
+
+
 def test_aprilgrid_index_is_a_permutation():
     ids = np.arange(12)
     for layout in ("kalibr", "opencv"):
