@@ -612,6 +612,8 @@ def calibrate_closed_form(
         log.warning("closed-form calibration degenerate: %s", msg)
         if raise_on_degenerate:
             raise DegenerateMotionError(msg)
+    n = pairs.t.size  # the refinement may have re-paired at another td
+    discarded.update(pairs.discarded)
     if n < 50:
         warnings.append(f"only {n} paired samples; record longer for a stable estimate")
     return ClosedFormResult(
