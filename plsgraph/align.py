@@ -2,20 +2,22 @@
 
 Convention: a camera sample stamped t_cam belongs to odometry time t_cam + td.
 
-The offset is found without knowing the extrinsic: the magnitude of the angular velocity is the same
-in every frame rigidly attached to the robot, so |omega_cam(t)| must equal |omega_base(t + td)|. The
-search maximises the Pearson correlation of the two magnitude signals over the shifts in a user range,
-first on a coarse grid, then on a fine grid around the best coarse shift, and finally refines the peak
-by a parabola through the best fine sample and its neighbours. When the robot hardly turns (driving
-straight) the speed magnitude is used instead: without rotation the camera and the base move with the
-same speed. For comparison the search can also score each shift by the share of covariance the 3-D
-angular velocities explain (the motion-correlation approach of the CCA / PLS calibration line); that
-score is rotation invariant too, because it uses the singular values of the cross-covariance.
+The offset is found without knowing the extrinsic. A ground robot's base turns about one axis only, so the
+camera's angular velocity is one-dimensional too, along an unknown but fixed axis: its principal direction.
+The search maximises the Pearson correlation of the signed components along the two principal axes over the
+shifts in a user range, first on a coarse grid, then on a fine grid around the best coarse shift, and finally
+refines the peak by a parabola through the best fine sample and its neighbours. The rotation-invariant
+magnitudes |omega_cam(t)| and |omega_base(t + td)| can be correlated instead (``project=False``). When the
+robot hardly turns (driving straight) the linear velocity is used the same way: without rotation the camera
+and the base move with the same speed. For comparison the search can also score each shift by the share of
+covariance the 3-D angular velocities explain (the motion-correlation approach of the CCA / PLS calibration
+line); that score is rotation invariant too, because it uses the singular values of the cross-covariance.
 
-Camera velocities come from the pose track by Savitzky-Golay differentiation on a uniform grid:
-positions directly, orientation through the accumulated body-frame rotation increments (their
-Savitzky-Golay derivative is the body angular velocity up to second-order commutator terms, exact
-when the rotation axis is fixed as under planar motion).
+Camera velocities come from the pose track by Savitzky-Golay differentiation on a uniform grid: positions
+directly, orientation through the accumulated body-frame rotation increments (their Savitzky-Golay
+derivative is the body angular velocity up to second-order commutator terms, exact when the rotation axis is
+fixed as under planar motion). Single-frame pose outliers are removed first. The base poses are
+differentiated with the same filter, so both sides have the same frequency response.
 """
 
 from __future__ import annotations
