@@ -20,7 +20,10 @@ What planar motion can determine (frames: base x forward, y left, z up; ``R = R_
   lever arm in the velocity equations; it is detected and reported.
 
 The default rotation solver is PLS (``plsgraph.closedform.solve``) on the stacked angular and linear velocity
-rows, the linear rows scaled to the same RMS as the angular ones so that both axes weigh alike.
+rows, the linear rows scaled to the same RMS as the angular ones so that both axes weigh alike, weighted by the
+pose covariances and reweighted (Huber) against samples the model does not explain. The lever arm comes with
+the odometry's speed and turn-rate scale factors (wrong wheel radius, effective track width), and td is refined
+from the full velocity residual once the model is known. See docs/odometry_and_time_offset.md.
 """
 
 from __future__ import annotations
