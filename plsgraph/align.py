@@ -129,7 +129,7 @@ def pose_outliers(
     return bad
 
 
-def camera_velocities(
+def camera_velocities_on_grid(
     track: CameraTrack,
     window_s: float = DEFAULT_WINDOW_S,
     polyorder: int = 2,
@@ -137,7 +137,11 @@ def camera_velocities(
     gap_factor: float = 2.5,
     outlier_sigma: float | None = 5.0,
 ) -> CameraVelocities:
-    """Angular and linear velocity of the camera in its own frame from its poses relative to the static board.
+    """Angular and linear velocity of the camera in its own frame on a uniform grid, for pairing with the base.
+
+    Unlike ``plsgraph.velocity.camera_velocities`` (velocities at the measured poses), this resamples the
+    track onto a uniform grid so that exactly the same filter can be applied to the base poses
+    (``base_velocities_on_grid``), and it drops single-frame pose outliers first.
 
     The board does not move, so the body velocity of T_board_cam is the camera's velocity relative to the
     world, expressed in the camera frame. ``window_s`` is the Savitzky-Golay window (s); ``rate`` the grid
@@ -315,7 +319,7 @@ def estimate_time_offset(
     lo, hi = float(td_range[0]), float(td_range[1])
     if not hi > lo:
         raise InputError(f"td_range must be (low, high) with low < high, got {td_range}")
-    cv = camera if isinstance(camera, CameraVelocities) else camera_velocities(camera, window_s=window_s)
+    cv = camera if isinstance(camera, CameraVelocities) else camera_velocities_on_grid(camera, window_s=window_s)
     # A fixed set of camera samples for every shift, so the curve compares like with like.
     reach = cv.info.get("window_s", window_s)  # keep the base filter clear of the odometry's ends
     keep = cv.valid & (cv.t + lo >= base.t[0] + reach) & (cv.t + hi <= base.t[-1] - reach)
@@ -458,7 +462,7 @@ def pair_samples(
     camera: CameraTrack | CameraVelocities, base: BaseTrack, td: float, window_s: float = DEFAULT_WINDOW_S
 ) -> PairedSamples:
     """Pair camera and base velocities at common instants within the overlap of both streams (given td)."""
-    cv = camera if isinstance(camera, CameraVelocities) else camera_velocities(camera, window_s=window_s)
+    cv = camera if isinstance(camera, CameraVelocities) else camera_velocities_on_grid(camera, window_s=window_s)
     t_odom = cv.t + td
     reach = cv.info["half"] / cv.info["rate"]  # the base filter must not reach past the odometry's ends
     outside = (t_odom < base.t[0] + reach) | (t_odom > base.t[-1] - reach)

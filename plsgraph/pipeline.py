@@ -39,7 +39,7 @@ from .align import (
     CameraVelocities,
     PairedSamples,
     TimeOffsetResult,
-    camera_velocities,
+    camera_velocities_on_grid,
     estimate_time_offset,
     pair_samples,
 )
@@ -433,7 +433,7 @@ def calibrate_closed_form(
         raise InputError("calibrate_closed_form needs a CameraTrack and a BaseTrack")
     warnings: list[str] = list(base_track.info.get("warnings", []))
     reasons: list[str] = []
-    cv: CameraVelocities = camera_velocities(camera_track, window_s=window_s)
+    cv: CameraVelocities = camera_velocities_on_grid(camera_track, window_s=window_s)
     if cv.info.get("outliers"):
         # The relative motions for the translation must not use the poses the differentiation rejected.
         keep = ~cv.info["outlier_mask"]

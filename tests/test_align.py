@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from plsgraph.align import camera_velocities, estimate_time_offset, pair_samples
+from plsgraph.align import camera_velocities_on_grid, estimate_time_offset, pair_samples
 from plsgraph.errors import DegenerateMotionError, InputError, InsufficientDataError
 from plsgraph.geometry import make_T
 from plsgraph.odometry import base_track_from_wheels
@@ -82,7 +82,7 @@ def test_bad_arguments():
 def test_camera_velocities_match_truth():
     rec, base, _ = setup("rich", seed=4)
     cam = rec.camera_track(noise_rot_deg=0.0, noise_trans_m=0.0)
-    cv = camera_velocities(cam)
+    cv = camera_velocities_on_grid(cam)
     # Exact relation with the same filter on the true base poses: omega_c = R^T omega_b, v_c = R^T (v_b + w x p).
     pairs = pair_samples(cv, rec.truth_base, rec.td)
     R, p = rec.R_base_cam, rec.T_base_cam[:3, 3]
@@ -102,7 +102,7 @@ def test_holes_and_gaps_are_discarded_and_counted():
     keep = np.ones(len(cam), dtype=bool)
     keep[200:230] = False  # a second without detections
     holey = CameraTrack(cam.t[keep], cam.T_board_cam[keep])
-    cv = camera_velocities(holey)
+    cv = camera_velocities_on_grid(holey)
     hole = (cv.t > cam.t[199]) & (cv.t < cam.t[230])
     assert not cv.valid[hole].any() and cv.valid.mean() > 0.8
     # An odometry gap of 1 s: the paired samples there are dropped and counted.

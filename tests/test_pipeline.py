@@ -194,11 +194,11 @@ def test_planar_hand_eye_is_robust_to_spoiled_pairs():
 
 
 def test_model_based_time_offset_refinement_converges_from_an_offset_start():
-    from plsgraph.align import camera_velocities
+    from plsgraph.align import camera_velocities_on_grid
     from plsgraph.pipeline import refine_time_offset
 
     rec, base, cam = tracks("rich", seed=12, td=0.05)
-    cv = camera_velocities(cam)
+    cv = camera_velocities_on_grid(cam)
     td, shifts, costs = refine_time_offset(cv, rec.truth_base, 0.03, rec.R_base_cam, rec.T_base_cam[:2, 3])
     assert abs(td - 0.05) < 2e-3
     assert shifts.size == costs.size and np.argmin(costs) not in (0, costs.size - 1)
