@@ -108,6 +108,34 @@ def _blob_detector(image_shape: tuple[int, int], blob_color: int) -> cv2.SimpleB
     return cv2.SimpleBlobDetector_create(p)
 
 
+def _fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
+    """Homography dst ~ H src by the normalised DLT (no iterative refinement); None if degenerate.
+
+    Used while growing the lattice, where it runs several times per image: several times cheaper than
+    cv2.findHomography there, and the final order check still uses OpenCV's.
+    """
+    def frame(p: np.ndarray) -> np.ndarray:
+        c = p.mean(axis=0)
+        d = float(np.mean(np.linalg.norm(p - c, axis=1)))
+        k = np.sqrt(2.0) / d if d > 1e-12 else 1.0
+        return np.array([[k, 0.0, -k * c[0]], [0.0, k, -k * c[1]], [0.0, 0.0, 1.0]])
+
+    Ts, Td = frame(src), frame(dst)
+    a = src @ Ts[:2, :2].T + Ts[:2, 2]
+    b = dst @ Td[:2, :2].T + Td[:2, 2]
+    m = a.shape[0]
+    A = np.zeros((2 * m, 9))
+    A[0::2, 0:2], A[0::2, 2] = a, 1.0
+    A[0::2, 6:8], A[0::2, 8] = -b[:, :1] * a, -b[:, 0]
+    A[1::2, 3:5], A[1::2, 5] = a, 1.0
+    A[1::2, 6:8], A[1::2, 8] = -b[:, 1:] * a, -b[:, 1]
+    _, sv, vt = np.linalg.svd(A, full_matrices=False)
+    if sv[-2] < 1e-9 * sv[0]:
+        return None
+    H = np.linalg.solve(Td, vt[-1].reshape(3, 3) @ Ts)
+    return H / H[2, 2] if abs(H[2, 2]) > 1e-12 else None
+
+
 def _neighbour_distance(uv: np.ndarray) -> np.ndarray:
     """Distance from each point to its nearest other point (n,)."""
     d = np.linalg.norm(uv[:, None, :] - uv[None, :, :], axis=-1)
@@ -289,7 +317,7 @@ def _grow_lattice(pts: np.ndarray, seed: int, nn: np.ndarray, tol: float = 0.3) 
         grown = new_idx.size > idx.size
         idx, lat = new_idx, a[new_idx]
         if idx.size >= 4:
-            Hn, _ = cv2.findHomography(lat.astype(np.float64), pts[idx].astype(np.float64), 0)
+            Hn = _fit_homography(lat.astype(np.float64), pts[idx])
             if Hn is None:
                 break
             H = Hn
@@ -341,8 +369,8 @@ def label_circle_grid(
         idx, lat = _grow_lattice(pts, int(sd), nn)
         if idx.size > best_idx.size:
             best_idx, best_lat = idx, lat
-        if best_idx.size >= n:
-            break
+        if best_idx.size >= n or best_idx.size >= 0.8 * pts.shape[0]:
+            break  # all circles, or most candidates, already on one lattice
     if best_idx.size < min_points:
         return _fail(n, REASON_NOT_FOUND)
     if areas is not None:
@@ -390,24 +418,28 @@ def label_circle_grid(
         # The grown lattice does not fit on the board: most likely the denser lattice of circles and the
         # gaps between them (or a repetitive background) taken for the circles. Never label it.
         return _fail(n, REASON_ORDER)
-    valid = []
-    for c, k, sh in placements:
-        if c != top:
-            continue
-        cells = best_lat @ _LATTICE_MAPS[k].T + sh - bmin
-        inside = np.all((cells >= 0) & (cells < span), axis=-1)
-        lab = np.full(cells.shape[0], -1)
-        lab[inside] = occupied[cells[inside, 0], cells[inside, 1]]
-        uv = np.full((n, 2), np.nan)
-        uv[lab[lab >= 0]] = pts[best_idx[lab >= 0]]
-        reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_rms_px)
-        if reason == REASON_OK:
-            valid.append((uv, rms))
-    if not valid:
-        return _fail(n, REASON_MIRRORED if top >= min_points else REASON_ORDER)
-    if len(valid) > 1:
+    # Seen from the board's front the image keeps the board's orientation, so only lattice maps of one
+    # handedness can be right: that of the affine fit lattice -> image combined with the board's own
+    # lattice (board (x, y) -> (a, b) has determinant -1/2). The lattice placements that agree in
+    # orientation all fit one homography equally well; more than one means the order is ambiguous.
+    A, *_ = np.linalg.lstsq(np.c_[best_lat, np.ones(best_lat.shape[0])], pts[best_idx], rcond=None)
+    want = -np.sign(np.linalg.det(A[:2].T))
+    front = [(k, sh) for c, k, sh in placements if c == top and round(np.linalg.det(_LATTICE_MAPS[k])) == want]
+    if not front:
+        return _fail(n, REASON_MIRRORED)
+    if len(front) > 1:
         return _fail(n, REASON_AMBIGUOUS)
-    return GridDetection(valid[0][0], True, REASON_OK, valid[0][1])
+    k, sh = front[0]
+    cells = best_lat @ _LATTICE_MAPS[k].T + sh - bmin
+    inside = np.all((cells >= 0) & (cells < span), axis=-1)
+    lab = np.full(cells.shape[0], -1)
+    lab[inside] = occupied[cells[inside, 0], cells[inside, 1]]
+    uv = np.full((n, 2), np.nan)
+    uv[lab[lab >= 0]] = pts[best_idx[lab >= 0]]
+    reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_rms_px)
+    if reason != REASON_OK:
+        return _fail(n, reason, rms)
+    return GridDetection(uv, True, REASON_OK, rms)
 
 
 def detect_circle_grid(
@@ -422,6 +454,7 @@ def detect_circle_grid(
     exhaustive: bool = False,
     rim_threshold: float = 0.0,
     min_points: int | None = None,
+    roi: tuple[int, int, int, int] | None = None,
 ) -> GridDetection:
     """Find an asymmetric circle grid and return its centres in ``board.points`` order.
 
@@ -438,13 +471,14 @@ def detect_circle_grid(
     circle centres are the centroids of the holes inside the rims (:func:`rim_holes`). Between
     touching rims there are smaller holes too, so only holes at least 0.4 times as large as the
     typical large hole are kept before they are labelled (:func:`label_circle_grid`, which allows
-    missing circles: unseen points are NaN, at least ``min_points`` must be found).
+    missing circles: unseen points are NaN, at least ``min_points`` must be found). ``roi`` (x0, y0,
+    x1, y1) restricts the rim search to that part of the image (coordinates stay full-image ones).
     """
     if board.pattern != "asymmetric_circles":
         raise InputError(f"detect_circle_grid: board {board.name!r} is a {board.pattern}, not asymmetric_circles")
     n = board.n_points
     if foreground == "rims":
-        return _detect_rims(np.asarray(image), board, camera, rim_threshold, max_homography_rms_px, min_points)
+        return _detect_rims(np.asarray(image), board, camera, rim_threshold, max_homography_rms_px, min_points, roi)
     weight = normalize_image(image, foreground)
     if weight is None:
         return _fail(n, REASON_EMPTY)
@@ -493,11 +527,19 @@ def detect_circle_grid(
 
 def _detect_rims(
     image: np.ndarray, board: Board, camera: CameraModel | None, threshold: float, max_rms_px: float,
-    min_points: int | None,
+    min_points: int | None, roi: tuple[int, int, int, int] | None = None,
 ) -> GridDetection:
     n = board.n_points
     if image.ndim != 2:
         raise InputError(f"detect: expected a single-channel 2-D image, got shape {image.shape}")
+    x0, y0 = 0, 0
+    if roi is not None:
+        h, w = image.shape
+        x0, y0 = max(0, int(roi[0])), max(0, int(roi[1]))
+        x1, y1 = min(w, int(roi[2])), min(h, int(roi[3]))
+        if x1 - x0 < 8 or y1 - y0 < 8:
+            return _fail(n, REASON_EMPTY)
+        image = image[y0:y1, x0:x1]
     active = (image > threshold).astype(np.uint8)
     if not np.any(active):
         return _fail(n, REASON_EMPTY)
@@ -520,7 +562,7 @@ def _detect_rims(
         ref = float(np.median(np.sort(area)[-n:]))
         keep = area >= 0.4 * ref
         det = label_circle_grid(
-            centres[keep], board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px
+            centres[keep] + (x0, y0), board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px
         )
         if det.ok:
             return det

@@ -110,39 +110,33 @@ def _active_age_s(kind: str, params: dict, window_s: float) -> float:
 WINDOW_LADDER = (1.0, 0.5, 0.25)
 
 
-def _points_mask(uv: np.ndarray, shape: tuple[int, int], frac: float = 0.5) -> np.ndarray:
-    """Boolean image of the pixels within ``frac`` of the nearest-neighbour spacing of any finite point."""
-    h, w = shape
-    mask = np.zeros(shape, dtype=bool)
+def _roi_around(uv: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
+    """Search region for the next window: the detection's bounding box grown by half its size (the board
+    moves less than that in one frame period at any speed the rim detector can follow)."""
     q = uv[np.all(np.isfinite(uv), axis=1)]
     if q.shape[0] < 2:
-        return mask
-    d = np.linalg.norm(q[:, None] - q[None], axis=-1)
-    np.fill_diagonal(d, np.inf)
-    r = frac * d.min(axis=1)
-    R = int(np.ceil(r.max()))
-    off = np.arange(-R, R + 1)
-    dy, dx = np.meshgrid(off, off, indexing="ij")
-    px = np.round(q[:, :1]).astype(int) + dx.ravel()[None, :]
-    py = np.round(q[:, 1:]).astype(int) + dy.ravel()[None, :]
-    ok = ((px - q[:, :1]) ** 2 + (py - q[:, 1:]) ** 2 <= r[:, None] ** 2) & (px >= 0) & (px < w) & (py >= 0) & (py < h)
-    mask[py[ok], px[ok]] = True
-    return mask
+        return None
+    lo, hi = q.min(axis=0), q.max(axis=0)
+    pad = 0.5 * (hi - lo) + 10.0
+    x0, y0 = np.floor(lo - pad).astype(int)
+    x1, y1 = np.ceil(hi + pad).astype(int)
+    return max(0, x0), max(0, y0), min(width, x1), min(height, y1)
 
 
 def _event_time(events: EventStream, uv: np.ndarray, t_ref_ns: int, max_age_s: float) -> float | None:
-    """Mean time (s) of the events that formed the detected rims: those near the detected points and
-    young enough to show in the rim image."""
-    mask = _points_mask(uv, (events.height, events.width))
-    if not np.any(mask):
+    """Mean time (s) of the events that formed the detected rims: those young enough to show in the rim
+    image and inside the detected points' bounding box grown by half the point spacing (all rims inside
+    it belong to the pattern; the paper margin keeps the board's outer edge outside)."""
+    q = uv[np.all(np.isfinite(uv), axis=1)]
+    if q.shape[0] < 2:
         return None
-    # Only the events in the detection's bounding box and age range can count; select those first.
-    ys, xs = np.nonzero(mask)
+    d = np.linalg.norm(q[:, None] - q[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    r = 0.5 * float(np.median(d.min(axis=1)))
+    (x0, y0), (x1, y1) = q.min(axis=0) - r, q.max(axis=0) + r
     i0 = int(np.searchsorted(events.t, t_ref_ns - int(max_age_s * 1e9), side="left"))
     x, y, t = events.x[i0:], events.y[i0:], events.t[i0:]
-    box = (x >= xs.min()) & (x <= xs.max()) & (y >= ys.min()) & (y <= ys.max())
-    x, y, t = x[box], y[box], t[box]
-    sel = mask[y, x]
+    sel = (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
     if not np.any(sel):
         return None
     return float(t_ref_ns * 1e-9 - np.mean((t_ref_ns - t[sel]).astype(np.float64)) * 1e-9)
@@ -177,6 +171,7 @@ class _WindowJob:
         n_events = 0
         det = None
         last_good = 0
+        roi = None
         for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
             if progress is not None:
                 progress(k, t_query.size)
@@ -217,7 +212,14 @@ class _WindowJob:
                         det = detect_circle_grid(img, board, self.camera, foreground="dark")
                     if det is None or det.reason != REASON_OK:
                         rim, level = _rim_image(img, kind, params, age)
-                        det = detect_circle_grid(rim, board, self.camera, foreground="rims", rim_threshold=level)
+                        det = None
+                        if roi is not None:
+                            # Look where the board was a moment ago first: fewer pixels and less clutter.
+                            det = detect_circle_grid(rim, board, self.camera, foreground="rims",
+                                                     rim_threshold=level, roi=roi)
+                        if det is None or det.reason != REASON_OK:
+                            det = detect_circle_grid(rim, board, self.camera, foreground="rims",
+                                                     rim_threshold=level)
                 secs["surfaces"] += c1 - c0
                 secs["detection"] += time.perf_counter() - c1
                 if det.reason == REASON_OK:
@@ -226,6 +228,7 @@ class _WindowJob:
                     break
             if det.reason != REASON_OK:
                 skipped[det.reason] += 1
+                roi = None
                 continue
             t_det = None
             if self.timestamp == "query":
@@ -236,6 +239,7 @@ class _WindowJob:
                 t_det = tq * 1e-9 - 0.5 * age
             t_out.append(t_det)
             uv_out.append(det.uv)
+            roi = _roi_around(det.uv, stream.width, stream.height)
         return t_out, uv_out, skipped, secs, n_events, retries
 
 
