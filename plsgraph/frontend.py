@@ -172,6 +172,7 @@ class _WindowJob:
         det = None
         last_good = 0
         roi = None
+        as_image = False
         for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
             if progress is not None:
                 progress(k, t_query.size)
@@ -204,12 +205,16 @@ class _WindowJob:
                     det = detect_aprilgrid(
                         surfaces.to_uint8(tag_img), board, self.camera, detector=aruco, layout=self.tag_layout
                     )
+                    as_image = kind == "leaky"  # tags are only read off intensity-like images
                 else:
                     det = None
+                    as_image = False
                     if kind == "leaky":
                         # The leaky integrator approximates log intensity (circles dark) once the board has
-                        # moved by more than a circle within tau; try it as an image first.
+                        # moved by more than a circle within tau; try it as an image first. Such a detection
+                        # shows the circles where they are now: it is stamped with the query time.
                         det = detect_circle_grid(img, board, self.camera, foreground="dark")
+                        as_image = det.reason == REASON_OK
                     if det is None or det.reason != REASON_OK:
                         rim, level = _rim_image(img, kind, params, age)
                         det = None
@@ -231,7 +236,7 @@ class _WindowJob:
                 roi = None
                 continue
             t_det = None
-            if self.timestamp == "query":
+            if self.timestamp == "query" or (as_image and self.timestamp == "events"):
                 t_det = tq * 1e-9
             elif self.timestamp == "events":
                 t_det = _event_time(ev, det.uv, int(tq), age)
