@@ -398,8 +398,8 @@ def label_circle_grid(
     # circles is the cross-correlation of two small occupancy images (template matching on the lattice).
     board_img = np.zeros(tuple(span), np.float32)
     board_img[tuple((B - bmin).T)] = 1.0
-    placements = []  # (count, map index, shift)
-    for k, M in enumerate(_LATTICE_MAPS):
+    scored = []  # (hit map, offset to add to a hit-map index to get the shift), per lattice map
+    for M in _LATTICE_MAPS:
         D = best_lat @ M.T
         dmin = D.min(axis=0)
         dspan = D.max(axis=0) - dmin + 1
@@ -407,11 +407,13 @@ def label_circle_grid(
         tmpl[tuple((D - dmin).T)] = 1.0
         padded = cv2.copyMakeBorder(board_img, dspan[0] - 1, dspan[0] - 1, dspan[1] - 1, dspan[1] - 1,
                                     cv2.BORDER_CONSTANT, value=0)
-        hits = np.rint(cv2.matchTemplate(padded, tmpl, cv2.TM_CCORR)).astype(int)
-        for u, v in zip(*np.nonzero(hits == hits.max()), strict=True):
-            shift = np.array([u, v]) - (dspan - 1) + bmin - dmin
-            placements.append((int(hits[u, v]), k, shift))
-    top = max(c for c, _, _ in placements)
+        scored.append((np.rint(cv2.matchTemplate(padded, tmpl, cv2.TM_CCORR)).astype(int), bmin - dmin - (dspan - 1)))
+    top = max(int(h.max()) for h, _ in scored)
+    placements = [
+        (top, k, np.array([u, v]) + off)
+        for k, (h, off) in enumerate(scored)
+        for u, v in zip(*np.nonzero(h == top), strict=True)
+    ]
     if top < min_points:
         return _fail(n, REASON_TOO_FEW)
     if top < MIN_INSIDE_FRACTION * best_idx.size:

@@ -39,6 +39,9 @@ REAL_KINDS = [
     ("count", "count", {"window_ns": 33_333_333}, 0.0),
     ("time_surface", "time_surface", {"tau_s": 0.03}, 0.0),
     ("polarity_aware", "polarity_aware", {"window_ns": 33_333_333}, 0.0),
+    ("time_surface_signed", "time_surface", {"tau_s": 0.03, "polarity": "signed"}, 0.0),
+    ("polarity_aware_signed", "polarity_aware", {"window_ns": 33_333_333, "signed": True}, 0.0),
+    ("time_surface_signed_100ms_blur1", "time_surface", {"tau_s": 0.1, "polarity": "signed"}, 1.0),
     ("leaky_50ms", "leaky", {"tau_s": 0.05}, 0.0),
     ("leaky_300ms_blur1", "leaky", {"tau_s": 0.3, "window_ns": 900_000_000}, 1.0),
 ]
@@ -54,7 +57,7 @@ def real_part() -> dict:
     tq = np.arange(ev.t_first + period, ev.t_last + 1, period, dtype=np.int64)
     detector = make_aruco_detector(border_bits=1)
     print(f"real recording: {len(ev)} events in {ev.duration_s:.3f} s, {tq.size} windows at 30 Hz")
-    print(f"{'representation':<20} {'tags':>5} {'windows>=1':>10} {'windows>=2':>10} {'boards':>6}  ids")
+    print(f"{'representation':<32} {'tags':>5} {'windows>=1':>10} {'windows>=2':>10} {'boards':>6}  ids")
     results = {}
     IMG_DIR.mkdir(parents=True, exist_ok=True)
     show_k = 27  # a window where the board moves fast enough for every representation to show it
@@ -95,7 +98,7 @@ def real_part() -> dict:
                 cv2.imwrite(str(IMG_DIR / f"real_{label}.png"), vis)
         results[label] = {"tags": tags, "windows_with_tag": w1, "windows_with_2_tags": w2, "board_detections": boards,
                           "ids": sorted(ids_seen)}
-        print(f"{label:<20} {tags:>5} {w1:>10} {w2:>10} {boards:>6}  {sorted(ids_seen)}")
+        print(f"{label:<32} {tags:>5} {w1:>10} {w2:>10} {boards:>6}  {sorted(ids_seen)}")
     results["windows"] = int(tq.size)
     results["geometry"] = real_geometry(all_corners, board)
     return results
