@@ -41,7 +41,7 @@ from factors.reprojection import FrameBatch, OdometryDetail, ReprojectionFrames,
 
 from .camera import CameraModel
 from .errors import ConvergenceError, InputError, InsufficientDataError
-from .geometry import inv_T, is_rotation, make_T, project_to_so3, rotation_error_deg
+from .geometry import inv_T, is_rotation, make_T, project_to_so3, rotation_error_deg, so3_exp, so3_log
 from .observability import (
     AXES,
     OBSERVABLE_RATIO,
@@ -83,9 +83,9 @@ class RefinementOptions:
     reg_sigma_rot: float = 0.5
     reg_sigma_trans: float = 1.0
     reg_sigma_td: float = 0.1
-    # Added in quadrature to the reported td sigma (not to the estimate): wheel slip the odometry model treats
-    # as independent per edge biases td by a few ms in simulation (docs/refinement.md, measure_refinement.py).
-    td_model_sigma: float = 0.005
+    # Added in quadrature to the reported td sigma (not to the estimate): unmodelled odometry errors (correlated
+    # wheel slip) bias td by a fraction of a millisecond in simulation (docs/refinement.md).
+    td_model_sigma: float = 0.001
     # Optional user priors.
     rotation_prior_sigma: float | None = None  # prior on R_base_cam at the seed (closed form), rad
     camera_height: float | None = None  # z of the camera in the base frame, m
@@ -105,6 +105,9 @@ class RefinementOptions:
     reject_px: float = 3.0  # a frame whose RMS exceeds max(reject_px, reject_factor * median) is dropped
     reject_factor: float = 5.0
     bracket_margin_s: float = 0.3  # knots extend this far beyond the detections (td may move)
+    # Moving-average window (s) of the odometry used for the detail between knots. Encoder quantization makes
+    # the full-rate odometry jagged; unsmoothed, that texture holds td near its seed (docs/refinement.md).
+    odometry_smoothing_s: float = 0.1
     marginals: bool = True
     scale_covariance: bool = True  # inflate the covariance by chi2/dof when the fit is worse than sigma_px says
 
@@ -219,6 +222,8 @@ class _Problem:
     knot_t: np.ndarray
     T_knots_odo: np.ndarray
     base_track: BaseTrack
+    odo_t: np.ndarray  # odometry (smoothed) for the detail between knots
+    odo_T: np.ndarray
     n_dropped: int
     warnings: tuple[str, ...]
 
@@ -293,6 +298,8 @@ def _prepare(
     if knot_idx.size < 2:
         raise InsufficientDataError("refine: the detections span less than one odometry step")
     frames = ReprojectionFrames(t, np.zeros(t.size), np.ones(t.size), det.uv[keep], det.board_points, camera)
+    dt = float(np.median(np.diff(t_odo)))
+    half = int(round(0.5 * opt.odometry_smoothing_s / dt)) if opt.odometry_smoothing_s > 0 else 0
     return _Problem(
         frames=frames,
         frame_t=t,
@@ -300,9 +307,25 @@ def _prepare(
         knot_t=t_odo[knot_idx],
         T_knots_odo=base_track.T_world_base[knot_idx],
         base_track=base_track,
+        odo_t=t_odo,
+        odo_T=smooth_poses(base_track.T_world_base, half),
         n_dropped=int((~keep).sum()),
         warnings=tuple(warnings),
     )
+
+
+def smooth_poses(T: np.ndarray, half: int) -> np.ndarray:
+    """Moving average of poses over 2 * half + 1 samples: positions averaged, rotations averaged in the
+    tangent space of each sample (R_i Exp(mean_j Log(R_i^T R_j))); the ends use the samples available."""
+    T = np.asarray(T, dtype=float)
+    if half < 1 or len(T) < 3:
+        return T
+    n = len(T)
+    idx = np.clip(np.arange(n)[:, None] + np.arange(-half, half + 1)[None, :], 0, n - 1)  # (n, w)
+    R = T[:, :3, :3]
+    rel = np.einsum("nji,nwjk->nwik", R, R[idx])  # R_i^T R_j
+    w_mean = so3_log(rel.reshape(-1, 3, 3)).reshape(n, -1, 3).mean(axis=1)
+    return make_T(R @ so3_exp(w_mean), T[:, :3, 3][idx].mean(axis=1))
 
 
 def _brackets(prob: _Problem, td: float, rows: np.ndarray) -> tuple[ReprojectionFrames, np.ndarray]:
@@ -311,8 +334,7 @@ def _brackets(prob: _Problem, td: float, rows: np.ndarray) -> tuple[Reprojection
     tau = np.clip(t + td, prob.knot_t[0], prob.knot_t[-1])
     a = np.clip(np.searchsorted(prob.knot_t, tau, "right") - 1, 0, prob.knot_t.size - 2)
     b = a + 1
-    bt = prob.base_track
-    odo = OdometryDetail(bt.t, bt.T_world_base, prob.T_knots_odo[a], prob.T_knots_odo[b])
+    odo = OdometryDetail(prob.odo_t, prob.odo_T, prob.odo_T[prob.knot_idx[a]], prob.odo_T[prob.knot_idx[b]])
     f = prob.frames
     frames = ReprojectionFrames(t, prob.knot_t[a], prob.knot_t[b], f.uv[rows], f.board_points, f.camera, odo)
     return frames, np.stack([a, b], axis=1)

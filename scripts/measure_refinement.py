@@ -6,7 +6,7 @@ camera track, closed form (plsgraph.pipeline.calibrate_closed_form, PLS) -> seed
 closed form gives no rotation (straight, spin: it refuses degenerate motion) the seed is the truth
 turned by 3 deg about a random axis with td off by 10 ms, and the table says so.
 
-    .venv/bin/python scripts/measure_refinement.py [--duration 30] [--seeds 0 1 2 3] [--workers 2]
+    .venv/bin/python scripts/measure_refinement.py [--duration 30] [--seeds 0 1 2 3] [--workers 2] [--slip 0.005]
 
 Prints one row per trial and medians per motion (markdown), the numbers quoted in docs/refinement.md.
 """
@@ -22,7 +22,7 @@ import numpy as np
 from plsgraph.batch import refine_many
 
 
-def trial(spec: tuple[str, float, int], seed: int) -> dict:
+def trial(spec: tuple[str, float, int, float], seed: int) -> dict:
     """One simulated recording, closed form and refinement; returns the figures (runs in a worker)."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from plsgraph.geometry import make_T, rotation_error_deg, so3_exp, so3_log
@@ -32,8 +32,8 @@ def trial(spec: tuple[str, float, int], seed: int) -> dict:
     from plsgraph.pose import camera_track_from_detections
     from plsgraph.sim.robot import simulate_robot
 
-    motion, duration, sim_seed = spec
-    rec = simulate_robot(motion, duration=duration, seed=sim_seed)
+    motion, duration, sim_seed, slip = spec
+    rec = simulate_robot(motion, duration=duration, seed=sim_seed, slip=slip)
     base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius, rec.track_width)
     track = camera_track_from_detections(rec.detections(0.3, seed=seed % 1000), rec.camera)
     R_true, t_true = rec.T_base_cam[:3, :3], rec.T_base_cam[:3, 3]
@@ -85,11 +85,13 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3])
     ap.add_argument("--motions", nargs="+", default=["rich", "straight", "spin"])
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--slip", type=float, default=0.005, help="wheel slip of the simulation (0.005 = 0.5 %%)")
     args = ap.parse_args()
-    specs = [(m, args.duration, s) for m in args.motions for s in args.seeds]
+    specs = [(m, args.duration, s, args.slip) for m in args.motions for s in args.seeds]
     t0 = time.perf_counter()
     results = refine_many(specs, trial, max_workers=args.workers, base_seed=2026)
-    print(f"{len(specs)} trials of {args.duration:.0f} s in {time.perf_counter() - t0:.1f} s\n")
+    print(f"{len(specs)} trials of {args.duration:.0f} s (wheel slip {100 * args.slip:.2g} %) "
+          f"in {time.perf_counter() - t0:.1f} s\n")
     print("| motion | seed | seed from | rot err seed / refined (deg) | err per axis roll,pitch,yaw (deg) "
           "| sigma per axis (deg) | td err seed / refined (ms) | sigma td (ms) | t_xy err seed / refined (m) "
           "| unobservable | weak | s |")
