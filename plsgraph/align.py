@@ -323,12 +323,17 @@ def estimate_time_offset(
     # A fixed set of camera samples for every shift, so the curve compares like with like.
     reach = cv.info.get("window_s", window_s)  # keep the base filter clear of the odometry's ends
     keep = cv.valid & (cv.t + lo >= base.t[0] + reach) & (cv.t + hi <= base.t[-1] - reach)
-    if np.count_nonzero(keep) * np.median(np.diff(cv.t)) < min_overlap_s:
+    dt_c = float(np.median(np.diff(cv.t)))
+    if np.count_nonzero(keep) * dt_c < min_overlap_s:
         span_c = (cv.t[0], cv.t[-1])
+        inside = cv.valid & (cv.t + lo >= base.t[0] + reach) & (cv.t + hi <= base.t[-1] - reach)
+        overlap = (cv.t + lo >= base.t[0] + reach) & (cv.t + hi <= base.t[-1] - reach)
         raise InsufficientDataError(
-            f"camera [{span_c[0]:.2f}, {span_c[1]:.2f}] s and odometry [{base.t[0]:.2f}, {base.t[-1]:.2f}] s "
-            f"overlap for less than {min_overlap_s} s over the whole td range {td_range}; check that both streams "
-            "come from the same recording and clock, or narrow td_range"
+            f"only {np.count_nonzero(inside) * dt_c:.1f} s of camera velocity samples fall inside the odometry "
+            f"for every td in {td_range} (camera track [{span_c[0]:.2f}, {span_c[1]:.2f}] s, "
+            f"odometry [{base.t[0]:.2f}, {base.t[-1]:.2f}] s, {np.count_nonzero(overlap) * dt_c:.1f} s of overlap, "
+            f"{np.count_nonzero(cv.valid)} of {cv.t.size} camera samples usable, the rest in detection gaps); "
+            f"need {min_overlap_s} s: record longer with the board in view, or narrow the td search range"
         )
     tc = cv.t[keep]
     w_c, v_c = cv.omega[keep], cv.v[keep]

@@ -26,6 +26,7 @@ from .errors import (
     PlsgraphError,
     RecordingError,
 )
+from .events import EventStream
 from .geometry import make_T, rotation_error_deg
 from .report import calibration_dict, markdown_table, prepare_output_dir, to_jsonable, write_json, write_yaml
 from .tracks import BaseTrack, CameraTrack
@@ -558,6 +559,8 @@ def compare(log_path: str | Path, options: PipelineOptions, progress: ProgressFa
 
 # ------------------------------------------------------------------------------------------------ simulate
 
+SIM_EPOCH_NS = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z: simulated stamps look like a live ROS clock
+
 
 def simulate_to_file(
     out: str | Path,
@@ -567,11 +570,14 @@ def simulate_to_file(
     td: float = 0.03,
     event_format: str = "dvs",
     overwrite: bool = False,
+    board: str = "acircles_4x11_a2",
+    contrast: float = 0.25,
     progress: ProgressFactory = terminal_progress,
 ) -> list[Path]:
     """Simulate a recording (events, wheel joint states, camera info) and write it as ROS 2 MCAP + truth."""
     from .io.recording import JointStates
     from .io.writer import truth_path, write_recording, write_truth
+    from .sim.events import EventSimParams
     from .sim.robot import simulate_robot
 
     out = Path(out)
@@ -580,14 +586,18 @@ def simulate_to_file(
     if not overwrite and (out.exists() or truth_path(out).exists()):
         raise InputError(f"{out} (or its truth file) exists; choose another path or pass --force")
     out.parent.mkdir(parents=True, exist_ok=True)
-    sim = simulate_robot(motion=motion, duration=duration, seed=seed, td=td)
+    sim = simulate_robot(motion=motion, duration=duration, seed=seed, td=td, board=load_board(board))
     with progress("simulating events") as bar:
-        events = sim.events(seed=seed, progress=bar)
+        params = EventSimParams(contrast_on=contrast, contrast_off=contrast)
+        events = sim.events(seed=seed, params=params, progress=bar)
+    # Stamp both clocks from a realistic epoch, as a live robot would; the offset between them stays td.
+    epoch_ns = SIM_EPOCH_NS
+    events = EventStream(events.t + epoch_ns, events.x, events.y, events.p, events.width, events.height)
     n = sim.wheel_t.size
     names = ("front_left_wheel_joint", "front_right_wheel_joint")
     pos = np.stack([sim.wheel_left, sim.wheel_right], axis=1)
     vel = np.gradient(pos, sim.wheel_t, axis=0)
-    joints = JointStates(np.round(sim.wheel_t * 1e9).astype(np.int64), names, pos, vel)
+    joints = JointStates(np.round(sim.wheel_t * 1e9).astype(np.int64) + epoch_ns, names, pos, vel)
     truth = {
         "T_base_cam": sim.T_base_cam,
         "td": sim.td,
@@ -596,12 +606,14 @@ def simulate_to_file(
         "wheel_radius": sim.wheel_radius,
         "track_width": sim.track_width,
         "motion": motion,
+        "clock_epoch_ns": epoch_ns,
         "duration_s": duration,
         "seed": seed,
-        "board": sim.board.name or "acircles_4x11",
+        "board": sim.board.name,
         "camera": sim.camera.to_dict(),
         "odometry_samples": int(n),
         "events": len(events),
+        "contrast_threshold": contrast,
     }
     write_recording(out, events, joints, None, sim.camera, truth=None, event_format=event_format,
                     overwrite=overwrite)

@@ -95,7 +95,11 @@ def _build_parser() -> argparse.ArgumentParser:
     s.add_argument("--duration", type=float, default=10.0, help="seconds (default: %(default)s)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--td", type=float, default=0.03, help="true time offset in s (default: %(default)s)")
-    s.add_argument("--event-format", choices=["dvs", "libcaer_cmp", "evt3"], default="dvs")
+    s.add_argument("--event-format", choices=["dvs", "libcaer_cmp", "libcaer", "evt3", "mono"], default="dvs",
+                   help="event message encoding (default: %(default)s, dvs_msgs/EventArray)")
+    s.add_argument("--board", default="acircles_4x11_a2", help="board YAML or bundled name (default: %(default)s)")
+    s.add_argument("--contrast", type=float, default=0.25,
+                   help="event contrast threshold in log intensity (default: %(default)s; larger, fewer events)")
     s.add_argument("--out", type=Path, required=True, help="output .mcap path")
     s.add_argument("--force", action="store_true", help="overwrite an existing file")
     s.set_defaults(func=_cmd_simulate)
@@ -169,7 +173,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from .app import simulate_to_file
 
     paths = simulate_to_file(args.out, motion=args.motion, duration=args.duration, seed=args.seed, td=args.td,
-                             event_format=args.event_format, overwrite=args.force)
+                             event_format=args.event_format, overwrite=args.force, board=args.board,
+                             contrast=args.contrast)
     for p in paths:
         print(f"written: {p}")
     return 0
