@@ -52,7 +52,7 @@ def real_part() -> dict:
 
     path = SHARED_REAL_DIR / "davis346_tagboard.mcap"
     ev = read_events(path)
-    board = Board(pattern="aprilgrid", cols=4, rows=3, tag_size=1.0, tag_spacing=0.25, name="real_4x3")
+    board = load_board("aprilgrid_4x3_tagboard")
     period = int(round(1e9 / 30))
     tq = np.arange(ev.t_first + period, ev.t_last + 1, period, dtype=np.int64)
     detector = make_aruco_detector(border_bits=1)
