@@ -33,14 +33,15 @@ from plsgraph.errors import InputError
 class OdometryNoise:
     """Differential-drive noise. Units: m/sqrt(m), rad/sqrt(rad), rad/sqrt(m), m/sqrt(m), m, rad.
 
-    The defaults describe good wheel odometry on a hard floor (about 3x the error of the simulation's 0.5 %
-    wheel slip). Too loose a model lets the base trajectory float and leaves td with local minima; too tight
-    a model turns real slip into bias (docs/refinement.md).
+    The defaults describe good wheel odometry on a hard floor: distance about 3x tighter than heading, which
+    slips most (the simulation's 0.5 % wheel slip is covered). Too loose a model lets the base trajectory
+    float and leaves td with local minima; too tight a heading model turns slip into yaw bias
+    (docs/refinement.md).
     """
 
     sigma_per_metre: float = 0.003
-    yaw_per_radian: float = 0.003
-    yaw_per_metre: float = 0.006
+    yaw_per_radian: float = 0.01
+    yaw_per_metre: float = 0.02
     lateral_per_metre: float = 0.0006
     floor_m: float = 1e-4
     floor_rad: float = 1e-4

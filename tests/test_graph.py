@@ -30,13 +30,16 @@ def test_refinement_recovers_truth_on_rich_motion(rich):
     assert res.rms_px_final < 0.6  # 0.3 px per coordinate -> 0.42 px expected
     rot_err = rotation_error_deg(res.R_base_cam, truth[:3, :3])
     seed_err = rotation_error_deg(case.seed_T[:3, :3], truth[:3, :3])
-    assert rot_err < 0.5 and rot_err < seed_err / 3
-    # Each rotation axis within 4 sigma of the truth: the covariance is not overconfident.
+    assert rot_err < seed_err / 2
+    # Roll and pitch (the camera tilt, seen through the turning axis) are sharp; the yaw, tied to the direction
+    # of travel, is the weak rotation axis of a 10 s recording. Each axis within 4 sigma of the truth: the
+    # covariance is not overconfident.
     d = np.degrees(rotation_error_base_axes(res.R_base_cam, truth[:3, :3]))
+    assert np.all(np.abs(d[:2]) < 0.3)
     assert np.all(np.abs(d) < 4 * res.sigma_rot_deg + 0.05), (d, res.sigma_rot_deg)
     assert np.linalg.norm(res.T_base_cam[:2, 3] - truth[:2, 3]) < 0.03
-    # td: wheel slip biases it by a few ms (docs/refinement.md); the seed was 5 ms off.
-    assert abs(res.td - case.rec.td) < 0.008
+    # td: the seed was 5 ms off.
+    assert abs(res.td - case.rec.td) < max(0.003, 4 * res.sigma_td)
     assert res.n_frames_rejected == 0
     assert res.iterations >= 1 and res.final_error < res.initial_error
 
@@ -71,7 +74,8 @@ def test_outlier_frames_are_rejected_and_counted():
     res = refine(track, case.base, case.rec.camera, case.seed_T, case.seed_td)
     assert res.converged
     assert res.n_frames_rejected == bad.size
-    assert rotation_error_deg(res.R_base_cam, case.rec.T_base_cam[:3, :3]) < 0.5
+    d = np.degrees(rotation_error_base_axes(res.R_base_cam, case.rec.T_base_cam[:3, :3]))
+    assert np.all(np.abs(d) < 4 * res.sigma_rot_deg + 0.05)
 
 
 def test_unconverged_solve_gives_no_covariance():
