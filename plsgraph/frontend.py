@@ -414,8 +414,10 @@ def camera_track_from_events(
     with reprojection RMS above ``max_rms_px`` are dropped; ``sigma_px`` fixes the pixel noise of the
     covariance (default: estimated per frame). AprilGrids: ``tag_layout`` / ``tag_border_bits`` as
     in :func:`plsgraph.detect.detect_aprilgrid`, the image blurred by ``tag_blur_sigma`` px first.
-    ``workers`` > 1 processes the windows in that many forked processes (Linux; the result is
-    identical). ``progress(done, total)`` is called per window.
+    ``workers`` > 1 processes the windows in that many forked processes (Linux). Each chunk of
+    windows starts its search afresh (no region of interest, full span first), so an occasional
+    window may be found from another span than in one process. ``progress(done, total)`` is called
+    per window.
 
     Raises :class:`InsufficientDataError` when no window yields a detection or no detection a pose.
     """

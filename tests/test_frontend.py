@@ -94,3 +94,12 @@ def test_bad_input_is_counted_or_raised(sim):
     gap = EventStream(ev.t[keep], ev.x[keep], ev.y[keep], ev.p[keep], ev.width, ev.height)
     track = camera_track_from_events(gap, CAM, BOARD, kind="count")
     assert track.info["skipped"].get("too_few_events", 0) >= 2 and len(track) >= 3
+
+
+def test_worker_processes_give_the_same_track(sim):
+    t, poses, ev = sim
+    one = camera_track_from_events(ev, CAM, BOARD, kind="count")
+    two = camera_track_from_events(ev, CAM, BOARD, kind="count", workers=2)
+    np.testing.assert_array_equal(one.t, two.t)
+    np.testing.assert_allclose(one.T_board_cam, two.T_board_cam)
+    assert one.info["skipped"] == two.info["skipped"]
