@@ -459,6 +459,7 @@ def detect_circle_grid(
     rim_threshold: float = 0.0,
     min_points: int | None = None,
     roi: tuple[int, int, int, int] | None = None,
+    predicted_uv: np.ndarray | None = None,
 ) -> GridDetection:
     """Find an asymmetric circle grid and return its centres in ``board.points`` order.
 
@@ -477,12 +478,16 @@ def detect_circle_grid(
     typical large hole are kept before they are labelled (:func:`label_circle_grid`, which allows
     missing circles: unseen points are NaN, at least ``min_points`` must be found). ``roi`` (x0, y0,
     x1, y1) restricts the rim search to that part of the image (coordinates stay full-image ones).
+    ``predicted_uv`` (N, 2), where the circles are expected (e.g. extrapolated from the previous
+    windows), lets :func:`track_circle_grid` label the candidates cheaply before the full search.
     """
     if board.pattern != "asymmetric_circles":
         raise InputError(f"detect_circle_grid: board {board.name!r} is a {board.pattern}, not asymmetric_circles")
     n = board.n_points
     if foreground == "rims":
-        return _detect_rims(np.asarray(image), board, camera, rim_threshold, max_homography_rms_px, min_points, roi)
+        return _detect_rims(
+            np.asarray(image), board, camera, rim_threshold, max_homography_rms_px, min_points, roi, predicted_uv
+        )
     weight = normalize_image(image, foreground)
     if weight is None:
         return _fail(n, REASON_EMPTY)
@@ -529,9 +534,75 @@ def detect_circle_grid(
     return _fail(n, last_reason, last_rms)
 
 
+def track_circle_grid(
+    points: np.ndarray,
+    predicted_uv: np.ndarray,
+    board: Board,
+    camera: CameraModel | None = None,
+    *,
+    min_fraction: float = 0.9,
+    max_rms_px: float = 1.0,
+) -> GridDetection:
+    """Label candidates by their nearest predicted circle; accepted only when that cannot be a shifted grid.
+
+    Every predicted circle takes the nearest candidate within 0.3 of its neighbour spacing. A grid
+    labelled one lattice step off loses a whole row or column of matches at the board's edge (there are
+    no circles beyond it), so the labelling is accepted only if at least ``min_fraction`` of all circles
+    are matched, the median match distance is below a quarter spacing (a prediction half a spacing off
+    is refused, not resolved) and :func:`check_grid_order` passes. Otherwise the caller searches in full.
+    """
+    n = board.n_points
+    pred = np.asarray(predicted_uv, dtype=float)
+    ok_pred = np.all(np.isfinite(pred), axis=1)
+    pts = np.asarray(points, dtype=float)
+    if np.count_nonzero(ok_pred) < min_fraction * n or pts.shape[0] < min_fraction * n:
+        return _fail(n, REASON_NOT_FOUND)
+    spacing = np.full(n, np.nan)
+    spacing[ok_pred] = _neighbour_distance(pred[ok_pred])
+    d = np.linalg.norm(pred[:, None, :] - pts[None, :, :], axis=-1)  # (N, k)
+    # Take out the common part of the prediction error first (the median offset to the nearest candidates).
+    # If the prediction was off by half a spacing or more this may shift every label by one circle; such a
+    # labelling loses a row or column at the board's edge and fails the min_fraction test below.
+    j0 = np.argmin(np.where(ok_pred[:, None], d, np.inf), axis=1)
+    off = pts[j0] - pred
+    near = ok_pred & (d[np.arange(n), j0] < 0.6 * spacing)
+    if np.count_nonzero(near) >= 0.5 * n:
+        pred = pred + np.median(off[near], axis=0)
+        d = np.linalg.norm(pred[:, None, :] - pts[None, :, :], axis=-1)
+    j = np.argmin(np.where(ok_pred[:, None], d, np.inf), axis=1)
+    dist = d[np.arange(n), j]
+    hit = ok_pred & (dist < 0.3 * spacing)
+    # One candidate per circle: a candidate claimed twice is dropped for both.
+    _, inv, cnt = np.unique(j[hit], return_inverse=True, return_counts=True)
+    hit[np.flatnonzero(hit)[cnt[inv] > 1]] = False
+    if np.count_nonzero(hit) < min_fraction * n or np.median(dist[hit] / spacing[hit]) > 0.25:
+        return _fail(n, REASON_NOT_FOUND)
+    uv = np.full((n, 2), np.nan)
+    uv[hit] = pts[j[hit]]
+    # Circles the prediction missed: project the board with the homography of the matched ones and take
+    # the candidates that now sit on a free circle (predictions are off by the unmodelled acceleration).
+    H, _ = cv2.findHomography(board.points[hit, :2], uv[hit], 0)
+    if H is not None and np.count_nonzero(~hit):
+        ph = np.c_[board.points[:, :2], np.ones(n)] @ H.T
+        proj = ph[:, :2] / ph[:, 2:]
+        d2 = np.linalg.norm(proj[:, None, :] - pts[None, :, :], axis=-1)
+        j2 = np.argmin(d2, axis=1)
+        taken = np.zeros(pts.shape[0], dtype=bool)
+        taken[j[hit]] = True
+        sp = _neighbour_distance(proj)
+        add = ~hit & (d2[np.arange(n), j2] < 0.2 * sp) & ~taken[j2]
+        _, inv2, cnt2 = np.unique(j2[add], return_inverse=True, return_counts=True)
+        add[np.flatnonzero(add)[cnt2[inv2] > 1]] = False
+        uv[add] = pts[j2[add]]
+    reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_rms_px)
+    if reason != REASON_OK:
+        return _fail(n, reason, rms)
+    return GridDetection(uv, True, REASON_OK, rms)
+
+
 def _detect_rims(
     image: np.ndarray, board: Board, camera: CameraModel | None, threshold: float, max_rms_px: float,
-    min_points: int | None, roi: tuple[int, int, int, int] | None = None,
+    min_points: int | None, roi: tuple[int, int, int, int] | None = None, predicted_uv: np.ndarray | None = None,
 ) -> GridDetection:
     n = board.n_points
     if image.ndim != 2:
@@ -565,6 +636,10 @@ def _detect_rims(
         # smaller ones. Reference: the median of the n largest.
         ref = float(np.median(np.sort(area)[-n:]))
         keep = area >= 0.4 * ref
+        if predicted_uv is not None:
+            det = track_circle_grid(centres[keep] + (x0, y0), predicted_uv, board, camera, max_rms_px=max_rms_px)
+            if det.ok:
+                return det
         det = label_circle_grid(
             centres[keep] + (x0, y0), board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px
         )

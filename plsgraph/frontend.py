@@ -110,6 +110,20 @@ def _active_age_s(kind: str, params: dict, window_s: float) -> float:
 WINDOW_LADDER = (1.0, 0.5, 0.25)
 
 
+def _complete_by_homography(uv: np.ndarray, board: Board) -> np.ndarray:
+    """``uv`` with the unseen points filled in by the homography of the seen ones (for predictions only)."""
+    seen = np.all(np.isfinite(uv), axis=1)
+    if seen.all() or np.count_nonzero(seen) < 4:
+        return uv
+    H, _ = cv2.findHomography(board.points[seen, :2], uv[seen], 0)
+    if H is None:
+        return uv
+    ph = np.c_[board.points[:, :2], np.ones(board.n_points)] @ H.T
+    out = uv.copy()
+    out[~seen] = ph[~seen, :2] / ph[~seen, 2:]
+    return out
+
+
 def _roi_around(uv: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
     """Search region for the next window: the detection's bounding box grown by half its size (the board
     moves less than that in one frame period at any speed the rim detector can follow)."""
@@ -171,13 +185,15 @@ class _WindowJob:
         n_events = 0
         det = None
         last_good = 0
-        roi = None
+        roi = predicted = prev = None
         as_image = False
+        period_s = float(np.median(np.diff(t_query))) * 1e-9 if t_query.size > 1 else 0.0
         for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
             if progress is not None:
                 progress(k, t_query.size)
             if i1 - i0 < self.min_events:
                 skipped["too_few_events"] += 1
+                roi = predicted = None
                 continue
             ev = stream.slice_index(int(i0), int(i1))
             n_events += int(i1 - i0)
@@ -219,9 +235,10 @@ class _WindowJob:
                         rim, level = _rim_image(img, kind, params, age)
                         det = None
                         if roi is not None:
-                            # Look where the board was a moment ago first: fewer pixels and less clutter.
+                            # Look where the board was a moment ago first: fewer pixels and less clutter, and
+                            # the circles can be labelled by their predicted positions.
                             det = detect_circle_grid(rim, board, self.camera, foreground="rims",
-                                                     rim_threshold=level, roi=roi)
+                                                     rim_threshold=level, roi=roi, predicted_uv=predicted)
                         if det is None or det.reason != REASON_OK:
                             det = detect_circle_grid(rim, board, self.camera, foreground="rims",
                                                      rim_threshold=level)
@@ -233,7 +250,7 @@ class _WindowJob:
                     break
             if det.reason != REASON_OK:
                 skipped[det.reason] += 1
-                roi = None
+                roi = predicted = None
                 continue
             t_det = None
             if self.timestamp == "query" or (as_image and self.timestamp == "events"):
@@ -242,6 +259,14 @@ class _WindowJob:
                 t_det = _event_time(ev, det.uv, int(tq), age)
             if t_det is None:  # "window_centre", or no event near the detection (cannot happen for rims)
                 t_det = tq * 1e-9 - 0.5 * age
+            # Constant-velocity prediction of all circles for the next window (from the last two windows;
+            # circles not seen are filled in by the board's homography).
+            full = _complete_by_homography(det.uv, board) if board.pattern == "asymmetric_circles" else det.uv
+            if prev is not None and prev[0] == k - 1 and t_det > prev[1]:
+                predicted = full + (full - prev[2]) * (period_s / (t_det - prev[1]))
+            else:
+                predicted = full
+            prev = (k, t_det, full)
             t_out.append(t_det)
             uv_out.append(det.uv)
             roi = _roi_around(det.uv, stream.width, stream.height)
