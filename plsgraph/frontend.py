@@ -290,7 +290,7 @@ def _run_parallel(job: _WindowJob, t_query, i0s, i1s, workers: int, progress) ->
 
     global _JOB
     _JOB = (job, t_query, i0s, i1s)
-    edges = np.linspace(0, t_query.size, 4 * workers + 1).round().astype(int)
+    edges = np.linspace(0, t_query.size, workers + 1).round().astype(int)  # one run per worker: tracking state
     chunks = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
     try:
         with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
