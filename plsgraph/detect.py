@@ -534,6 +534,18 @@ def detect_circle_grid(
     return _fail(n, last_reason, last_rms)
 
 
+def shifted_overlap(board: Board) -> int:
+    """The most board circles a labelling shifted by one lattice step can still put on circles.
+
+    A tracked labelling must match more circles than this (plus a margin for clutter that happens to sit
+    where the shifted grid expects a circle) to rule out a one-circle shift.
+    """
+    B = board_lattice(board)
+    key = set(map(tuple, B.tolist()))
+    steps = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)]
+    return max(sum((a + da, b + db) in key for a, b in B.tolist()) for da, db in steps)
+
+
 def track_circle_grid(
     points: np.ndarray,
     predicted_uv: np.ndarray,
@@ -548,8 +560,9 @@ def track_circle_grid(
     Every predicted circle takes the nearest candidate within 0.3 of its neighbour spacing. A grid
     labelled one lattice step off loses a whole row or column of matches at the board's edge (there are
     no circles beyond it), so the labelling is accepted only if at least ``min_fraction`` of all circles
-    are matched, the median match distance is below a quarter spacing (a prediction half a spacing off
-    is refused, not resolved) and :func:`check_grid_order` passes. Otherwise the caller searches in full.
+    and at least two more than :func:`shifted_overlap` are matched, the median match distance (after
+    removing the common offset) is below a quarter spacing, and :func:`check_grid_order` passes.
+    Otherwise the caller searches in full.
     """
     n = board.n_points
     pred = np.asarray(predicted_uv, dtype=float)
@@ -575,7 +588,8 @@ def track_circle_grid(
     # One candidate per circle: a candidate claimed twice is dropped for both.
     _, inv, cnt = np.unique(j[hit], return_inverse=True, return_counts=True)
     hit[np.flatnonzero(hit)[cnt[inv] > 1]] = False
-    if np.count_nonzero(hit) < min_fraction * n or np.median(dist[hit] / spacing[hit]) > 0.25:
+    need = max(min_fraction * n, shifted_overlap(board) + 2)
+    if np.count_nonzero(hit) < need or np.median(dist[hit] / spacing[hit]) > 0.25:
         return _fail(n, REASON_NOT_FOUND)
     uv = np.full((n, 2), np.nan)
     uv[hit] = pts[j[hit]]

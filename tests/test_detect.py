@@ -20,6 +20,8 @@ from plsgraph.detect import (
     detect_aprilgrid,
     detect_circle_grid,
     make_aruco_detector,
+    shifted_overlap,
+    track_circle_grid,
 )
 from plsgraph.geometry import inv_T, make_T, rotation_error_deg, so3_exp, transform_points
 from plsgraph.pose import solve_pnp
@@ -105,6 +107,23 @@ def test_order_check_rejects_permuted_and_mirrored_labels():
     mirrored = uv.copy()
     mirrored[:, 0] = CAM.width - 1 - mirrored[:, 0]
     assert check_grid_order(mirrored, CIRCLES)[0] == REASON_MIRRORED
+
+
+def test_tracking_never_accepts_a_grid_shifted_by_one_circle():
+    T = pose_facing(CIRCLES, 0.6, (0.2, -0.3, 0.4), front_z=-1)
+    rng = np.random.default_rng(3)
+    truth = truth_pixels(T, CIRCLES)
+    cand = truth + rng.normal(0, 0.1, truth.shape)
+    clutter = rng.uniform(0, [CAM.width, CAM.height], (15, 2))
+    pts = np.vstack([cand, clutter])[rng.permutation(CIRCLES.n_points + 15)]
+    # A prediction off by 0.4 of a spacing in a common direction is corrected and labels every circle right.
+    step = truth[5] - truth[1]  # neighbouring circles (row 1, col 1) and (row 0, col 1): one lattice step
+    ok = track_circle_grid(pts, truth + 0.4 * step, CIRCLES, CAM)
+    assert ok.ok and np.max(np.linalg.norm(ok.uv - truth, axis=1)) < 0.5
+    # Off by a whole lattice step, every circle would take its neighbour's label: refused.
+    assert not track_circle_grid(pts, truth + step, CIRCLES, CAM).ok
+    assert not track_circle_grid(pts, truth - step, CIRCLES, CAM).ok
+    assert shifted_overlap(CIRCLES) < 0.9 * CIRCLES.n_points
 
 
 def test_symmetric_board_flagged():
