@@ -460,6 +460,7 @@ def detect_circle_grid(
     min_points: int | None = None,
     roi: tuple[int, int, int, int] | None = None,
     predicted_uv: np.ndarray | None = None,
+    lattice_fallback: bool = True,
 ) -> GridDetection:
     """Find an asymmetric circle grid and return its centres in ``board.points`` order.
 
@@ -470,7 +471,8 @@ def detect_circle_grid(
     disk of half the distance to its nearest neighbour (a rim, even smeared by motion, is centred
     on the circle). The order check of :func:`check_grid_order` decides what is returned. When
     OpenCV's finder fails (it needs every circle), the blobs are labelled by :func:`label_circle_grid`,
-    which accepts a partly visible board (unseen points NaN, at least ``min_points`` seen).
+    which accepts a partly visible board (unseen points NaN, at least ``min_points`` seen);
+    ``lattice_fallback=False`` keeps OpenCV's finder alone (for comparisons).
 
     ``foreground="rims"`` (event-activity images): pixels above ``rim_threshold`` are active; the
     circle centres are the centroids of the holes inside the rims (:func:`rim_holes`). Between
@@ -517,7 +519,7 @@ def detect_circle_grid(
         log.debug("circle grid rejected (%s, homography rms %.2f px)", reason, rms)
     # OpenCV's grid finder needs every circle. For a board partly out of view (or partly hidden) label the
     # blobs with the lattice method instead, which allows missing circles but never guesses an order.
-    kp = _blob_detector(img8.shape, 255).detect(img8)
+    kp = _blob_detector(img8.shape, 255).detect(img8) if lattice_fallback else []
     if len(kp) >= 6:
         pts = np.array([k.pt for k in kp], dtype=float)
         det = label_circle_grid(pts, board, camera, min_points=min_points, max_rms_px=max_homography_rms_px)
