@@ -97,6 +97,7 @@ class RefinementOptions:
     # Optimisation.
     optimizer: str = "lm"  # "lm" or "dogleg"
     max_iterations: int = 30
+    lm_lambda_min: float = 1.0  # initial and smallest Levenberg-Marquardt damping (see _optimize)
     relative_tol: float = 1e-6
     absolute_tol: float = 1e-9
     max_passes: int = 5
@@ -444,6 +445,12 @@ def _optimize(graph, initial: gtsam.Values, opt: RefinementOptions, progress=Non
     else:
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(opt.max_iterations)
+        # GTSAM's Cholesky calls a pivot "indeterminate" when it is tiny relative to its diagonal, which td is
+        # (the knots absorb most of its information). With LM's default lambda of 1e-5 every iteration then
+        # fails several times (a full elimination each) before the damping is large enough. A damping of 1
+        # (information 1 rad^-2, 1 m^-2, 1 s^-2 on each variable, negligible next to the data) avoids that.
+        params.setlambdaInitial(opt.lm_lambda_min)
+        params.setlambdaLowerBound(opt.lm_lambda_min)
         optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
     prev = graph.error(initial)
     converged = False
