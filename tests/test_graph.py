@@ -127,6 +127,11 @@ def test_joint_marginal_matches_gtsam_marginals_on_a_small_graph():
     jm = gtsam.Marginals(g, v).jointMarginalCovariance(gtsam.KeyVector(want))
     ref = np.block([[jm.at(a, b) for b in want] for a in want])
     assert np.allclose(mine, ref, rtol=1e-8, atol=1e-12)
+    # The scipy fallback gives the same Schur complement as GTSAM's partial elimination.
+    from plsgraph.graph import _schur_sparse
+
+    S = _schur_sparse(g.linearize(v), v, want)
+    assert np.allclose(np.linalg.inv(S), ref, rtol=1e-8, atol=1e-12)
 
 
 def test_comparison_table_with_and_without_truth(rich):
