@@ -8,19 +8,23 @@ solved by PnP (:mod:`plsgraph.pose`). What is counted in ``track.info``:
   ``poses``: windows that produced a pose;
 * ``skipped``: reason -> count over all windows that gave no pose: ``too_few_events`` (nothing
   moved), the detector's reasons (``grid_not_found``, ``inconsistent_order``, ``mirrored_order``,
-  ``too_few_points``, ``empty_image``), ``time_not_increasing`` and PnP's (``pnp_failed``,
-  ``rms_above_threshold``);
-* ``seconds``: time spent in surfaces, detection and PnP.
+  ``ambiguous_labels``, ``too_few_points``, ``empty_image``), ``time_not_increasing`` and PnP's
+  (``pnp_failed``, ``rms_above_threshold``);
+* ``detected_at_window_fraction``, ``seconds`` (surfaces, detection, PnP), ``warnings``.
 
 Circle grids are found as rims (:func:`plsgraph.detect.detect_circle_grid` with
 ``foreground="rims"``): each kind's image is binarized at a level that keeps the pixels with recent
-events (:func:`_rim_image`) and the circles' insides are the holes.
+events (:func:`_rim_image`) and the circles' insides are the holes. After a detection the next
+window is searched around the board first and its circles are labelled by their constant-velocity
+predictions (:func:`plsgraph.detect.track_circle_grid`, which refuses anything a one-circle shift
+could explain); the full lattice search runs otherwise.
 
 Detection time stamps. A surface built from the events of (t_k - W, t_k] shows the board where
 it was while those events happened, not where it is at t_k. With ``timestamp="events"`` (default)
 each detection is stamped with the mean time of the events that formed the detected rims: those
-within half a point spacing of the detected points and young enough to be above the rim level
-(for the decaying kinds: younger than tau). For a circle moving at constant speed the inside that
+inside the detected points' bounding box grown by half a spacing and young enough to be above the
+rim level (for the decaying kinds: younger than tau). Detections read off a leaky integrator as an
+intensity image are stamped t_k. For a circle moving at constant speed the inside that
 stayed free of events is centred where the circle was at the middle of that span.
 ``timestamp="query"`` stamps t_k, or ``"window_centre"`` the middle of the span the rims show
 (t_k - W / 2 for counts, t_k - tau / 2 for decaying kinds).

@@ -197,7 +197,7 @@ def sim_part(quick: bool) -> dict:
     speeds = {"slow": 0.3, "moderate": 1.0, "fast": 2.5} if quick else SIM_SPEEDS
     out = {}
     print(f"{'speed':<10} {'kind':<15} {'Mev/s':>6} {'det%':>5} {'pose%':>6} {'centre px':>9} {'rot deg':>8} "
-          f"{'pos mm':>7} {'centre px @query':>16}")
+          f"{'pos mm':>7} {'centre px @query':>16} {'w err deg/s':>11} {'v err mm/s':>10} {'(0.1 s window)':>14}")
     for name, sp in speeds.items():
         t, poses = board_motion(board, sp, duration, 1e-3)
         c0 = time.perf_counter()
@@ -218,7 +218,13 @@ def sim_part(quick: bool) -> dict:
                 uv_true = np.stack([cam.project(transform_points(inv_T(T), board.points)) for T in T_true])
                 cerr = np.linalg.norm(tr.detections.uv - uv_true, axis=2)
                 perr = se3_log(inv_T(T_true) @ tr.T_board_cam)
+                w_err, v_err = velocity_errors(tr, t, poses)
+                w_err_short, v_err_short = velocity_errors(tr, t, poses, window_s=0.1)
                 res[stamp] = {
+                    "omega_err_deg_s_median": w_err,
+                    "v_err_mm_s_median": v_err,
+                    "omega_err_deg_s_median_window_0.1s": w_err_short,
+                    "v_err_mm_s_median_window_0.1s": v_err_short,
                     "windows": tr.info["windows"],
                     "detected": tr.info["detected"],
                     "poses": tr.info["poses"],
@@ -239,9 +245,33 @@ def sim_part(quick: bool) -> dict:
             print(f"{name:<10} {kind:<15} {len(ev) / duration / 1e6:>6.2f} {100 * e['detected'] / e['windows']:>5.0f} "
                   f"{100 * e['poses'] / e['windows']:>6.0f} {e['centre_err_px_median']:>9.3f} "
                   f"{e['rot_err_deg_median']:>8.3f} {e['pos_err_mm_median']:>7.2f} "
-                  f"{q.get('centre_err_px_median', float('nan')):>16.3f}")
+                  f"{q.get('centre_err_px_median', float('nan')):>16.3f} {e['omega_err_deg_s_median']:>11.2f} "
+                  f"{e['v_err_mm_s_median']:>10.1f} {e['omega_err_deg_s_median_window_0.1s']:>6.1f} "
+                  f"{e['v_err_mm_s_median_window_0.1s']:>7.1f}")
         out[name] = row
     return out
+
+
+def velocity_errors(track, t: np.ndarray, poses: np.ndarray, window_s: float = 0.2) -> tuple[float, float]:
+    """Median errors of plsgraph.velocity.camera_velocities on the track against the true body velocities
+    (central differences of the 1 kHz true poses): angular in deg/s, linear in mm/s."""
+    from plsgraph.errors import InsufficientDataError as _Short
+    from plsgraph.geometry import se3_log
+    from plsgraph.velocity import camera_velocities
+
+    try:
+        tv, w, v = camera_velocities(track, window_s=window_s)
+    except _Short:
+        return float("nan"), float("nan")
+    h = 1e-3
+    tv = np.clip(tv, t[0] + h, t[-1] - h)
+    Tm, Tp = _interp_poses(t, poses, tv - h), _interp_poses(t, poses, tv + h)
+    xi = se3_log(inv_T(Tm) @ Tp) / (2 * h)  # body twist (rotation, translation part ~ body velocity)
+    T0 = _interp_poses(t, poses, tv)
+    v_true = np.einsum("nji,nj->ni", T0[:, :3, :3], (Tp[:, :3, 3] - Tm[:, :3, 3]) / (2 * h))
+    w_err = np.degrees(np.median(np.linalg.norm(w - xi[:, :3], axis=1)))
+    v_err = 1e3 * np.median(np.linalg.norm(v - v_true, axis=1))
+    return float(w_err), float(v_err)
 
 
 def opencv_baseline(ev, cam, board) -> dict:
