@@ -154,9 +154,10 @@ def solve_pnp(
         T_cb = _T_cam_board(*sol)
         res = np.full(uv.shape[0], np.nan)
         res[seen] = np.linalg.norm(camera.project(transform_board(T_cb, pts[seen])) - uv[seen], axis=1)
-        # Robust scale from the median absolute residual; the threshold is never below outlier_px so
-        # that sub-pixel scatter of a clean frame does not cull good points.
-        scale = 1.4826 * np.median(res[inl])
+        # Robust sigma from the median residual norm (Rayleigh distributed for isotropic Gaussian pixel
+        # noise: median = 1.1774 sigma); the threshold is never below outlier_px so that sub-pixel scatter
+        # of a clean frame does not cull good points.
+        scale = np.median(res[inl]) / 1.1774
         new_inl = seen & (res <= max(outlier_px, outlier_sigmas * scale))
         if np.array_equal(new_inl, inl) or it == 2:
             break
