@@ -30,7 +30,7 @@ stayed free of events is centred where the circle was at the middle of that span
 (t_k - W / 2 for counts, t_k - tau / 2 for decaying kinds).
 
 Fast motion smears a circle's rim over its whole inside within a full window; a window without a
-detection is therefore retried on the most recent half and quarter of its span
+detection is therefore retried on the most recent half, quarter and eighth of its span
 (:data:`WINDOW_LADDER`); ``info["detected_at_window_fraction"]`` counts which span worked.
 """
 
@@ -110,8 +110,8 @@ def _active_age_s(kind: str, params: dict, window_s: float) -> float:
 
 
 #: Fractions of the nominal rim age tried in turn: fast motion smears a circle's rim over its whole
-#: inside within a full window, so failed windows are retried on the most recent half and quarter.
-WINDOW_LADDER = (1.0, 0.5, 0.25)
+#: inside within a full window, so failed windows are retried on the most recent half, quarter and eighth.
+WINDOW_LADDER = (1.0, 0.5, 0.25, 0.125)
 
 
 def _complete_by_homography(uv: np.ndarray, board: Board) -> np.ndarray:
