@@ -95,7 +95,7 @@ class RefinementOptions:
     board_vertical: bool = False  # the board stands upright: its normal is horizontal
     board_vertical_sigma: float = 0.01
     # Optimisation.
-    optimizer: str = "lm"  # "lm" or "dogleg"
+    optimizer: str = "lm"  # "lm" (own loop on GTSAM's linear algebra), "gtsam-lm" or "dogleg" (GTSAM's optimizers)
     max_iterations: int = 30
     lm_lambda_min: float = 1.0  # initial and smallest Levenberg-Marquardt damping (see _optimize)
     relative_tol: float = 1e-6
@@ -123,8 +123,8 @@ class RefinementOptions:
                 raise InputError(f"refinement option {name} must be a positive number, got {v}")
         if self.knot_rate_hz is not None and not self.knot_rate_hz > 0:
             raise InputError("knot_rate_hz must be positive or None (every odometry sample)")
-        if self.optimizer not in ("lm", "dogleg"):
-            raise InputError(f"optimizer must be 'lm' or 'dogleg', got {self.optimizer!r}")
+        if self.optimizer not in ("lm", "gtsam-lm", "dogleg"):
+            raise InputError(f"optimizer must be 'lm', 'gtsam-lm' or 'dogleg', got {self.optimizer!r}")
         if self.max_iterations < 1 or self.max_passes < 1 or self.min_points < 3:
             raise InputError("max_iterations and max_passes must be >= 1 and min_points >= 3")
 
@@ -437,7 +437,61 @@ def _frame_rms(batch: FrameBatch, values: gtsam.Values) -> tuple[np.ndarray, flo
     return per, total, int(n.sum())
 
 
+def _damped_solve(lin: gtsam.GaussianFactorGraph, dims: list[tuple[int, int]], lam: float):
+    """Solve the linear system with Levenberg-Marquardt damping ``lam`` (identity in each tangent space)."""
+    damped = lin.clone()
+    r = float(np.sqrt(lam))
+    for key, dim in dims:
+        damped.add(gtsam.JacobianFactor(key, r * np.eye(dim), np.zeros(dim), gtsam.noiseModel.Unit.Create(dim)))
+    return damped.optimize()
+
+
+def _levenberg_marquardt(graph, initial: gtsam.Values, opt: RefinementOptions, progress=None):
+    """Levenberg-Marquardt on top of GTSAM's linearization and elimination.
+
+    GTSAM's own LevenbergMarquardtOptimizer gave the same steps but spent seconds per iteration in C++ on
+    long recordings (docs/refinement.md) where linearize + eliminate take a fraction of that; this loop
+    does exactly: linearize, damp, eliminate, retract, evaluate, adapt the damping.
+    """
+    values = initial
+    err = graph.error(values)
+    dims = [(int(k), _dim_of(values, int(k))) for k in values.keys()]
+    lam = opt.lm_lambda_min
+    converged = False
+    it = 0
+    for it in range(1, opt.max_iterations + 1):
+        lin = graph.linearize(values)
+        accepted = False
+        while lam <= 1e12:
+            try:
+                delta = _damped_solve(lin, dims, lam)
+            except RuntimeError:  # indeterminate at this damping
+                lam *= 10.0
+                continue
+            new = values.retract(delta)
+            new_err = graph.error(new)
+            if np.isfinite(new_err) and new_err <= err:
+                accepted = True
+                break
+            lam *= 10.0
+        log.debug("iteration %d: error %.6g -> %.6g, lambda %.3g", it, err, new_err if accepted else err, lam)
+        if progress is not None:
+            progress(it, opt.max_iterations)
+        if not accepted:  # no step decreases the error: at the minimum (to the damping's resolution)
+            converged = True
+            break
+        dec = err - new_err
+        values, err = new, new_err
+        lam = max(lam / 10.0, opt.lm_lambda_min)
+        if dec <= opt.absolute_tol or dec <= opt.relative_tol * max(err + dec, 1e-300):
+            converged = True
+            break
+    return values, it, converged
+
+
 def _optimize(graph, initial: gtsam.Values, opt: RefinementOptions, progress=None) -> tuple[gtsam.Values, int, bool]:
+    if opt.optimizer == "lm":
+        return _levenberg_marquardt(graph, initial, opt, progress)
     if opt.optimizer == "dogleg":
         params = gtsam.DoglegParams()
         params.setMaxIterations(opt.max_iterations)
