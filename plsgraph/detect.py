@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -263,6 +264,7 @@ def rim_holes(active: np.ndarray, min_area: int = 2, max_area_frac: float = 0.02
     return cent[ok].astype(float), area[ok].astype(float)
 
 
+@lru_cache(maxsize=16)
 def board_lattice(board: Board) -> np.ndarray:
     """Integer lattice coordinates (N, 2) of an asymmetric circle grid's points.
 
@@ -271,7 +273,9 @@ def board_lattice(board: Board) -> np.ndarray:
     (a, b) = ((x + y) / 2, (x - y) / 2) number it; only the board's outline is asymmetric.
     """
     q = np.round(board.points[:, :2] / board.square_size).astype(int)
-    return np.stack([(q[:, 0] + q[:, 1]) // 2, (q[:, 0] - q[:, 1]) // 2], axis=-1)
+    lat = np.stack([(q[:, 0] + q[:, 1]) // 2, (q[:, 0] - q[:, 1]) // 2], axis=-1)
+    lat.setflags(write=False)  # cached: shared between calls
+    return lat
 
 
 _LATTICE_MAPS = np.array(
@@ -536,6 +540,7 @@ def detect_circle_grid(
     return _fail(n, last_reason, last_rms)
 
 
+@lru_cache(maxsize=16)
 def shifted_overlap(board: Board) -> int:
     """The most board circles a labelling shifted by one lattice step can still put on circles.
 
