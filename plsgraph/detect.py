@@ -540,17 +540,28 @@ def detect_circle_grid(
     return _fail(n, last_reason, last_rms)
 
 
-@lru_cache(maxsize=16)
-def shifted_overlap(board: Board) -> int:
-    """The most board circles a labelling shifted by one lattice step can still put on circles.
+_STEPS = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)]
 
-    A tracked labelling must match more circles than this (plus a margin for clutter that happens to sit
-    where the shifted grid expects a circle) to rule out a one-circle shift.
-    """
+
+@lru_cache(maxsize=16)
+def _shift_tables(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For the lattice shifts s of one and two steps (S = 16): ``stays`` (S, N), which board circles still
+    land on a circle after the shift; ``beyond`` (M, 2), the board-plane positions of the lattice sites just
+    outside the board that a labelling shifted by -s would claim, and ``which`` (M,) their shift index."""
     B = board_lattice(board)
     key = set(map(tuple, B.tolist()))
-    steps = [(1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1)]
-    return max(sum((a + da, b + db) in key for a, b in B.tolist()) for da, db in steps)
+    stays, beyond, which = [], [], []
+    for k, (da, db) in enumerate(_STEPS + [(2 * a, 2 * b) for a, b in _STEPS]):
+        stays.append([(a + da, b + db) in key for a, b in B.tolist()])
+        sites = sorted({(a - da, b - db) for a, b in B.tolist()} - key)
+        beyond += sites
+        which += [k] * len(sites)
+    ab = np.array(beyond, dtype=float).reshape(-1, 2)
+    xy = np.stack([ab[:, 0] + ab[:, 1], ab[:, 0] - ab[:, 1]], axis=-1) * board.square_size
+    out = (np.array(stays), xy, np.array(which, dtype=int))
+    for arr in out:
+        arr.setflags(write=False)
+    return out
 
 
 def track_circle_grid(
@@ -559,35 +570,40 @@ def track_circle_grid(
     board: Board,
     camera: CameraModel | None = None,
     *,
-    min_fraction: float = 0.9,
+    min_points: int | None = None,
     max_rms_px: float = 1.0,
 ) -> GridDetection:
-    """Label candidates by their nearest predicted circle; accepted only when that cannot be a shifted grid.
+    """Label candidates by their predicted circles; accepted only when no shifted grid explains them as well.
 
-    Every predicted circle takes the nearest candidate within 0.3 of its neighbour spacing. A grid
-    labelled one lattice step off loses a whole row or column of matches at the board's edge (there are
-    no circles beyond it), so the labelling is accepted only if at least ``min_fraction`` of all circles
-    and at least two more than :func:`shifted_overlap` are matched, the median match distance (after
-    removing the common offset) is below a quarter spacing, and :func:`check_grid_order` passes.
-    Otherwise the caller searches in full.
+    The common offset between the predictions and their nearest candidates is removed, every predicted
+    circle takes the nearest candidate within 0.3 of its neighbour spacing, and circles the prediction
+    missed are picked up through the homography of the matched ones.
+
+    A labelling off by a lattice step s (one or two circles in any of 8 directions; a bad prediction
+    can only cause that) would push the matched circles on the board's edge facing s off the board, and
+    could only gain candidates lying where the board has no circles, just beyond its opposite edge. The
+    labelling is accepted only if, for every s, the matched edge circles outnumber such candidates by two
+    or more, at least ``min_points`` (default max(6, N / 2)) circles are matched, the median match
+    distance is below a quarter spacing and :func:`check_grid_order` passes. Otherwise the caller
+    searches in full.
     """
     n = board.n_points
+    min_points = max(6, n // 2) if min_points is None else int(min_points)
     pred = np.asarray(predicted_uv, dtype=float)
     ok_pred = np.all(np.isfinite(pred), axis=1)
     pts = np.asarray(points, dtype=float)
-    if np.count_nonzero(ok_pred) < min_fraction * n or pts.shape[0] < min_fraction * n:
+    if np.count_nonzero(ok_pred) < min_points or pts.shape[0] < min_points:
         return _fail(n, REASON_NOT_FOUND)
     spacing = np.full(n, np.nan)
     spacing[ok_pred] = _neighbour_distance(pred[ok_pred])
     d = np.linalg.norm(pred[:, None, :] - pts[None, :, :], axis=-1)  # (N, k)
     # Take out the common part of the prediction error first (the median offset to the nearest candidates).
-    # If the prediction was off by half a spacing or more this may shift every label by one circle; such a
-    # labelling loses a row or column at the board's edge and fails the min_fraction test below.
+    # If the prediction was off by half a spacing or more this may shift every label; the shift test below
+    # is what refuses such a labelling.
     j0 = np.argmin(np.where(ok_pred[:, None], d, np.inf), axis=1)
-    off = pts[j0] - pred
     near = ok_pred & (d[np.arange(n), j0] < 0.6 * spacing)
-    if np.count_nonzero(near) >= 0.5 * n:
-        pred = pred + np.median(off[near], axis=0)
+    if np.count_nonzero(near) >= min_points:
+        pred = pred + np.median((pts[j0] - pred)[near], axis=0)
         d = np.linalg.norm(pred[:, None, :] - pts[None, :, :], axis=-1)
     j = np.argmin(np.where(ok_pred[:, None], d, np.inf), axis=1)
     dist = d[np.arange(n), j]
@@ -595,26 +611,41 @@ def track_circle_grid(
     # One candidate per circle: a candidate claimed twice is dropped for both.
     _, inv, cnt = np.unique(j[hit], return_inverse=True, return_counts=True)
     hit[np.flatnonzero(hit)[cnt[inv] > 1]] = False
-    need = max(min_fraction * n, shifted_overlap(board) + 2)
-    if np.count_nonzero(hit) < need or np.median(dist[hit] / spacing[hit]) > 0.25:
+    if np.count_nonzero(hit) < min_points or np.median(dist[hit] / spacing[hit]) > 0.25:
         return _fail(n, REASON_NOT_FOUND)
     uv = np.full((n, 2), np.nan)
     uv[hit] = pts[j[hit]]
+    taken = np.zeros(pts.shape[0], dtype=bool)
+    taken[j[hit]] = True
     # Circles the prediction missed: project the board with the homography of the matched ones and take
-    # the candidates that now sit on a free circle (predictions are off by the unmodelled acceleration).
+    # the free candidates that now sit on a free circle (predictions are off by the unmodelled acceleration).
     H, _ = cv2.findHomography(board.points[hit, :2], uv[hit], 0)
-    if H is not None and np.count_nonzero(~hit):
-        ph = np.c_[board.points[:, :2], np.ones(n)] @ H.T
-        proj = ph[:, :2] / ph[:, 2:]
+    if H is None:
+        return _fail(n, REASON_ORDER)
+    ph = np.c_[board.points[:, :2], np.ones(n)] @ H.T
+    proj = ph[:, :2] / ph[:, 2:]
+    sp = _neighbour_distance(proj)
+    if np.count_nonzero(~hit):
         d2 = np.linalg.norm(proj[:, None, :] - pts[None, :, :], axis=-1)
         j2 = np.argmin(d2, axis=1)
-        taken = np.zeros(pts.shape[0], dtype=bool)
-        taken[j[hit]] = True
-        sp = _neighbour_distance(proj)
         add = ~hit & (d2[np.arange(n), j2] < 0.2 * sp) & ~taken[j2]
         _, inv2, cnt2 = np.unique(j2[add], return_inverse=True, return_counts=True)
         add[np.flatnonzero(add)[cnt2[inv2] > 1]] = False
         uv[add] = pts[j2[add]]
+        taken[j2[add]] = True
+    seen = np.all(np.isfinite(uv), axis=1)
+    stays, beyond, which = _shift_tables(board)
+    edge = np.count_nonzero(seen[None, :] & ~stays, axis=1)  # (S,) matched circles a shift pushes off
+    gained = np.zeros(stays.shape[0], dtype=int)  # (S,) free candidates a shift could claim
+    free = pts[~taken]
+    if free.shape[0]:
+        bh = np.c_[beyond, np.ones(beyond.shape[0])] @ H.T
+        ok = bh[:, 2] > 1e-9
+        bp = bh[ok, :2] / bh[ok, 2:]
+        occupied_site = np.linalg.norm(bp[:, None, :] - free[None, :, :], axis=-1).min(axis=1) < 0.3 * np.median(sp)
+        gained = np.bincount(which[ok][occupied_site], minlength=stays.shape[0])
+    if np.any(edge < gained + 2):
+        return _fail(n, REASON_AMBIGUOUS)
     reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_rms_px)
     if reason != REASON_OK:
         return _fail(n, reason, rms)

@@ -20,7 +20,6 @@ from plsgraph.detect import (
     detect_aprilgrid,
     detect_circle_grid,
     make_aruco_detector,
-    shifted_overlap,
     track_circle_grid,
 )
 from plsgraph.geometry import inv_T, make_T, rotation_error_deg, so3_exp, transform_points
@@ -123,7 +122,19 @@ def test_tracking_never_accepts_a_grid_shifted_by_one_circle():
     # Off by a whole lattice step, every circle would take its neighbour's label: refused.
     assert not track_circle_grid(pts, truth + step, CIRCLES, CAM).ok
     assert not track_circle_grid(pts, truth - step, CIRCLES, CAM).ok
-    assert shifted_overlap(CIRCLES) < 0.9 * CIRCLES.n_points
+    assert not track_circle_grid(pts, truth + 2 * step, CIRCLES, CAM).ok
+    # Circles missing inside the board: still unambiguous, labelled right, the missing ones NaN.
+    inner = [12, 13, 17, 21, 26, 30]
+    keep = np.setdiff1d(np.arange(CIRCLES.n_points), inner)
+    part = np.vstack([cand[keep], clutter])
+    det = track_circle_grid(part, truth + 0.3 * step, CIRCLES, CAM)
+    assert det.ok and np.isnan(det.uv[inner]).all()
+    assert np.max(np.linalg.norm(det.uv[keep] - truth[keep], axis=1)) < 0.5
+    # The whole first row and the left column missing: a shift towards them cannot be ruled out.
+    row0_col0 = np.flatnonzero((CIRCLES.points[:, 1] < 1e-9) | (CIRCLES.points[:, 0] < 1e-9))
+    keep = np.setdiff1d(np.arange(CIRCLES.n_points), row0_col0)
+    det = track_circle_grid(np.vstack([cand[keep], clutter]), truth, CIRCLES, CAM)
+    assert not det.ok
 
 
 def test_symmetric_board_flagged():
