@@ -44,6 +44,24 @@ def test_refinement_recovers_truth_on_rich_motion(rich):
     assert res.iterations >= 1 and res.final_error < res.initial_error
 
 
+def test_result_serializes_to_json(rich):
+    import json
+
+    _, res = rich
+    d = json.loads(json.dumps(res.to_dict()))
+    assert d["converged"] and len(d["cov_base_axes"]) == 7 and d["observability"]["axes"][5]["name"] == "z"
+
+
+@pytest.mark.parametrize("optimizer", ["gtsam-lm", "dogleg"])
+def test_gtsam_optimizers_reach_the_same_solution(rich, optimizer):
+    case, res = rich
+    other = refine(case.track, case.base, case.rec.camera, case.seed_T, case.seed_td,
+                   RefinementOptions(optimizer=optimizer))
+    assert other.converged
+    assert rotation_error_deg(other.R_base_cam, res.R_base_cam) < 0.05
+    assert abs(other.td - res.td) < 5e-4
+
+
 def test_rich_motion_leaves_only_the_camera_height_unobservable(rich):
     _, res = rich
     rep = res.observability
