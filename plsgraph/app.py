@@ -68,7 +68,7 @@ class PipelineOptions:
     topics: dict[str, str] = field(default_factory=dict)
     left_joint: str | None = None
     right_joint: str | None = None
-    surface: str = "polarity"
+    surface: str = "count"
     rate_hz: float = 30.0
     td_range: float = 0.5
     method: str = "pls"

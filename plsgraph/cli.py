@@ -51,10 +51,11 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
     p.add_argument("--right-joint", help="name of the right wheel joint (default: picked by name)")
     p.add_argument(
         "--surface",
-        default="polarity",
-        choices=["polarity", "classic", "count", "leaky"],
-        help="event representation for detection: polarity (the paper's polarity-aware surface, default), "
-        "classic (exponential time surface), count (event count frame), leaky (leaky polarity integrator)",
+        default="count",
+        choices=["count", "polarity", "classic", "leaky"],
+        help="event representation for detection: count (event count frame, default: it found the board most "
+        "often in simulated robot recordings, see docs/frontend.md), polarity (the paper's polarity-aware "
+        "surface), classic (exponential time surface), leaky (leaky polarity integrator)",
     )
     p.add_argument("--rate", type=float, default=30.0, help="detection rate in Hz (default: %(default)s)")
     p.add_argument(

@@ -1,0 +1,98 @@
+"""End to end through the command: simulate a recording to MCAP, calibrate it, batch it (local and Dask)."""
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from plsgraph.cli import main
+from plsgraph.geometry import rotation_error_deg
+
+# Tolerances for an 8 s "rich" simulated recording seen through the event front end (see docs/refinement.md
+# for the spread over seeds): rotation, camera position in the floor plane, time offset.
+ROT_TOL_DEG = 0.8
+TXY_TOL_M = 0.03
+TD_TOL_S = 0.008
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rec")
+    log = d / "rich.mcap"
+    code = main(["simulate", "--motion", "rich", "--duration", "8", "--seed", "1", "--contrast", "0.45",
+                 "--event-format", "evt3", "--out", str(log)])
+    assert code == 0
+    return log
+
+
+@pytest.fixture(scope="module")
+def calibrated(recording, tmp_path_factory):
+    out = tmp_path_factory.mktemp("calib") / "out"
+    truth = recording.with_name("rich.truth.yaml")
+    code = main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--truth", str(truth)])
+    return code, out, yaml.safe_load(truth.read_text())
+
+
+def test_calibrate_recovers_truth(calibrated):
+    code, out, truth = calibrated
+    assert code == 0
+    calib = yaml.safe_load((out / "calibration.yaml").read_text())
+    T, T_gt = np.array(calib["T_base_cam"]), np.array(truth["T_base_cam"])
+    assert rotation_error_deg(T[:3, :3], T_gt[:3, :3]) < ROT_TOL_DEG
+    assert np.linalg.norm(T[:2, 3] - T_gt[:2, 3]) < TXY_TOL_M
+    assert abs(calib["time_offset_s"] - truth["td"]) < TD_TOL_S
+    status = {o["name"]: o["status"] for o in calib["observability"]}
+    assert status["z"] == "unobservable"
+    assert all(status[k] == "observable" for k in ("roll", "pitch", "x", "y", "td"))
+
+
+def test_report_json_is_parseable_and_complete(calibrated):
+    _, out, _ = calibrated
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["ok"] is True
+    assert {"pls", "cca", "procrustes"} <= set(rep["closed_form"])
+    assert np.array(rep["closed_form"]["pls"]["R_base_cam"]).shape == (3, 3)
+    assert rep["refinement"]["converged"] is True
+    assert rep["counts"]["camera_frames"] > 100
+    assert "frontend_windows" in rep["discarded"]
+    assert rep["truth_errors"]["refined.rot_err_deg"] < ROT_TOL_DEG
+    assert (out / "report.html").read_text().count("<img") >= 4
+
+
+def test_calibrate_refuses_existing_output(recording, calibrated, capsys):
+    _, out, _ = calibrated
+    before = (out / "calibration.yaml").read_text()
+    assert main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out)]) == 2
+    assert "--force" in capsys.readouterr().err
+    assert (out / "calibration.yaml").read_text() == before
+
+
+def test_diagnose_says_the_recording_is_good(recording, capsys):
+    code = main(["diagnose", str(recording), "--board", "acircles_4x11_a2", "--json"])
+    res = json.loads(capsys.readouterr().out)
+    assert code == 0 and res["ok"] is True
+    assert any("height" in a for a in res["advice"])
+
+
+def test_batch_local_one_failure_does_not_stop_the_rest(recording, tmp_path):
+    bad = tmp_path / "broken.mcap"
+    bad.write_bytes(recording.read_bytes()[:5000])  # truncated copy
+    out = tmp_path / "batch"
+    code = main(["batch", str(recording), str(bad), "--board", "acircles_4x11_a2", "--out", str(out), "--jobs", "2"])
+    rows = {r["recording"].split("/")[-1]: r for r in json.loads((out / "summary.json").read_text())["recordings"]}
+    assert code == 1
+    assert rows["rich.mcap"]["status"] == "ok"
+    assert rows["rich.mcap"]["truth_errors"]["refined.rot_err_deg"] < ROT_TOL_DEG
+    assert rows["broken.mcap"]["status"] == "failed" and rows["broken.mcap"]["error"]
+    assert (out / "rich" / "calibration.yaml").exists()
+
+
+def test_batch_on_a_dask_cluster(recording, tmp_path):
+    distributed = pytest.importorskip("dask.distributed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as c:
+        out = tmp_path / "dask"
+        code = main(["batch", str(recording), "--board", "acircles_4x11_a2", "--out", str(out),
+                     "--scheduler", c.scheduler_address])
+    rows = json.loads((out / "summary.json").read_text())["recordings"]
+    assert code == 0 and rows[0]["status"] == "ok"
