@@ -187,7 +187,6 @@ class _WindowJob:
         secs = {"surfaces": 0.0, "detection": 0.0}
         t_out, uv_out = [], []
         n_events = 0
-        det = None
         last_good = 0
         roi = predicted = prev = None
         as_image = False
@@ -204,6 +203,7 @@ class _WindowJob:
             age0 = _active_age_s(kind, params, self.window_s)
             decaying = kind in ("time_surface", "leaky")
             img = None
+            det = None
             # Start with the span that worked last time: the speed of the board changes slowly.
             order = sorted(range(len(WINDOW_LADDER)), key=lambda i: (i != last_good, i))
             if board.pattern != "asymmetric_circles":
@@ -213,10 +213,12 @@ class _WindowJob:
                 age = frac * age0
                 c0 = time.perf_counter()
                 if img is None or not decaying:
-                    # Non-decaying kinds: rebuild the surface from the most recent events only.
-                    sub = ev if frac == 1.0 else ev.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
+                    # Non-decaying kinds: rebuild the surface from the most recent events only. Decaying kinds
+                    # keep the whole look-back; the rim level below selects the age.
+                    full_span = frac == 1.0 or decaying
+                    sub = ev if full_span else ev.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
                     if len(sub) < self.min_events:
-                        break
+                        continue  # too short a span to show the board; try the others
                     img = surfaces.surface(sub, kind, int(tq), **params)
                 c1 = time.perf_counter()
                 if board.pattern == "aprilgrid":
@@ -252,8 +254,8 @@ class _WindowJob:
                     retries[j] += 1
                     last_good = j
                     break
-            if det.reason != REASON_OK:
-                skipped[det.reason] += 1
+            if det is None or det.reason != REASON_OK:
+                skipped["too_few_events" if det is None else det.reason] += 1
                 roi = predicted = None
                 continue
             t_det = None

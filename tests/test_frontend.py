@@ -94,6 +94,13 @@ def test_bad_input_is_counted_or_raised(sim):
     gap = EventStream(ev.t[keep], ev.x[keep], ev.y[keep], ev.p[keep], ev.width, ev.height)
     track = camera_track_from_events(gap, CAM, BOARD, kind="count")
     assert track.info["skipped"].get("too_few_events", 0) >= 2 and len(track) >= 3
+    # No window re-uses the previous window's detection.
+    uv = np.nan_to_num(track.detections.uv)
+    assert not any(np.array_equal(a, b) for a, b in zip(uv[:-1], uv[1:], strict=True))
+    # Every detection is stamped inside the span of events it came from.
+    t0 = gap.t_first * 1e-9
+    k = np.ceil((track.t - t0) * 30 - 1e-9)
+    assert np.all((track.t > t0 + (k - 1) / 30 - 1e-9) & (track.t <= t0 + k / 30 + 1e-9))
 
 
 def test_worker_processes_give_the_same_track(sim):
