@@ -73,6 +73,7 @@ class PipelineOptions:
     td_range: float = 0.5
     method: str = "pls"
     truth: Path | None = None
+    camera_height: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("wheel_radius", "track_width", "rate_hz", "td_range"):
@@ -100,6 +101,7 @@ class PipelineOptions:
             td_range=getattr(args, "td_range", 0.5),
             method=getattr(args, "method", "pls"),
             truth=getattr(args, "truth", None),
+            camera_height=getattr(args, "camera_height", None),
         )
 
 
@@ -255,7 +257,8 @@ def run_refinement(run: PipelineRun, progress: ProgressFactory) -> Any:
     t = np.where(np.isfinite(t), t, 0.0)
     seed = make_T(cf.R_base_cam, t)
     with progress("refining (GTSAM)") as bar:
-        res = refine(run.camera_track, run.base_track, run.camera, seed, cf.td, RefinementOptions(), progress=bar)
+        opts = RefinementOptions(camera_height=run.options.camera_height)
+        res = refine(run.camera_track, run.base_track, run.camera, seed, cf.td, opts, progress=bar)
     run.warnings += list(res.warnings)
     run.discarded["refinement_frames_rejected"] = int(res.n_frames_rejected)
     run.discarded["refinement_frames_dropped"] = int(res.n_frames_dropped)
@@ -438,7 +441,8 @@ def summary_text(report: dict) -> str:
         f"result from    {c['source']}",
         "T_base_cam     " + "\n               ".join(" ".join(f"{v:9.5f}" for v in row) for row in c["T_base_cam"]),
         f"rpy (deg)      {' '.join(f'{v:8.3f}' for v in c['rpy_deg'])}",
-        f"translation m  {' '.join(f'{v:8.4f}' if v is not None else '     n/a' for v in c['translation_m'])}",
+        f"translation m  {' '.join(f'{v:8.4f}' if v is not None else '     n/a' for v in c['translation_m'])}"
+        + _height_note(report),
         f"time offset    {1e3 * c['time_offset_s']:.2f} ms (t_odom = t_cam + offset)",
     ]
     ref = report.get("refinement")
@@ -462,6 +466,15 @@ def summary_text(report: dict) -> str:
         lines.append(f"warnings ({len(report['warnings'])}):")
         lines += [f"  - {w}" for w in report["warnings"][:12]]
     return "\n".join(lines)
+
+
+def _height_note(report: dict) -> str:
+    obs = report["calibration"]["observability"]
+    if not any(o.get("name") == "z" and o["status"] != "observable" for o in obs):
+        return ""
+    if report["options"].get("camera_height") is not None:
+        return "   (z from --camera-height: the motion cannot observe it)"
+    return "   (z is only the seed: the height is not observable; give --camera-height)"
 
 
 def calibrate_to_dir(

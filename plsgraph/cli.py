@@ -68,6 +68,8 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
         help="closed form that seeds the refinement (default: %(default)s)",
     )
     p.add_argument("--truth", type=Path, help="truth YAML (from 'plsgraph simulate') to report errors against")
+    p.add_argument("--camera-height", type=float,
+                   help="camera height above the base frame origin in m, if measured: planar motion cannot observe it")
     if need_out:
         p.add_argument("--out", type=Path, required=True, help="output folder (must not exist unless --force)")
         p.add_argument("--force", action="store_true", help="write into an existing output folder")

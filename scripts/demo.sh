@@ -1,7 +1,18 @@
 #!/usr/bin/env bash
-# Set everything up (see setup.sh) and run the main job.
+# Set everything up (see setup.sh), then calibrate the bundled sample recording and print the result
+# next to its ground truth. Results go to out/demo (or the folder given as the first argument).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
 out=${1:-out/demo}
-.venv/bin/plsgraph reproduce-paper --quick --out "$out" --force
+sample=data/sample/rich_sample.mcap
+echo "== what is in the recording"
+.venv/bin/plsgraph inspect "$sample"
+echo
+echo "== calibrating (event front end, odometry, time offset, PLS closed form, GTSAM refinement)"
+status=0
+.venv/bin/plsgraph calibrate "$sample" --board acircles_4x11_a2 --truth data/sample/rich_sample.truth.yaml \
+    --out "$out" --force || status=$?
+echo
+echo "open $out/report.html for the pictures; $out/calibration.yaml is the result file"
+exit $status
