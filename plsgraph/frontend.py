@@ -214,9 +214,15 @@ class _WindowJob:
                 c0 = time.perf_counter()
                 if img is None or not decaying:
                     # Non-decaying kinds: rebuild the surface from the most recent events only. Decaying kinds
-                    # keep the whole look-back; the rim level below selects the age.
-                    full_span = frac == 1.0 or decaying
-                    sub = ev if full_span else ev.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
+                    # are built once; the rim level below selects the age. A time surface's rims only show
+                    # pixels whose last event is younger than tau, so older events need not be read at all
+                    # (the leaky integrator sums over its whole look-back and keeps it).
+                    if kind == "time_surface" and board.pattern == "asymmetric_circles":
+                        sub = ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1)
+                    elif frac == 1.0 or decaying:
+                        sub = ev
+                    else:
+                        sub = ev.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
                     if len(sub) < self.min_events:
                         continue  # too short a span to show the board; try the others
                     img = surfaces.surface(sub, kind, int(tq), **params)
