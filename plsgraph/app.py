@@ -468,6 +468,35 @@ def summary_text(report: dict) -> str:
     return "\n".join(lines)
 
 
+def _write_diagnosis_only(out: Path, log_path: str | Path, exc: DegenerateMotionError) -> dict:
+    from . import __version__
+
+    stale = out / "calibration.yaml"
+    if stale.exists():  # with --force into an old folder: an old result must not pass for this recording's
+        stale.rename(out / "calibration.previous.yaml")
+    report = {
+        "plsgraph_version": __version__,
+        "recording": str(log_path),
+        "ok": False,
+        "calibration": None,
+        "problems": [str(exc)],
+        "advice": [
+            "drive forwards and backwards while turning (arcs, S-curves) with the board in view; straight "
+            "driving leaves the camera yaw and lever arm undetermined, turning in place the yaw",
+        ],
+    }
+    write_json(out / "report.json", report)
+    text = "\n".join([
+        f"recording      {log_path}",
+        "NO CALIBRATION: the motion does not determine the extrinsic.",
+        f"  - {exc}",
+        f"advice: {report['advice'][0]}",
+        "",
+        f"written: {out / 'report.json'} (diagnosis only)",
+    ])
+    return {"ok": False, "text": text, "report": report}
+
+
 def _height_note(report: dict) -> str:
     obs = report["calibration"]["observability"]
     if not any(o.get("name") == "z" and o["status"] != "observable" for o in obs):
@@ -489,7 +518,11 @@ def calibrate_to_dir(
     from .figures import write_html_report
 
     out = prepare_output_dir(out_dir, force=force)  # refuse before hours of work, not after
-    run = run_pipeline(log_path, options, refine=refine, progress=progress)
+    try:
+        run = run_pipeline(log_path, options, refine=refine, progress=progress)
+    except DegenerateMotionError as exc:
+        # Too little motion: a diagnosis, not a number. No calibration.yaml is written.
+        return _write_diagnosis_only(out, log_path, exc)
     report = build_report(run)
     write_yaml(out / "calibration.yaml", report["calibration"])
     write_json(out / "report.json", report)

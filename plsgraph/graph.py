@@ -941,6 +941,8 @@ def solution_rms_px(
     pc[..., 2] = np.maximum(pc[..., 2], 1e-3)
     uv = camera.project(pc.reshape(-1, 3)).reshape(pc.shape[0], -1, 2)
     e2 = np.sum((uv - det.uv[ok]) ** 2, axis=-1)
+    if not np.any(np.isfinite(e2)):  # no detection falls inside the odometry under this solution's td
+        return float("nan")
     return float(np.sqrt(np.nanmean(e2)))
 
 

@@ -96,3 +96,32 @@ def test_batch_on_a_dask_cluster(recording, tmp_path):
                      "--scheduler", c.scheduler_address])
     rows = json.loads((out / "summary.json").read_text())["recordings"]
     assert code == 0 and rows[0]["status"] == "ok"
+
+
+def test_compare_prints_every_solver_against_truth(recording, capsys):
+    truth = recording.with_name("rich.truth.yaml")
+    code = main(["compare", str(recording), "--board", "acircles_4x11_a2", "--truth", str(truth), "--json"])
+    res = json.loads(capsys.readouterr().out)
+    assert code == 0
+    rows = {r["method"]: r for r in res["rows"]}
+    assert {"pls", "cca", "procrustes", "refined"} <= set(rows)
+    assert rows["refined"]["rot_err_deg"] < ROT_TOL_DEG
+    assert all(np.isfinite(r["rot_err_deg"]) for r in rows.values())
+
+
+def test_spinning_in_place_gives_a_diagnosis_not_a_number(tmp_path, capsys):
+    log = tmp_path / "spin.mcap"
+    assert main(["simulate", "--motion", "spin", "--duration", "6", "--seed", "2", "--contrast", "0.45",
+                 "--event-format", "evt3", "--out", str(log)]) == 0
+    out = tmp_path / "calib"
+    code = main(["calibrate", str(log), "--board", "acircles_4x11_a2", "--out", str(out)])
+    text = capsys.readouterr().out
+    assert code == 1 and "NO CALIBRATION" in text
+    assert not (out / "calibration.yaml").exists()
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["ok"] is False and "yaw" in rep["problems"][0]
+    code = main(["diagnose", str(log), "--board", "acircles_4x11_a2", "--json"])
+    res = json.loads(capsys.readouterr().out)
+    assert code == 1 and res["ok"] is False
+    assert res["observable_closed_form"]["yaw"] is False
+    assert any("turn while driving" in a for a in res["advice"])
