@@ -179,7 +179,13 @@ def _step_events(
     sgn = np.where(on, 1.0, -1.0)
     n = np.floor(np.abs(d) / C).astype(np.int64)
     l0, l1, r = L0[idx].astype(np.float64), L1[idx].astype(np.float64), ref[idx].astype(np.float64)
-    slope = (l1 - l0) / (tb - ta)  # log intensity per second; nonzero and of sign sgn for these pixels
+    slope = (l1 - l0) / (tb - ta)  # log intensity per second; of sign sgn for these pixels ...
+    # ... except where float32 rounding let the reference sit a threshold away from an unchanged pixel:
+    # no crossing happened inside this step there, so it emits nothing (and no division by zero).
+    flat = slope == 0.0
+    if flat.any():
+        n[flat] = 0
+        slope[flat] = sgn[flat]
     # Crossing j (0-based) sits at level r + sgn C (j + 1), reached at ta + (level - l0) / slope.
     t_first = ta + (r + sgn * C - l0) / slope
     spacing = C / np.abs(slope)
