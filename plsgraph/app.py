@@ -278,6 +278,11 @@ def run_from_tracks(
     """The calibration tail (closed form, refinement) on tracks the caller already has."""
     run = PipelineRun(Path(label), options, board=load_board(options.board), camera=camera,
                       camera_track=camera_track, base_track=base_track, truth=truth)
+    return _solve(run, refine, progress)
+
+
+def _solve(run: PipelineRun, refine: bool, progress: ProgressFactory) -> PipelineRun:
+    """Closed form, then (optionally) the refinement it seeds, on a run whose tracks are set."""
     with _Timer(run, "closed_form"):
         run.closed_form = run_closed_form(run)
     if refine:
@@ -301,12 +306,7 @@ def run_pipeline(
     with _Timer(run, "frontend"):
         run.camera_track = build_camera_track(run, rec, progress)
     del rec  # the events are no longer needed; free them before the graph
-    with _Timer(run, "closed_form"):
-        run.closed_form = run_closed_form(run)
-    if refine:
-        with _Timer(run, "refinement"):
-            run.refinement = run_refinement(run, progress)
-    return run
+    return _solve(run, refine, progress)
 
 
 # ------------------------------------------------------------------------------------------------ results
