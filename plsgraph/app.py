@@ -80,6 +80,8 @@ class PipelineOptions:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise InputError(f"--{name.replace('_', '-')} must be a positive number, got {v!r}")
+        if self.camera_height is not None and not math.isfinite(self.camera_height):
+            raise InputError(f"--camera-height must be a finite number of metres, got {self.camera_height!r}")
 
     @classmethod
     def from_namespace(cls, args) -> PipelineOptions:
@@ -96,7 +98,7 @@ class PipelineOptions:
             topics=topics,
             left_joint=getattr(args, "left_joint", None),
             right_joint=getattr(args, "right_joint", None),
-            surface=getattr(args, "surface", "polarity"),
+            surface=getattr(args, "surface", "count"),
             rate_hz=getattr(args, "rate", 30.0),
             td_range=getattr(args, "td_range", 0.5),
             method=getattr(args, "method", "pls"),
@@ -141,11 +143,20 @@ class _Timer:
 def _load_truth(opts: PipelineOptions, log_path: Path) -> dict | None:
     if opts.truth is None:
         return None
+    import yaml
+
     from .io.writer import read_truth
 
-    t = read_truth(opts.truth)
-    if "T_base_cam" not in t:
-        raise InputError(f"truth file {opts.truth} has no T_base_cam")
+    p = Path(opts.truth)
+    if p.is_file():
+        try:
+            t = yaml.safe_load(p.read_text())
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise InputError(f"truth file {p} is not valid YAML: {exc}") from exc
+    else:
+        t = read_truth(p)  # a recording's path: its <name>.truth.yaml sidecar
+    if not isinstance(t, dict) or np.asarray(t.get("T_base_cam", []), dtype=float).shape != (4, 4):
+        raise InputError(f"truth file {p} must be a mapping with a 4 x 4 T_base_cam (and td)")
     return t
 
 
@@ -186,20 +197,17 @@ def read_inputs(run: PipelineRun, progress: ProgressFactory) -> Any:
 
 
 def build_base_track(run: PipelineRun, rec: Any) -> BaseTrack:
-    from .odometry import base_track_from_odometry, base_track_from_wheels
+    from .odometry import base_track_from_odometry
 
     opts = run.options
-    if rec.joints is not None and len(rec.joints) > 1:
-        left, right, _, _ = rec.joints.wheels(opts.left_joint, opts.right_joint)
-        t = rec.joints.t.astype(np.float64) * 1e-9
-        ok = np.isfinite(left) & np.isfinite(right)
-        if not np.all(ok):
-            run.discarded["joint_states_without_wheel_positions"] = int(np.count_nonzero(~ok))
-        track = base_track_from_wheels(
-            t[ok], left[ok], right[ok], wheel_radius=opts.wheel_radius, track_width=opts.track_width
-        )
-        run.recording_info["base_source"] = "wheel joint states"
-    elif rec.odometry is not None and len(rec.odometry.t) > 1:
+    have_odom = rec.odometry is not None and len(rec.odometry.t) > 1
+    use_joints = rec.joints is not None and len(rec.joints) > 1 and "odometry" not in opts.topics
+    if use_joints and have_odom and opts.left_joint is None and not any("wheel" in j.lower() for j in rec.joints.names):
+        use_joints = False  # joints without a wheel among them (an arm, a gripper): the odometry is the base
+        run.warnings.append(f"no wheel among the joints {', '.join(rec.joints.names)}; used nav_msgs/Odometry")
+    if use_joints:
+        track = _wheel_track(run, rec.joints)
+    elif have_odom:
         o = rec.odometry
         track = base_track_from_odometry(
             o.t.astype(np.float64) * 1e-9, o.position, o.orientation, linear=o.linear, angular=o.angular
@@ -211,6 +219,44 @@ def build_base_track(run: PipelineRun, rec: Any) -> BaseTrack:
             "record sensor_msgs/JointState or nav_msgs/Odometry, or name the topic with --joints-topic/--odom-topic"
         )
     run.warnings += list(track.info.get("warnings", []))
+    return track
+
+
+def _wheel_track(run: PipelineRun, joints: Any) -> BaseTrack:
+    """BaseTrack from wheel joint states: angles unwrapped, repeated stamps dropped, rates if angles are missing."""
+    from .odometry import base_track_from_wheels
+
+    opts = run.options
+    try:
+        left, right, left_rate, right_rate = joints.wheels(opts.left_joint, opts.right_joint)
+    except InputError as exc:
+        raise InputError(f"{exc}; name them with --left-joint/--right-joint") from exc
+    lc, rc = joints.wheel_columns(opts.left_joint, opts.right_joint)
+    run.recording_info["wheel_joints"] = {"left": [joints.names[i] for i in lc], "right": [joints.names[i] for i in rc]}
+    t = joints.t.astype(np.float64) * 1e-9
+    keep = np.r_[True, np.diff(joints.t) > 0]  # a driver that republishes a state repeats its stamp
+    if not np.all(keep):
+        run.discarded["joint_states_repeated_stamp"] = int(np.count_nonzero(~keep))
+    kind = "position"
+    a, b = left, right
+    if np.count_nonzero(np.isfinite(left) & np.isfinite(right)) < 2 and np.any(np.isfinite(left_rate)):
+        kind, a, b = "velocity", left_rate, right_rate  # some drivers publish only wheel rates
+        run.warnings.append("the joint states carry no wheel angles; integrated the wheel rates instead")
+    ok = keep & np.isfinite(a) & np.isfinite(b)
+    if np.count_nonzero(keep & ~ok):
+        run.discarded["joint_states_without_wheel_values"] = int(np.count_nonzero(keep & ~ok))
+    a, b = a[ok], b[ok]
+    if kind == "position":
+        a, b = np.unwrap(a), np.unwrap(b)  # drivers that report angles in [-pi, pi) wrap every turn
+    track = base_track_from_wheels(t[ok], a, b, wheel_radius=opts.wheel_radius, track_width=opts.track_width,
+                                   kind=kind)
+    n_jumps = len(track.info.get("jumps", []))
+    if kind == "position" and n_jumps > 0.5 * max(1, ok.sum() - 1):
+        raise InputError(
+            f"{n_jumps} of {ok.sum() - 1} wheel steps are implausibly large: the joint positions do not look like "
+            "wheel angles in radians (encoder ticks?); convert them or check --wheel-radius"
+        )
+    run.recording_info["base_source"] = f"wheel joint states ({kind})"
     return track
 
 
@@ -247,12 +293,7 @@ def run_closed_form(run: PipelineRun) -> Any:
 def run_refinement(run: PipelineRun, progress: ProgressFactory) -> Any:
     from .graph import RefinementOptions, refine
 
-    cf = run.closed_form
-    if cf.R_base_cam is None:
-        raise DegenerateMotionError(
-            "the closed form could not determine the rotation (" + "; ".join(cf.degenerate_reasons)
-            + "); drive forwards and backwards while turning in front of the board"
-        )
+    cf = run.closed_form  # its rotation exists: _solve and diagnose check before they refine
     t = cf.t_base_cam if cf.t_base_cam is not None else np.zeros(3)
     t = np.where(np.isfinite(t), t, 0.0)
     seed = make_T(cf.R_base_cam, t)
@@ -285,6 +326,12 @@ def _solve(run: PipelineRun, refine: bool, progress: ProgressFactory) -> Pipelin
     """Closed form, then (optionally) the refinement it seeds, on a run whose tracks are set."""
     with _Timer(run, "closed_form"):
         run.closed_form = run_closed_form(run)
+    if run.closed_form.R_base_cam is None:
+        cf = run.closed_form
+        raise DegenerateMotionError(
+            "the closed form could not determine the rotation (" + "; ".join(cf.degenerate_reasons)
+            + "); drive forwards and backwards while turning in front of the board"
+        )
     if refine:
         with _Timer(run, "refinement"):
             run.refinement = run_refinement(run, progress)
@@ -363,11 +410,19 @@ def final_estimate(run: PipelineRun) -> tuple[np.ndarray, float, np.ndarray | No
     """(T_base_cam, td, covariance or None, source) of the best result the run has."""
     ref = run.refinement
     if ref is not None and ref.converged:
-        return ref.T_base_cam, ref.td, ref.cov, "refined"
+        return ref.T_base_cam, ref.td, ref.cov_base_axes, "refined"
     cf = run.closed_form
-    t = cf.t_base_cam if cf.t_base_cam is not None else np.full(3, np.nan)
-    R = cf.R_base_cam if cf.R_base_cam is not None else np.full((3, 3), np.nan)
-    return make_T(R, t), cf.td, None, f"closed_form.{cf.method}"
+    t = np.asarray(cf.t_base_cam if cf.t_base_cam is not None else np.full(3, np.nan), dtype=float).copy()
+    # Planar motion never gives the height: report the user's --camera-height (or 0) rather than a NaN that
+    # would poison the transform; the observability list and the warnings say it is not measured.
+    h = run.options.camera_height
+    t[2] = h if h is not None else 0.0
+    if not np.all(np.isfinite(t[:2])):
+        t[:2] = 0.0
+        run.warnings.append("the closed form did not determine the camera position; translation_m is not measured")
+    run.warnings.append("translation z (camera height) is not measured by the closed form: "
+                        + ("it is --camera-height" if h is not None else "it is set to 0; give --camera-height"))
+    return make_T(cf.R_base_cam, t), cf.td, None, f"closed_form.{cf.method}"
 
 
 def result_ok(run: PipelineRun) -> tuple[bool, list[str]]:
@@ -386,7 +441,10 @@ def build_report(run: PipelineRun) -> dict:
 
     T, td, cov, source = final_estimate(run)
     ok, problems = result_ok(run)
-    calib = calibration_dict(T, td, cov, _observability_rows(run), extra={"source": source})
+    height = ("--camera-height prior" if run.options.camera_height is not None
+              else "not observable from planar motion: seed value, not a measurement")
+    calib = calibration_dict(T, td, cov, _observability_rows(run),
+                             extra={"source": source, "translation_z_source": height})
     cf = run.closed_form
     report: dict[str, Any] = {
         "plsgraph_version": __version__,
@@ -434,14 +492,18 @@ def build_report(run: PipelineRun) -> dict:
     return to_jsonable(report)
 
 
+def _num(v: Any, width: int, digits: int) -> str:
+    return f"{v:{width}.{digits}f}" if isinstance(v, int | float) else "n/a".rjust(width)
+
+
 def summary_text(report: dict) -> str:
     c = report["calibration"]
     lines = [
         f"recording      {report['recording']}",
         f"result from    {c['source']}",
-        "T_base_cam     " + "\n               ".join(" ".join(f"{v:9.5f}" for v in row) for row in c["T_base_cam"]),
-        f"rpy (deg)      {' '.join(f'{v:8.3f}' for v in c['rpy_deg'])}",
-        f"translation m  {' '.join(f'{v:8.4f}' if v is not None else '     n/a' for v in c['translation_m'])}"
+        "T_base_cam     " + "\n               ".join(" ".join(_num(v, 9, 5) for v in row) for row in c["T_base_cam"]),
+        f"rpy (deg)      {' '.join(_num(v, 8, 3) for v in c['rpy_deg'])}",
+        f"translation m  {' '.join(_num(v, 8, 4) for v in c['translation_m'])}"
         + _height_note(report),
         f"time offset    {1e3 * c['time_offset_s']:.2f} ms (t_odom = t_cam + offset)",
     ]
@@ -474,6 +536,8 @@ def _write_diagnosis_only(out: Path, log_path: str | Path, exc: DegenerateMotion
     stale = out / "calibration.yaml"
     if stale.exists():  # with --force into an old folder: an old result must not pass for this recording's
         stale.rename(out / "calibration.previous.yaml")
+    for old in [out / "report.html", *out.glob("*.png")]:
+        old.unlink(missing_ok=True)
     report = {
         "plsgraph_version": __version__,
         "recording": str(log_path),
@@ -524,9 +588,9 @@ def calibrate_to_dir(
         # Too little motion: a diagnosis, not a number. No calibration.yaml is written.
         return _write_diagnosis_only(out, log_path, exc)
     report = build_report(run)
+    write_html_report(out, run, report)  # first: a figure that fails adds its warning to the report
     write_yaml(out / "calibration.yaml", report["calibration"])
     write_json(out / "report.json", report)
-    write_html_report(out, run, report)
     text = summary_text(report) + f"\n\nwritten: {out / 'calibration.yaml'}, {out / 'report.json'}, " \
         f"{out / 'report.html'}"
     return {"ok": report["ok"], "text": text, "report": report}
@@ -539,7 +603,14 @@ def diagnose(log_path: str | Path, options: PipelineOptions, progress: ProgressF
     run.base_track = build_base_track(run, rec)
     run.camera_track = build_camera_track(run, rec, progress)
     del rec
-    run.closed_form = run_closed_form(run)
+    try:
+        run.closed_form = run_closed_form(run)
+    except (DegenerateMotionError, InsufficientDataError) as exc:
+        advice = ["drive forwards and backwards while turning (arcs, S-curves) with the board in view the whole "
+                  "time; vary the speed"]
+        text = "\n".join([f"recording {log_path}", "verdict: NOT good enough", f"problem: {exc}",
+                          f"advice: {advice[0]}"])
+        return {"ok": False, "text": text, "json": {"ok": False, "problems": [str(exc)], "advice": advice}}
     cf = run.closed_form
     verdicts = []
     if cf.R_base_cam is not None:

@@ -76,6 +76,15 @@ class Board:
     def from_dict(cls, d: dict, name: str = "") -> Board:
         if not isinstance(d, dict) or "pattern" not in d:
             raise InputError("board: definition must be a mapping with a 'pattern' field")
+        try:
+            return cls._from_dict(d, name)
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, InputError):
+                raise
+            raise InputError(f"board {name or ''}: a field has the wrong type ({exc})") from exc
+
+    @classmethod
+    def _from_dict(cls, d: dict, name: str) -> Board:
         pattern = d["pattern"]
         if pattern == "aprilgrid":
             # Kalibr's keys (tagCols, tagRows, tagSize, tagSpacing) are accepted as they are.
@@ -105,8 +114,11 @@ class Board:
         path = Path(path)
         if not path.is_file():
             raise InputError(f"board file {path} does not exist (bundled boards are in data/boards/)")
-        with open(path) as f:
-            d = yaml.safe_load(f)
+        try:
+            with open(path) as f:
+                d = yaml.safe_load(f)
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise InputError(f"board file {path} is not valid YAML: {exc}") from exc
         if isinstance(d, dict) and d.get("target_type") == "aprilgrid":  # a Kalibr target file
             d = dict(d, pattern="aprilgrid")
         return cls.from_dict(d, name=path.stem)

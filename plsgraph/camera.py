@@ -117,9 +117,9 @@ class CameraModel:
             w = d.get("width", d.get("image_width"))
             h = d.get("height", d.get("image_height"))
             return cls(int(w), int(h), np.asarray(K, dtype=float).reshape(3, 3), np.asarray(D, dtype=float))
-        except (KeyError, TypeError) as exc:
+        except (KeyError, TypeError, ValueError) as exc:
             raise InputError(
-                f"camera: missing field {exc}; expected width, height, K (9 numbers), D (plumb_bob)"
+                f"camera: bad or missing field ({exc}); expected width, height, K (9 numbers), D (plumb_bob)"
             ) from exc
 
     @classmethod
@@ -128,8 +128,11 @@ class CameraModel:
         path = Path(path)
         if not path.is_file():
             raise InputError(f"camera file {path} does not exist")
-        with open(path) as f:
-            d = yaml.safe_load(f)
+        try:
+            with open(path) as f:
+                d = yaml.safe_load(f)
+        except (yaml.YAMLError, UnicodeDecodeError) as exc:
+            raise InputError(f"camera file {path} is not valid YAML: {exc}") from exc
         if not isinstance(d, dict):
             raise InputError(f"camera file {path} is not a YAML mapping")
         return cls.from_dict(d)

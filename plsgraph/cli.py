@@ -1,7 +1,8 @@
 """The ``plsgraph`` command. Library code raises typed errors; only this module prints.
 
 Exit codes: 0 success, 1 the job ran but its result is flagged (degenerate / not converged / failed
-items in a batch), 2 user error (bad flags, unreadable input, refused overwrite), 130 interrupted.
+items in a batch), 2 user error (bad flags, unreadable input, refused overwrite), 3 internal error,
+130 interrupted.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import argparse
 import json
 import logging
 import sys
+import traceback
 from pathlib import Path
 
 from . import __version__
@@ -230,12 +232,18 @@ def main(argv: list[str] | None = None) -> int:
     except PlsgraphError as exc:
         print(f"plsgraph: error: {exc}", file=sys.stderr)
         return 2
-    except FileNotFoundError as exc:
+    except OSError as exc:  # unwritable output folder, a file where a folder should be, a full disk
         print(f"plsgraph: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("plsgraph: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # a bug: say so plainly, keep the traceback for the report with --verbose
+        if args.verbose:
+            traceback.print_exc()
+        print(f"plsgraph: internal error ({type(exc).__name__}: {exc}); please report it with the command line "
+              "and, if possible, the recording (run with -v for the traceback)", file=sys.stderr)
+        return 3
 
 
 if __name__ == "__main__":

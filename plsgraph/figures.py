@@ -213,7 +213,8 @@ def write_html_report(out: Path, run: Any, report: dict) -> Path:
 
 
 def _result_block(c: dict) -> str:
-    T = "\n".join("  " + " ".join(f"{v:10.6f}" for v in row) for row in c["T_base_cam"])
+    T = "\n".join("  " + " ".join(f"{v:10.6f}" if v is not None else "       n/a" for v in row)
+                  for row in c["T_base_cam"])
     return (f"T_base_cam =\n{T}\nquaternion xyzw = {c['quaternion_xyzw']}\ntime offset = {c['time_offset_s']} s"
             f" ({c['time_offset_convention']})\n\n{c['ros_static_transform']}")
 

@@ -997,12 +997,16 @@ def compare_solutions(
         R = T[:3, :3]
         row: dict = {"method": name}
         ref_T = refinement.T_base_cam if truth_T_base_cam is None else np.asarray(truth_T_base_cam, float)
+        z_unknown = t_known and T.shape == (4, 4) and not np.isfinite(T[2, 3])
+        if z_unknown:  # a planar closed form knows x, y only: borrow the reference height to score the rest
+            T = T.copy()
+            T[2, 3] = ref_T[2, 3]
         ref_td = refinement.td if truth_td is None else float(truth_td)
         key = "err" if truth_T_base_cam is not None else "diff"
         row[f"rot_{key}_deg"] = float(rotation_error_deg(R, ref_T[:3, :3]))
         if t_known and T.shape == (4, 4):
             dt = T[:3, 3] - ref_T[:3, 3]
-            row[f"t_{key}_m"] = float(np.linalg.norm(dt))
+            row[f"t_{key}_m"] = float("nan") if z_unknown else float(np.linalg.norm(dt))
             row[f"t_xy_{key}_m"] = float(np.linalg.norm(dt[:2]))
         else:
             row[f"t_{key}_m"] = float("nan")

@@ -164,6 +164,11 @@ def lever_arm_and_odometry_scales(
         # Unknowns (s_v, t_x, t_y): x rows s_v v_x - s_w w t_y, y rows s_v v_y + s_w w t_x.
         A = np.vstack([np.column_stack([vx, z, -s_w * w]), np.column_stack([vy, s_w * w, z])])
         sol, *_ = np.linalg.lstsq(A * sq[:, None], np.r_[r[:, 0], r[:, 1]] * sq, rcond=None)
+        if not sol[0] > 0:
+            raise DegenerateMotionError(
+                f"the camera drives against the odometry (speed scale {sol[0]:.3f}): this rotation points the "
+                "camera's motion backwards (a solver that latched onto noise, or swapped wheel signs); use pls"
+            )
         return sol[1:], float(sol[0]), s_w
     A = np.vstack([np.column_stack([z, -s_w * w]), np.column_stack([s_w * w, z])])
     sol, *_ = np.linalg.lstsq(A * sq[:, None], np.r_[r[:, 0] - vx, r[:, 1] - vy] * sq, rcond=None)

@@ -21,11 +21,11 @@ from scipy.spatial.transform import Rotation
 
 from .errors import InputError
 
-COVARIANCE_ORDER = ["rot_x", "rot_y", "rot_z", "trans_x", "trans_y", "trans_z", "td"]
+COVARIANCE_ORDER = ["roll", "pitch", "yaw", "x", "y", "z", "td"]
 COVARIANCE_NOTE = (
-    "7 x 7 covariance of (rotation vector of a right perturbation of R_base_cam [rad], translation of a right "
-    "perturbation of T_base_cam [m], time offset [s]), GTSAM Pose3 tangent convention; for small angles "
-    "rot_x/y/z are rotations about the camera's own x (right), y (down), z (forward) axes."
+    "7 x 7 covariance in the base frame's axes: small rotations of the camera about the base x (roll), y (pitch) "
+    "and z (yaw) axes [rad], the camera position along base x, y, z [m], and the time offset [s]; the same axes "
+    "as the observability list. report.json also holds it in GTSAM's Pose3 tangent of T_base_cam (camera axes)."
 )
 
 
@@ -99,6 +99,9 @@ def calibration_dict(
 def _atomic_write(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.fchmod(fd, 0o666 & ~umask)  # mkstemp's 0600 would make results unreadable to the rest of the team
         with os.fdopen(fd, "wb") as f:
             f.write(data)
         os.replace(tmp, path)

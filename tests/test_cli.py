@@ -69,3 +69,34 @@ def test_batch_reports_failures_without_stopping(tmp_path, capsys):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert [r["status"] for r in summary["recordings"]] == ["failed", "failed"]
     assert all(r["error"] for r in summary["recordings"])
+
+
+SAMPLE = __import__("plsgraph.paths", fromlist=["DATA_DIR"]).DATA_DIR / "sample" / "rich_sample.mcap"
+
+
+@pytest.mark.parametrize(
+    "flag, content, expect",
+    [
+        ("--board", "pattern: asymmetric_circles\ncols: four\nrows: 11\n", "wrong type"),
+        ("--board", "pattern: [unclosed\n", "not valid YAML"),
+        ("--camera-info", "width: 346\nheight: 260\nK: [1, 2, 3]\nD: []\n", "camera"),
+        ("--camera-info", "{broken: [\n", "not valid YAML"),
+        ("--truth", "42\n", "4 x 4 T_base_cam"),
+    ],
+)
+def test_bad_side_files_are_user_errors(tmp_path, capsys, flag, content, expect):
+    f = tmp_path / "side.yaml"
+    f.write_text(content)
+    args = ["calibrate", str(SAMPLE), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "o"), flag, str(f)]
+    if flag == "--board":
+        args = ["calibrate", str(SAMPLE), "--out", str(tmp_path / "o"), "--board", str(f)]
+    code = main(args)
+    err = capsys.readouterr().err
+    assert code == 2 and expect in err and "Traceback" not in err
+
+
+def test_output_into_a_file_is_a_user_error(tmp_path, capsys):
+    f = tmp_path / "afile"
+    f.write_text("x")
+    code = main(["simulate", "--duration", "2", "--out", str(f / "x.mcap")])
+    assert code == 2 and "Traceback" not in capsys.readouterr().err

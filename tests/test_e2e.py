@@ -125,3 +125,23 @@ def test_spinning_in_place_gives_a_diagnosis_not_a_number(tmp_path, capsys):
     assert code == 1 and res["ok"] is False
     assert res["observable_closed_form"]["yaw"] is False
     assert any("turn while driving" in a for a in res["advice"])
+
+
+def test_closed_form_only_result_has_no_nan_and_says_the_height_is_not_measured(recording, tmp_path):
+    import shutil
+    import stat
+
+    truth = tmp_path / "my_truth.yaml"  # any file name is accepted for --truth
+    shutil.copy(recording.with_name("rich.truth.yaml"), truth)
+    out = tmp_path / "cf"
+    code = main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--no-refine", "--out", str(out),
+                 "--truth", str(truth)])
+    assert code == 0
+    text = (out / "calibration.yaml").read_text()
+    calib = yaml.safe_load(text)
+    assert "nan" not in text.lower() and "null" not in text.split("covariance")[0]
+    assert calib["source"] == "closed_form.pls"
+    assert calib["translation_m"][2] == 0.0 and "not observable" in calib["translation_z_source"]
+    T_gt = np.array(yaml.safe_load(truth.read_text())["T_base_cam"])
+    assert rotation_error_deg(np.array(calib["T_base_cam"])[:3, :3], T_gt[:3, :3]) < 3.0
+    assert stat.S_IMODE((out / "calibration.yaml").stat().st_mode) & 0o044  # readable by group/others
