@@ -317,16 +317,27 @@ def _prepare(
 
 def smooth_poses(T: np.ndarray, half: int) -> np.ndarray:
     """Moving average of poses over 2 * half + 1 samples: positions averaged, rotations averaged in the
-    tangent space of each sample (R_i Exp(mean_j Log(R_i^T R_j))); the ends use the samples available."""
+    tangent space of each sample (R_i Exp(mean_j Log(R_i^T R_j))).
+
+    The window stays centred: within ``half`` samples of an end it shrinks to the samples available on both
+    sides (the end samples are kept as they are). Repeating the end sample instead would weight the past (or
+    the future) more and so shift the smoothed poses in time there, and frames near the ends of the odometry
+    would pull td by milliseconds.
+    """
     T = np.asarray(T, dtype=float)
     if half < 1 or len(T) < 3:
         return T
     n = len(T)
-    idx = np.clip(np.arange(n)[:, None] + np.arange(-half, half + 1)[None, :], 0, n - 1)  # (n, w)
+    i = np.arange(n)
+    off = np.arange(-half, half + 1)
+    reach = np.minimum(half, np.minimum(i, n - 1 - i))  # (n,) half-width of each sample's centred window
+    w = (np.abs(off)[None, :] <= reach[:, None]).astype(float)
+    w /= w.sum(axis=1, keepdims=True)  # (n, w)
+    idx = np.clip(i[:, None] + off[None, :], 0, n - 1)  # clipped entries have weight 0
     R = T[:, :3, :3]
     rel = np.einsum("nji,nwjk->nwik", R, R[idx])  # R_i^T R_j
-    w_mean = so3_log(rel.reshape(-1, 3, 3)).reshape(n, -1, 3).mean(axis=1)
-    return make_T(R @ so3_exp(w_mean), T[:, :3, 3][idx].mean(axis=1))
+    w_mean = np.einsum("nwk,nw->nk", so3_log(rel.reshape(-1, 3, 3)).reshape(n, -1, 3), w)
+    return make_T(R @ so3_exp(w_mean), np.einsum("nwk,nw->nk", T[:, :3, 3][idx], w))
 
 
 def _brackets(prob: _Problem, td: float, rows: np.ndarray) -> tuple[ReprojectionFrames, np.ndarray]:

@@ -167,3 +167,40 @@ def test_comparison_table_with_and_without_truth(rich):
     tab2 = compare_solutions(closed, res)
     r2 = {r["method"]: r for r in tab2.rows}
     assert r2["refined"]["rot_diff_deg"] == 0.0 and r2["closed_form"]["rot_diff_deg"] > 1.0
+
+
+def test_odometry_smoothing_keeps_uniform_motion_exact_up_to_the_ends():
+    """A centred moving average reproduces motion at constant linear and angular velocity everywhere; a window
+    that repeats the end sample would lag (start) or lead (end) the odometry there."""
+    from plsgraph.geometry import so3_exp
+    from plsgraph.graph import smooth_poses
+
+    t = np.arange(40) * 0.02
+    T = np.stack([make_T(so3_exp(np.array([0.1, -0.2, 0.8]) * ti), np.array([0.5, 0.1, 0.0]) * ti) for ti in t])
+    S = smooth_poses(T, 2)
+    assert np.allclose(S[:, :3, 3], T[:, :3, 3], atol=1e-12)
+    assert np.max(rotation_error_deg(S[:, :3, :3], T[:, :3, :3])) < 1e-4  # arccos resolves ~1e-6 deg
+    # The smoothing still does its job inside: jagged (quantization-like) positions get smoother.
+    rng = np.random.default_rng(0)
+    J = T.copy()
+    J[:, :3, 3] += rng.uniform(-1e-3, 1e-3, (t.size, 3))
+    assert np.std(smooth_poses(J, 2)[5:-5, :3, 3] - T[5:-5, :3, 3]) < 0.6 * np.std(J[5:-5, :3, 3] - T[5:-5, :3, 3])
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_frames_near_the_odometry_ends_do_not_bias_td(seed):
+    """Exact odometry (no slip, no quantization) and noise-free detections whose first and last frames lie within
+    the smoothing window of the odometry's ends: td and the rotation come out at the truth. With end samples
+    repeated in the smoothing these few frames moved td by 3 to 6 ms and the rotation by 0.3 to 0.5 deg."""
+    from plsgraph.odometry import base_track_from_wheels
+    from plsgraph.pose import camera_track_from_detections
+    from plsgraph.sim.robot import simulate_robot
+
+    rec = simulate_robot("rich", duration=4.0, seed=seed, slip=0.0, encoder_ticks_per_rev=0)
+    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius, rec.track_width)
+    track = camera_track_from_detections(rec.detections(0.0, seed=seed), rec.camera)
+    margin = 0.5 * RefinementOptions().odometry_smoothing_s
+    assert track.t[0] + rec.td - base.t[0] < margin and base.t[-1] - (track.t[-1] + rec.td) < margin
+    res = refine(track, base, rec.camera, rec.T_base_cam, rec.td)
+    assert abs(res.td - rec.td) < 0.002
+    assert rotation_error_deg(res.R_base_cam, rec.T_base_cam[:3, :3]) < 0.15
