@@ -169,7 +169,9 @@ def read_inputs(run: PipelineRun, progress: ProgressFactory) -> Any:
     if not Path(run.log_path).exists():
         raise InputError(f"recording {run.log_path} does not exist")
     with _Timer(run, "read"):
-        rec = read_recording(run.log_path, topics=opts.topics or None)
+        # Everything but the events: those are streamed through the front end later, in bounded memory.
+        rec = read_recording(run.log_path, topics={k: v for k, v in opts.topics.items() if k != "events"} or None,
+                             with_events=False)
     run.warnings += list(rec.warnings)
     if rec.lost:
         run.discarded["lost_while_reading"] = dict(rec.lost)
@@ -183,16 +185,6 @@ def read_inputs(run: PipelineRun, progress: ProgressFactory) -> Any:
             f"{run.log_path} has no sensor_msgs/CameraInfo topic; pass the intrinsics with --camera-info FILE "
             "(a plsgraph or ROS camera_calibration YAML)"
         )
-    if rec.events is None or len(rec.events) == 0:
-        have = ", ".join(f"{k} ({v.msgtype})" for k, v in rec.topics.items()) or "nothing"
-        raise RecordingError(f"{run.log_path} holds no events; its topics are: {have}")
-    if (rec.events.width, rec.events.height) != (run.camera.width, run.camera.height):
-        raise InputError(
-            f"the event sensor is {rec.events.width} x {rec.events.height} but the camera intrinsics are for "
-            f"{run.camera.width} x {run.camera.height}; pass the right --camera-info"
-        )
-    run.recording_info["events"] = len(rec.events)
-    run.recording_info["duration_s"] = rec.events.duration_s
     return rec
 
 
@@ -260,16 +252,49 @@ def _wheel_track(run: PipelineRun, joints: Any) -> BaseTrack:
     return track
 
 
-def build_camera_track(run: PipelineRun, rec: Any, progress: ProgressFactory) -> CameraTrack:
-    from .frontend import camera_track_from_events
+def build_camera_track(run: PipelineRun, progress: ProgressFactory) -> CameraTrack:
+    """The event front end, streaming the events through in spans of a few seconds (bounded memory)."""
+    from .frontend import camera_track_from_event_chunks
+    from .io.events_reader import EVENT_TYPES, iter_event_chunks, pick_topic
+    from .io.source import open_source
 
     opts = run.options
+    src = open_source(run.log_path)
+    topic = pick_topic(src, EVENT_TYPES, opts.topics.get("events"), "event")
+    info = src.topics()[topic]
+    counts = {"events": 0, "on": 0, "first": None, "last": None}
+
+    def checked(chunks):
+        for ch in chunks:
+            if counts["first"] is None and (ch.width, ch.height) != (run.camera.width, run.camera.height):
+                raise InputError(
+                    f"the event sensor is {ch.width} x {ch.height} but the camera intrinsics are for "
+                    f"{run.camera.width} x {run.camera.height}; pass the right --camera-info"
+                )
+            if len(ch):
+                counts["events"] += len(ch)
+                counts["on"] += ch.n_on
+                counts["first"] = ch.t_first if counts["first"] is None else counts["first"]
+                counts["last"] = ch.t_last
+            yield ch
+
+    span = None if info.t_first_ns is None or info.t_last_ns is None else (info.t_first_ns, info.t_last_ns)
     with progress("detecting board") as bar:
-        track = camera_track_from_events(
-            rec.events, run.camera, run.board, rate_hz=opts.rate_hz, kind=opts.surface, progress=bar
-        )
+        try:
+            track = camera_track_from_event_chunks(
+                checked(iter_event_chunks(src, topic)), run.camera, run.board, rate_hz=opts.rate_hz,
+                kind=opts.surface, expected_span_ns=span, progress=bar,
+            )
+        finally:
+            run.warnings += [w for w in src.log.warnings if w not in run.warnings]
+    run.recording_info.update({
+        "event_topic": topic,
+        "events": counts["events"],
+        "events_on": counts["on"],
+        "duration_s": 0.0 if counts["first"] is None else (counts["last"] - counts["first"]) * 1e-9,
+    })
     info = track.info
-    for k in ("windows", "detected", "rejected", "skipped"):
+    for k in ("windows", "detected", "skipped"):
         if k in info:
             run.discarded[f"frontend_{k}"] = to_jsonable(info[k])
     if len(track) < 10:
@@ -351,8 +376,8 @@ def run_pipeline(
     with _Timer(run, "odometry"):
         run.base_track = build_base_track(run, rec)
     with _Timer(run, "frontend"):
-        run.camera_track = build_camera_track(run, rec, progress)
-    del rec  # the events are no longer needed; free them before the graph
+        run.camera_track = build_camera_track(run, progress)
+    del rec
     return _solve(run, refine, progress)
 
 
@@ -601,7 +626,7 @@ def diagnose(log_path: str | Path, options: PipelineOptions, progress: ProgressF
     run = PipelineRun(Path(log_path), options)
     rec = read_inputs(run, progress)
     run.base_track = build_base_track(run, rec)
-    run.camera_track = build_camera_track(run, rec, progress)
+    run.camera_track = build_camera_track(run, progress)
     del rec
     try:
         run.closed_form = run_closed_form(run)

@@ -39,7 +39,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 
 import cv2
 import numpy as np
@@ -332,9 +332,14 @@ def detect_in_events(
     tag_blur_sigma: float = 1.0,
     workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
+    t_query_ns: np.ndarray | None = None,
+    require_detection: bool = True,
 ) -> tuple[Detections, dict]:
     """Board detections in event surfaces at ``rate_hz``; see :func:`camera_track_from_events`.
 
+    ``t_query_ns`` replaces the window grid (every 1 / rate_hz from the first event) by given window end
+    times, as the streaming front end does per span. With ``require_detection`` False a stream without any
+    detection gives empty detections instead of an error.
     Returns the detections (board-point order, NaN for unseen points) and the bookkeeping dict.
     """
     kind = resolve_kind(kind)
@@ -359,7 +364,10 @@ def detect_in_events(
     n = board.n_points
     if len(stream) == 0:
         raise InsufficientDataError("front end: the event stream is empty; check the recording's event topic")
-    t_query = np.arange(stream.t_first + period_ns, stream.t_last + period_ns, period_ns, dtype=np.int64)
+    if t_query_ns is None:
+        t_query = np.arange(stream.t_first + period_ns, stream.t_last + period_ns, period_ns, dtype=np.int64)
+    else:
+        t_query = np.asarray(t_query_ns, dtype=np.int64)
     i1s = np.searchsorted(stream.t, t_query, side="right")
     i0s = np.searchsorted(stream.t, t_query - window_ns, side="right")
     job = _WindowJob(
@@ -412,7 +420,7 @@ def detect_in_events(
             f"board {board.name!r} looks the same turned by 180 degrees (even number of rows): its detections "
             "cannot be labelled uniquely and are rejected as ambiguous; use a board with an odd number of rows"
         )
-    if not t_out:
+    if not t_out and require_detection:
         raise InsufficientDataError(
             f"front end: no board detected in any of {t_query.size} windows ({dict(skipped)}); check that the "
             f"board definition ({board.cols} x {board.rows} {board.pattern}) matches the target, that it is in "
@@ -474,6 +482,13 @@ def camera_track_from_events(
         workers=workers,
         progress=progress,
     )
+    return _track_from_detections(dets, info, camera, max_rms_px, sigma_px)
+
+
+def _track_from_detections(
+    dets: Detections, info: dict, camera: CameraModel, max_rms_px: float, sigma_px: float | None
+) -> CameraTrack:
+    """PnP on the detections and the front end's bookkeeping merged into the track's info."""
     c0 = time.perf_counter()
     track = camera_track_from_detections(dets, camera, max_rms_px=max_rms_px, sigma_px=sigma_px)
     info["seconds"]["pnp"] = time.perf_counter() - c0
@@ -489,3 +504,101 @@ def camera_track_from_events(
         info["kind"], info["windows"], info["detected"], info["poses"], info["skipped"],
     )
     return CameraTrack(track.t, track.T_board_cam, track.cov, track.rms_px, track.detections, info)
+
+
+def camera_track_from_event_chunks(
+    chunks: Iterable[EventStream],
+    camera: CameraModel,
+    board: Board,
+    rate_hz: float = 30.0,
+    kind: str = "count",
+    *,
+    span_s: float = 5.0,
+    history_s: float = 1.0,
+    max_rms_px: float = 1.5,
+    sigma_px: float | None = None,
+    expected_span_ns: tuple[int, int] | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    **detect_options,
+) -> CameraTrack:
+    """The front end of :func:`camera_track_from_events` on a stream of event chunks, in bounded memory.
+
+    Windows lie on the same grid as in one pass (every 1 / ``rate_hz`` from the first event). Events are
+    buffered until they span ``span_s``; the windows ending inside the buffer are detected, then all but the
+    last ``history_s`` (longer than any window's look-back) is dropped. Memory therefore follows the span,
+    not the recording's length. The grid tracking restarts at each span (a full search in its first window).
+    ``expected_span_ns`` (first, last event time, e.g. from the file's summary) only sizes the progress bar.
+    """
+    if not (span_s > 0 and history_s > 0 and rate_hz > 0):
+        raise InputError("streaming front end: span_s, history_s and rate_hz must be positive")
+    period = int(round(1e9 / rate_hz))
+    span_ns, keep_ns = int(span_s * 1e9), int(history_s * 1e9)
+    buf: EventStream | None = None
+    next_q: int | None = None
+    t_parts: list[np.ndarray] = []
+    uv_parts: list[np.ndarray] = []
+    info: dict = {}
+    skipped: Counter[str] = Counter()
+    total = None
+    if expected_span_ns is not None:
+        total = max(1, int((expected_span_ns[1] - expected_span_ns[0]) // period))
+
+    def detect(t_end: int) -> None:
+        nonlocal buf, next_q, info
+        q = np.arange(next_q, t_end, period, dtype=np.int64)
+        if q.size:
+            dets, part = detect_in_events(buf, camera, board, rate_hz, kind, t_query_ns=q, require_detection=False,
+                                          **detect_options)
+            t_parts.append(dets.t)
+            uv_parts.append(dets.uv)
+            skipped.update(part["skipped"])
+            if info:
+                info["windows"] += part["windows"]
+                info["events_used"] += part["events_used"]
+                for k, v in part["seconds"].items():
+                    info["seconds"][k] = info["seconds"].get(k, 0.0) + v
+            else:
+                info = part
+            next_q = int(q[-1]) + period
+            if progress is not None:
+                done = info["windows"]
+                progress(done, max(done, total or done))
+        buf = buf.slice_time(next_q - keep_ns, np.iinfo(np.int64).max)
+
+    for ch in chunks:
+        if len(ch) == 0:
+            continue
+        if buf is None:
+            buf = ch
+        elif ch.t_first >= buf.t_last:
+            buf = EventStream.concatenate([buf, ch])
+        else:  # packets that overlap in time: merge, so every window sees its events in order
+            joined = EventStream(*(np.concatenate([getattr(buf, a), getattr(ch, a)]) for a in "txyp"),
+                                 buf.width, buf.height)
+            buf = joined.sorted()
+        if next_q is None:
+            next_q = buf.t_first + period
+        if buf.t_last - next_q >= span_ns:
+            detect(buf.t_last)  # windows ending before the newest event have all their events
+    if buf is None or len(buf) == 0:
+        raise InsufficientDataError("front end: the event stream is empty; check the recording's event topic")
+    detect(buf.t_last + period)
+    t = np.concatenate(t_parts) if t_parts else np.zeros(0)
+    uv = np.concatenate(uv_parts) if uv_parts else np.zeros((0, board.n_points, 2))
+    if t.size > 1:  # a detection stamped before its predecessor (across spans) would break the time order
+        keep = np.r_[True, np.diff(t) > 0]
+        if not keep.all():
+            skipped["time_not_increasing"] += int(np.count_nonzero(~keep))
+        t, uv = t[keep], uv[keep]
+    info["skipped"] = dict(skipped)
+    info["detected"] = int(t.size)
+    info["streamed_span_s"] = span_s
+    if t.size == 0:
+        raise InsufficientDataError(
+            f"front end: no board detected in any of {info.get('windows', 0)} windows ({dict(skipped)}); check that "
+            f"the board definition ({board.cols} x {board.rows} {board.pattern}) matches the target, that it is in "
+            "view and moving, and try another surface kind"
+        )
+    if progress is not None:
+        progress(info["windows"], info["windows"])
+    return _track_from_detections(Detections(t, uv, board.points), info, camera, max_rms_px, sigma_px)
