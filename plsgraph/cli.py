@@ -48,7 +48,8 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
     p.add_argument("--track-width", type=float, default=0.37, help="wheel separation b in m (default: %(default)s)")
     p.add_argument("--events-topic", help="event topic (default: detected by message type)")
     p.add_argument("--joints-topic", help="sensor_msgs/JointState topic (default: detected)")
-    p.add_argument("--odom-topic", help="nav_msgs/Odometry topic, used when there are no joint states")
+    p.add_argument("--odom-topic",
+                   help="nav_msgs/Odometry topic; naming it makes the odometry, not the wheel joints, the base motion")
     p.add_argument("--left-joint", help="name of the left wheel joint (default: picked by name)")
     p.add_argument("--right-joint", help="name of the right wheel joint (default: picked by name)")
     p.add_argument(
