@@ -465,6 +465,12 @@ def build_report(run: PipelineRun) -> dict:
     from . import __version__
 
     T, td, cov, source = final_estimate(run)
+    if T[2, 1] > 0.5:  # the camera's "down" axis (optical y) points up in the base frame
+        run.warnings.append(
+            "the camera comes out upside down (its image 'down' axis points up in the base frame); if it is not "
+            "mounted that way, the wheels are probably swapped (check --left-joint/--right-joint), which mirrors "
+            "the whole solution"
+        )
     ok, problems = result_ok(run)
     height = ("--camera-height prior" if run.options.camera_height is not None
               else "not observable from planar motion: seed value, not a measurement")

@@ -145,3 +145,11 @@ def test_closed_form_only_result_has_no_nan_and_says_the_height_is_not_measured(
     T_gt = np.array(yaml.safe_load(truth.read_text())["T_base_cam"])
     assert rotation_error_deg(np.array(calib["T_base_cam"])[:3, :3], T_gt[:3, :3]) < 3.0
     assert stat.S_IMODE((out / "calibration.yaml").stat().st_mode) & 0o044  # readable by group/others
+
+
+def test_swapped_wheels_are_flagged(recording, tmp_path):
+    out = tmp_path / "swapped"
+    main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--no-refine",
+          "--left-joint", "front_right_wheel_joint", "--right-joint", "front_left_wheel_joint"])
+    rep = json.loads((out / "report.json").read_text())
+    assert any("upside down" in w for w in rep["warnings"])
