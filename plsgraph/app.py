@@ -175,7 +175,7 @@ def read_inputs(run: PipelineRun, progress: ProgressFactory) -> Any:
     run.warnings += list(rec.warnings)
     if rec.lost:
         run.discarded["lost_while_reading"] = dict(rec.lost)
-    run.recording_info = {"used_topics": dict(rec.used_topics), "event_encoding": rec.event_encoding}
+    run.recording_info = {"used_topics": dict(rec.used_topics)}
     if opts.camera_info is not None:
         run.camera = CameraModel.from_yaml(opts.camera_info)
     elif rec.camera is not None:
@@ -289,6 +289,7 @@ def build_camera_track(run: PipelineRun, progress: ProgressFactory) -> CameraTra
             run.warnings += [w for w in src.log.warnings if w not in run.warnings]
     run.recording_info.update({
         "event_topic": topic,
+        "event_type": info.msgtype,
         "events": counts["events"],
         "events_on": counts["on"],
         "duration_s": 0.0 if counts["first"] is None else (counts["last"] - counts["first"]) * 1e-9,
@@ -450,11 +451,23 @@ def final_estimate(run: PipelineRun) -> tuple[np.ndarray, float, np.ndarray | No
     return make_T(cf.R_base_cam, t), cf.td, None, f"closed_form.{cf.method}"
 
 
+SPEED_SCALE_LIMIT = 0.2  # |odometry speed scale - 1| beyond which the distances disagree too much to trust
+
+
 def result_ok(run: PipelineRun) -> tuple[bool, list[str]]:
     problems: list[str] = []
     cf = run.closed_form
     if cf is not None and cf.degenerate:
         problems += [f"closed form: {r}" for r in cf.degenerate_reasons]
+    speed = (getattr(cf, "odometry_scale", None) or {}).get("speed") if cf is not None else None
+    if speed is not None and abs(speed - 1.0) > SPEED_SCALE_LIMIT:
+        # Rotations do not care about scale, distances do: a board printed at another size than its YAML says,
+        # or a wrong wheel radius, shows up as the camera and the wheels disagreeing on how far the robot went.
+        problems.append(
+            f"the camera sees the robot travel {1 / speed:.2f} x as far as the wheel odometry says: the board "
+            "definition's size (square_size) or --wheel-radius is probably wrong, and the translation and time "
+            "offset cannot be trusted"
+        )
     ref = run.refinement
     if ref is not None and not ref.converged:
         problems.append("refinement did not converge; the covariance is withheld and the closed form is reported")
@@ -564,6 +577,7 @@ def summary_text(report: dict) -> str:
 def _write_diagnosis_only(out: Path, log_path: str | Path, exc: DegenerateMotionError) -> dict:
     from . import __version__
 
+    out.mkdir(parents=True, exist_ok=True)
     stale = out / "calibration.yaml"
     if stale.exists():  # with --force into an old folder: an old result must not pass for this recording's
         stale.rename(out / "calibration.previous.yaml")
@@ -612,13 +626,14 @@ def calibrate_to_dir(
     """Run the pipeline and write calibration.yaml, report.json, report.html (+ PNGs) into ``out_dir``."""
     from .figures import write_html_report
 
-    out = prepare_output_dir(out_dir, force=force)  # refuse before hours of work, not after
+    out = prepare_output_dir(out_dir, force=force, create=False)  # refuse before hours of work, not after
     try:
         run = run_pipeline(log_path, options, refine=refine, progress=progress)
     except DegenerateMotionError as exc:
         # Too little motion: a diagnosis, not a number. No calibration.yaml is written.
         return _write_diagnosis_only(out, log_path, exc)
     report = build_report(run)
+    out.mkdir(parents=True, exist_ok=True)
     write_html_report(out, run, report)  # first: a figure that fails adds its warning to the report
     write_yaml(out / "calibration.yaml", report["calibration"])
     write_json(out / "report.json", report)
@@ -801,10 +816,10 @@ def _batch_item(item: tuple[str, str, dict, bool], seed: int = 0) -> dict:
     try:
         res = calibrate_to_dir(log_path, out_dir, PipelineOptions(**opts), force=force, progress=_no_progress)
         rep = res["report"]
-        c = rep["calibration"]
-        row = {"recording": log_path, "status": "ok" if res["ok"] else "flagged", "source": c["source"],
-               "rpy_deg": c["rpy_deg"], "translation_m": c["translation_m"], "time_offset_s": c["time_offset_s"],
-               "problems": rep["problems"]}
+        c = rep["calibration"] or {}  # None when the motion only allowed a diagnosis
+        row = {"recording": log_path, "status": "ok" if res["ok"] else "flagged", "source": c.get("source"),
+               "rpy_deg": c.get("rpy_deg"), "translation_m": c.get("translation_m"),
+               "time_offset_s": c.get("time_offset_s"), "problems": rep["problems"]}
         if "truth_errors" in rep:
             row["truth_errors"] = rep["truth_errors"]
     except PlsgraphError as exc:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import traceback
 from pathlib import Path
@@ -41,7 +42,9 @@ class _Parser(argparse.ArgumentParser):
 def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
     p.add_argument("log", type=Path, help="recording: .mcap, ROS 2 .db3 folder/file or ROS 1 .bag")
     p.add_argument(
-        "--board", default="acircles_4x11", help="board YAML or bundled name (default: %(default)s)"
+        "--board", required=True,
+        help="the target: a board YAML or a bundled name (acircles_4x11, acircles_4x11_a2, aprilgrid_6x6); its "
+        "size must match the print, or every distance is scaled",
     )
     p.add_argument("--camera-info", type=Path, help="camera intrinsics YAML (default: CameraInfo in the recording)")
     p.add_argument("--wheel-radius", type=float, default=0.098, help="wheel radius r in m (default: %(default)s)")
@@ -136,7 +139,7 @@ def _build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("batch", help="calibrate many recordings in parallel; one summary table")
     s.add_argument("inputs", nargs="+", type=Path, help="recordings, or folders holding them")
     s.add_argument("--out", type=Path, required=True, help="output folder (one sub-folder per recording)")
-    s.add_argument("--board", default="acircles_4x11")
+    s.add_argument("--board", required=True, help="board YAML or bundled name, as for calibrate")
     s.add_argument("--camera-info", type=Path)
     s.add_argument("--wheel-radius", type=float, default=0.098)
     s.add_argument("--track-width", type=float, default=0.37)
@@ -233,6 +236,10 @@ def main(argv: list[str] | None = None) -> int:
     except PlsgraphError as exc:
         print(f"plsgraph: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader of our output went away (| head): not an error of ours
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 0
     except OSError as exc:  # unwritable output folder, a file where a folder should be, a full disk
         print(f"plsgraph: error: {exc}", file=sys.stderr)
         return 2

@@ -110,15 +110,20 @@ def _atomic_write(path: Path, data: bytes) -> None:
         raise
 
 
-def prepare_output_dir(out_dir: str | Path, force: bool = False) -> Path:
-    """Create ``out_dir``; refuse (InputError) if it exists and is not empty unless ``force``."""
+def prepare_output_dir(out_dir: str | Path, force: bool = False, create: bool = True) -> Path:
+    """Check (and with ``create`` make) ``out_dir``; refuse (InputError) if it exists and is not empty unless
+    ``force``. Callers that may still fail before writing pass ``create=False`` and make it when they write,
+    so a refused run leaves no empty folder behind."""
     out = Path(out_dir)
     if out.exists():
         if not out.is_dir():
             raise InputError(f"output path {out} exists and is not a folder")
         if any(out.iterdir()) and not force:
             raise InputError(f"output folder {out} already holds results; choose another --out or pass --force")
-    out.mkdir(parents=True, exist_ok=True)
+    elif any(p.exists() and not p.is_dir() for p in out.parents):
+        raise InputError(f"cannot create output folder {out}: a parent is a file")
+    if create:
+        out.mkdir(parents=True, exist_ok=True)
     return out
 
 

@@ -25,9 +25,10 @@ def test_help_and_bad_flags_exit_cleanly(capsys):
 
 
 def test_missing_recording_is_a_user_error(tmp_path, capsys):
-    code = main(["calibrate", str(tmp_path / "nope.mcap"), "--out", str(tmp_path / "o")])
+    code = main(["calibrate", str(tmp_path / "nope.mcap"), "--board", "acircles_4x11", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert code == 2 and "does not exist" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()  # a refused run leaves no empty output folder behind
 
 
 def test_corrupt_recording_is_a_user_error(tmp_path, capsys):
@@ -64,7 +65,8 @@ def test_batch_reports_failures_without_stopping(tmp_path, capsys):
     (tmp_path / "in").mkdir()
     (tmp_path / "in" / "a.mcap").write_bytes(b"not a recording")
     (tmp_path / "in" / "b.mcap").write_bytes(b"\x89MCAP0\r\n")
-    code = main(["batch", str(tmp_path / "in"), "--out", str(tmp_path / "out"), "--jobs", "1"])
+    code = main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11", "--out", str(tmp_path / "out"),
+                 "--jobs", "1"])
     assert code == 1
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert [r["status"] for r in summary["recordings"]] == ["failed", "failed"]

@@ -125,6 +125,9 @@ def test_spinning_in_place_gives_a_diagnosis_not_a_number(tmp_path, capsys):
     assert code == 1 and res["ok"] is False
     assert res["observable_closed_form"]["yaw"] is False
     assert any("turn while driving" in a for a in res["advice"])
+    code = main(["batch", str(log), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "b"), "--jobs", "1"])
+    (row,) = json.loads((tmp_path / "b" / "summary.json").read_text())["recordings"]
+    assert code == 1 and row["status"] == "flagged" and "yaw" in row["problems"][0]
 
 
 def test_closed_form_only_result_has_no_nan_and_says_the_height_is_not_measured(recording, tmp_path):
@@ -153,3 +156,12 @@ def test_swapped_wheels_are_flagged(recording, tmp_path):
           "--left-joint", "front_right_wheel_joint", "--right-joint", "front_left_wheel_joint"])
     rep = json.loads((out / "report.json").read_text())
     assert any("upside down" in w for w in rep["warnings"])
+
+
+def test_a_board_of_the_wrong_size_is_flagged_not_trusted(recording, tmp_path, capsys):
+    # The recording shows the A2 board (5 cm); calibrating with the desk board (2.5 cm) halves every distance.
+    out = tmp_path / "wrong"
+    code = main(["calibrate", str(recording), "--board", "acircles_4x11", "--out", str(out), "--no-refine"])
+    rep = json.loads((out / "report.json").read_text())
+    assert code == 1 and rep["ok"] is False
+    assert any("square_size" in p for p in rep["problems"])
