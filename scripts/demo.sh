@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set everything up (see setup.sh), then calibrate the bundled sample recording and print the result
-# next to its ground truth. Results go to out/demo (or the folder given as the first argument).
+# next to its ground truth, then print a quick version of the paper's synthetic tables.
+# Results go to out/demo (or the folder given as the first argument).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
@@ -13,6 +14,9 @@ echo "== calibrating (event front end, odometry, time offset, PLS closed form, G
 status=0
 .venv/bin/plsgraph calibrate "$sample" --board acircles_4x11_a2 --truth data/sample/rich_sample.truth.yaml \
     --out "$out" --force || status=$?
+echo
+echo "== the paper's synthetic Tables I and II, quick version (20 trials; full: plsgraph reproduce-paper --out DIR)"
+.venv/bin/plsgraph reproduce-paper --quick --out "$out/paper_tables" --force
 echo
 echo "open $out/report.html for the pictures; $out/calibration.yaml is the result file"
 exit $status
