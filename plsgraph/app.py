@@ -79,7 +79,8 @@ class PipelineOptions:
         for name in ("wheel_radius", "track_width", "rate_hz", "td_range"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
-                raise InputError(f"--{name.replace('_', '-')} must be a positive number, got {v!r}")
+                flag = {"rate_hz": "rate"}.get(name, name).replace("_", "-")
+                raise InputError(f"--{flag} must be a positive number, got {v!r}")
         if self.camera_height is not None and not math.isfinite(self.camera_height):
             raise InputError(f"--camera-height must be a finite number of metres, got {self.camera_height!r}")
 
@@ -220,12 +221,19 @@ def _wheel_track(run: PipelineRun, joints: Any) -> BaseTrack:
 
     opts = run.options
     try:
-        left, right, left_rate, right_rate = joints.wheels(opts.left_joint, opts.right_joint)
+        lc, rc = joints.wheel_columns(opts.left_joint, opts.right_joint)
     except InputError as exc:
         raise InputError(f"{exc}; name them with --left-joint/--right-joint") from exc
-    lc, rc = joints.wheel_columns(opts.left_joint, opts.right_joint)
     run.recording_info["wheel_joints"] = {"left": [joints.names[i] for i in lc], "right": [joints.names[i] for i in rc]}
     t = joints.t.astype(np.float64) * 1e-9
+    # Per joint, before the sides are averaged: unwrap angles that a driver reports in [-pi, pi) (a wrap of one
+    # wheel of a pair would move the average by only ~pi, below what unwrapping catches), and fill each joint
+    # onto every stamp, as drivers that publish each wheel in its own message leave the others NaN.
+    pos = np.column_stack([_fill_unwrapped(t, joints.position[:, c], unwrap=True) for c in lc + rc])
+    vel = np.column_stack([_fill_unwrapped(t, joints.velocity[:, c], unwrap=False) for c in lc + rc])
+    nl = len(lc)
+    left, right = pos[:, :nl].mean(axis=1), pos[:, nl:].mean(axis=1)
+    left_rate, right_rate = vel[:, :nl].mean(axis=1), vel[:, nl:].mean(axis=1)
     keep = np.r_[True, np.diff(joints.t) > 0]  # a driver that republishes a state repeats its stamp
     if not np.all(keep):
         run.discarded["joint_states_repeated_stamp"] = int(np.count_nonzero(~keep))
@@ -238,8 +246,6 @@ def _wheel_track(run: PipelineRun, joints: Any) -> BaseTrack:
     if np.count_nonzero(keep & ~ok):
         run.discarded["joint_states_without_wheel_values"] = int(np.count_nonzero(keep & ~ok))
     a, b = a[ok], b[ok]
-    if kind == "position":
-        a, b = np.unwrap(a), np.unwrap(b)  # drivers that report angles in [-pi, pi) wrap every turn
     track = base_track_from_wheels(t[ok], a, b, wheel_radius=opts.wheel_radius, track_width=opts.track_width,
                                    kind=kind)
     n_jumps = len(track.info.get("jumps", []))
@@ -250,6 +256,20 @@ def _wheel_track(run: PipelineRun, joints: Any) -> BaseTrack:
         )
     run.recording_info["base_source"] = f"wheel joint states ({kind})"
     return track
+
+
+def _fill_unwrapped(t: np.ndarray, x: np.ndarray, unwrap: bool) -> np.ndarray:
+    """One joint's values on every stamp: its finite samples (unwrapped if asked), linearly interpolated in
+    between; NaN outside its own first and last sample."""
+    m = np.isfinite(x)
+    out = np.full(t.size, np.nan)
+    if np.count_nonzero(m) < 2:
+        out[m] = x[m]
+        return out
+    xs = np.unwrap(x[m]) if unwrap else x[m]
+    inside = (t >= t[m][0]) & (t <= t[m][-1])
+    out[inside] = np.interp(t[inside], t[m], xs)
+    return out
 
 
 def build_camera_track(run: PipelineRun, progress: ProgressFactory) -> CameraTrack:
@@ -574,7 +594,7 @@ def summary_text(report: dict) -> str:
     return "\n".join(lines)
 
 
-def _write_diagnosis_only(out: Path, log_path: str | Path, exc: DegenerateMotionError) -> dict:
+def _write_diagnosis_only(out: Path, log_path: str | Path, exc: PlsgraphError) -> dict:
     from . import __version__
 
     out.mkdir(parents=True, exist_ok=True)
@@ -597,7 +617,7 @@ def _write_diagnosis_only(out: Path, log_path: str | Path, exc: DegenerateMotion
     write_json(out / "report.json", report)
     text = "\n".join([
         f"recording      {log_path}",
-        "NO CALIBRATION: the motion does not determine the extrinsic.",
+        "NO CALIBRATION: the recording does not determine the extrinsic.",
         f"  - {exc}",
         f"advice: {report['advice'][0]}",
         "",
@@ -629,8 +649,8 @@ def calibrate_to_dir(
     out = prepare_output_dir(out_dir, force=force, create=False)  # refuse before hours of work, not after
     try:
         run = run_pipeline(log_path, options, refine=refine, progress=progress)
-    except DegenerateMotionError as exc:
-        # Too little motion: a diagnosis, not a number. No calibration.yaml is written.
+    except (DegenerateMotionError, InsufficientDataError) as exc:
+        # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
         return _write_diagnosis_only(out, log_path, exc)
     report = build_report(run)
     out.mkdir(parents=True, exist_ok=True)

@@ -150,6 +150,14 @@ def _build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _emit(args: argparse.Namespace, text: str, code: int) -> int:
+    """Print the command's output with its exit code decided first, so a reader that closes the pipe early
+    (| head) does not change the code."""
+    args.exit_code = code
+    print(text)
+    return code
+
+
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from .paper import reproduce_paper
     from .progress import ProgressBar
@@ -199,32 +207,33 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from .app import calibrate_to_dir
 
     summary = calibrate_to_dir(args.log, args.out, _options(args), refine=not args.no_refine, force=args.force)
-    print(summary["text"])
-    return 0 if summary["ok"] else 1
+    return _emit(args, summary["text"], 0 if summary["ok"] else 1)
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from .app import diagnose
 
     res = diagnose(args.log, _options(args))
-    print(json.dumps(res["json"], indent=2) if args.json else res["text"])
-    return 0 if res["ok"] else 1
+    return _emit(args, json.dumps(res["json"], indent=2) if args.json else res["text"], 0 if res["ok"] else 1)
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
     from .app import compare
+    from .errors import DegenerateMotionError
 
-    res = compare(args.log, _options(args))
-    print(json.dumps(res["json"], indent=2) if args.json else res["text"])
-    return 0
+    try:
+        res = compare(args.log, _options(args))
+    except DegenerateMotionError as exc:  # a result of the recording, not a user error
+        print(f"plsgraph: no comparison: {exc}", file=sys.stderr)
+        return 1
+    return _emit(args, json.dumps(res["json"], indent=2) if args.json else res["text"], 0)
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
     from .app import run_batch
 
     res = run_batch(args)
-    print(res["text"])
-    return 0 if res["ok"] else 1
+    return _emit(args, res["text"], 0 if res["ok"] else 1)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -239,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # the reader of our output went away (| head): not an error of ours
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
-        return 0
+        return getattr(args, "exit_code", 0)
     except OSError as exc:  # unwritable output folder, a file where a folder should be, a full disk
         print(f"plsgraph: error: {exc}", file=sys.stderr)
         return 2

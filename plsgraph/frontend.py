@@ -316,6 +316,16 @@ def _run_parallel(job: _WindowJob, t_query, i0s, i1s, workers: int, progress) ->
         _JOB = None
 
 
+def _window_of(kind: str, surface_params: dict | None, window_s: float | None, rate_hz: float) -> tuple[dict, float]:
+    """Surface parameters and the look-back of every window (s) for a resolved surface ``kind``."""
+    params = {**DEFAULT_PARAMS[kind], **(surface_params or {})}
+    if window_s is None:
+        # Decaying surfaces look back 5 tau (exp(-5) is negligible); the others one frame period.
+        tau = params.get("tau_s")
+        window_s = surfaces.DECAY_LOOKBACK * tau if kind in ("time_surface", "leaky") and tau else 1.0 / rate_hz
+    return params, window_s
+
+
 def detect_in_events(
     stream: EventStream,
     camera: CameraModel,
@@ -352,11 +362,7 @@ def detect_in_events(
             f"front end: events are {stream.width} x {stream.height} but the camera model is "
             f"{camera.width} x {camera.height}; use the intrinsics of this sensor"
         )
-    params = {**DEFAULT_PARAMS[kind], **(surface_params or {})}
-    if window_s is None:
-        # Decaying surfaces look back 5 tau (exp(-5) is negligible); the others one frame period.
-        tau = params.get("tau_s")
-        window_s = surfaces.DECAY_LOOKBACK * tau if kind in ("time_surface", "leaky") and tau else 1.0 / rate_hz
+    params, window_s = _window_of(kind, surface_params, window_s, rate_hz)
     if not window_s > 0:
         raise InputError(f"front end: window_s must be positive, got {window_s}")
     period_ns = int(round(1e9 / rate_hz))
@@ -532,13 +538,18 @@ def camera_track_from_event_chunks(
     if not (span_s > 0 and history_s > 0 and rate_hz > 0):
         raise InputError("streaming front end: span_s, history_s and rate_hz must be positive")
     period = int(round(1e9 / rate_hz))
-    span_ns, keep_ns = int(span_s * 1e9), int(history_s * 1e9)
+    _, window_s = _window_of(resolve_kind(kind), detect_options.get("surface_params"), detect_options.get("window_s"),
+                             rate_hz)
+    span_ns = int(span_s * 1e9)
+    keep_ns = max(int(history_s * 1e9), int(window_s * 1e9) + period)  # every window's look-back stays buffered
+    reorder_ns = 100_000_000  # packets arrive up to this much out of order: their windows wait that long
     buf: EventStream | None = None
     next_q: int | None = None
     t_parts: list[np.ndarray] = []
     uv_parts: list[np.ndarray] = []
     info: dict = {}
     skipped: Counter[str] = Counter()
+    late_events = 0
     total = None
     if expected_span_ns is not None:
         total = max(1, int((expected_span_ns[1] - expected_span_ns[0]) // period))
@@ -568,6 +579,8 @@ def camera_track_from_event_chunks(
     for ch in chunks:
         if len(ch) == 0:
             continue
+        if next_q is not None and ch.t_first < next_q - period:
+            late_events += int(np.count_nonzero(ch.t < next_q - period))  # their windows are already done
         if buf is None:
             buf = ch
         elif ch.t_first >= buf.t_last:
@@ -578,8 +591,8 @@ def camera_track_from_event_chunks(
             buf = joined.sorted()
         if next_q is None:
             next_q = buf.t_first + period
-        if buf.t_last - next_q >= span_ns:
-            detect(buf.t_last)  # windows ending before the newest event have all their events
+        if buf.t_last - reorder_ns - next_q >= span_ns:
+            detect(buf.t_last - reorder_ns)  # windows well before the newest event have all their events
     if buf is None or len(buf) == 0:
         raise InsufficientDataError("front end: the event stream is empty; check the recording's event topic")
     detect(buf.t_last + period)
@@ -593,6 +606,7 @@ def camera_track_from_event_chunks(
     info["skipped"] = dict(skipped)
     info["detected"] = int(t.size)
     info["streamed_span_s"] = span_s
+    info["late_events"] = late_events  # arrived after their windows were detected (out-of-order packets)
     if t.size == 0:
         raise InsufficientDataError(
             f"front end: no board detected in any of {info.get('windows', 0)} windows ({dict(skipped)}); check that "

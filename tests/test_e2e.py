@@ -125,6 +125,7 @@ def test_spinning_in_place_gives_a_diagnosis_not_a_number(tmp_path, capsys):
     assert code == 1 and res["ok"] is False
     assert res["observable_closed_form"]["yaw"] is False
     assert any("turn while driving" in a for a in res["advice"])
+    assert main(["compare", str(log), "--board", "acircles_4x11_a2"]) == 1  # a verdict on the motion, not a user error
     code = main(["batch", str(log), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "b"), "--jobs", "1"])
     (row,) = json.loads((tmp_path / "b" / "summary.json").read_text())["recordings"]
     assert code == 1 and row["status"] == "flagged" and "yaw" in row["problems"][0]
@@ -165,3 +166,14 @@ def test_a_board_of_the_wrong_size_is_flagged_not_trusted(recording, tmp_path, c
     rep = json.loads((out / "report.json").read_text())
     assert code == 1 and rep["ok"] is False
     assert any("square_size" in p for p in rep["problems"])
+
+
+def test_too_short_a_recording_gets_a_diagnosis(tmp_path, capsys):
+    log = tmp_path / "short.mcap"
+    assert main(["simulate", "--motion", "rich", "--duration", "2.5", "--contrast", "0.45", "--event-format", "evt3",
+                 "--out", str(log)]) == 0
+    out = tmp_path / "c"
+    code = main(["calibrate", str(log), "--board", "acircles_4x11_a2", "--out", str(out)])
+    assert code == 1 and "NO CALIBRATION" in capsys.readouterr().out
+    assert not (out / "calibration.yaml").exists()
+    assert json.loads((out / "report.json").read_text())["ok"] is False

@@ -28,3 +28,19 @@ def test_streaming_matches_single_pass_on_the_sample():
     assert common.size >= 0.8 * len(one)
     d = np.abs(one.T_board_cam[i, :3, 3] - streamed.T_board_cam[j, :3, 3]).max(axis=1)
     assert np.median(d) < 1e-6
+
+
+def test_windows_longer_than_the_history_keep_all_their_events():
+    board = load_board("acircles_4x11_a2")
+    camera = read_recording(SAMPLE, with_events=False).camera
+    full = read_events(SAMPLE)
+    stream = full.slice_time(0, full.t_first + 3_000_000_000)
+    one = camera_track_from_events(stream, camera, board, rate_hz=1.25, kind="count")  # 0.8 s windows
+    streamed = camera_track_from_event_chunks(
+        (c.slice_time(0, stream.t_last + 1) for c in iter_event_chunks(SAMPLE, chunk_events=100_000)
+         if c.t_first < stream.t_last),
+        camera, board, rate_hz=1.25, kind="count", span_s=0.5, history_s=0.2,
+    )
+    assert streamed.info["windows"] == one.info["windows"]
+    assert streamed.info["events_used"] == one.info["events_used"]
+    assert streamed.info["late_events"] == 0
