@@ -45,6 +45,13 @@ def frame_residuals(run: Any, T_base_cam: np.ndarray, td: float, T_world_board: 
     return det.t[ok], rms, flat[np.all(np.isfinite(flat), axis=1)]
 
 
+def _save(plt, fig, out: Path, name: str) -> str:
+    fig.tight_layout()
+    fig.savefig(out / name, dpi=110)
+    plt.close(fig)
+    return name
+
+
 def _fig_trajectories(run: Any, out: Path) -> str | None:
     ref = run.refinement
     plt = _plt()
@@ -65,10 +72,7 @@ def _fig_trajectories(run: Any, out: Path) -> str | None:
     ax.axis("equal")
     ax.legend(fontsize=7)
     ax.set_title("aligned trajectories (top view)")
-    fig.tight_layout()
-    fig.savefig(out / "trajectories.png", dpi=110)
-    plt.close(fig)
-    return "trajectories.png"
+    return _save(plt, fig, out, "trajectories.png")
 
 
 def _fig_residuals(run: Any, out: Path) -> str | None:
@@ -89,10 +93,7 @@ def _fig_residuals(run: Any, out: Path) -> str | None:
     a2.set_xlabel("u residual (px)")
     a2.set_ylabel("v residual (px)")
     a2.set_title("residual distribution")
-    fig.tight_layout()
-    fig.savefig(out / "residuals.png", dpi=110)
-    plt.close(fig)
-    return "residuals.png"
+    return _save(plt, fig, out, "residuals.png")
 
 
 def _fig_time_offset(run: Any, out: Path) -> str | None:
@@ -111,10 +112,7 @@ def _fig_time_offset(run: Any, out: Path) -> str | None:
     ax.set_ylabel(f"score ({to.method})")
     ax.set_title("time-offset search")
     ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "time_offset.png", dpi=110)
-    plt.close(fig)
-    return "time_offset.png"
+    return _save(plt, fig, out, "time_offset.png")
 
 
 def _fig_observability(run: Any, out: Path) -> str | None:
@@ -130,10 +128,7 @@ def _fig_observability(run: Any, out: Path) -> str | None:
     ax.set_xticks(range(len(axes)), [a.name for a in axes], rotation=30, fontsize=8)
     ax.set_ylabel("posterior sigma / prior sigma")
     ax.set_title("observability (green observable, yellow weak, red unobservable)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(out / "observability.png", dpi=110)
-    plt.close(fig)
-    return "observability.png"
+    return _save(plt, fig, out, "observability.png")
 
 
 def _fig_methods(run: Any, out: Path, truth_T: np.ndarray | None) -> str | None:
@@ -160,10 +155,7 @@ def _fig_methods(run: Any, out: Path, truth_T: np.ndarray | None) -> str | None:
     ax.set_yscale("symlog", linthresh=0.1)
     ax.set_ylabel("rotation error (deg)" if truth_T is not None else "rotation difference to refined (deg)")
     ax.set_title("closed form vs refined")
-    fig.tight_layout()
-    fig.savefig(out / "methods.png", dpi=110)
-    plt.close(fig)
-    return "methods.png"
+    return _save(plt, fig, out, "methods.png")
 
 
 def write_html_report(out: Path, run: Any, report: dict) -> Path:
