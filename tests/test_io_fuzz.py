@@ -65,6 +65,16 @@ def _damage(rng, data: bytes) -> tuple[bytes, str]:
     return bytes(b), "truncated and flipped"
 
 
+def _damaged_copies(tmp_path, data: bytes, seed: int, n: int, suffix: str):
+    """(path, how) of ``n`` randomly damaged copies of ``data``, reproducible from ``seed``."""
+    rng = np.random.default_rng(seed)
+    for i in range(n):
+        bad, how = _damage(rng, data)
+        p = tmp_path / f"bad{i}{suffix}"
+        p.write_bytes(bad)
+        yield p, how
+
+
 def _same(a, b) -> bool:
     if (a.events is None) != (b.events is None) or (a.joints is None) != (b.joints is None):
         return False
@@ -84,12 +94,8 @@ def test_fuzz_written_recordings(tmp_path, fmt, caplog):
     write_recording(src, ev, js, od, cam, event_format=fmt, packet_ns=5_000_000, chunk_bytes=8192)
     clean = read_recording(src)
     data = src.read_bytes()
-    rng = np.random.default_rng({"dvs": 1, "libcaer_cmp": 2, "evt3": 3}[fmt])
     outcomes = {"error": 0, "warned": 0, "same": 0}
-    for i in range(20):
-        bad, how = _damage(rng, data)
-        p = tmp_path / f"bad{i}.mcap"
-        p.write_bytes(bad)
+    for p, how in _damaged_copies(tmp_path, data, {"dvs": 1, "libcaer_cmp": 2, "evt3": 3}[fmt], 20, ".mcap"):
         with _deadline(20):
             try:
                 rec = read_recording(p)
@@ -142,11 +148,7 @@ def test_corrupt_chunk_is_skipped_and_reported(tmp_path, caplog):
 def test_fuzz_real_davis_no_crash(tmp_path, caplog):
     caplog.set_level(logging.ERROR)
     data = (SHARED_REAL_DIR / "davis346_tagboard.mcap").read_bytes()
-    rng = np.random.default_rng(11)
-    for i in range(8):
-        bad, _ = _damage(rng, data)
-        p = tmp_path / f"d{i}.mcap"
-        p.write_bytes(bad)
+    for p, _ in _damaged_copies(tmp_path, data, 11, 8, ".mcap"):
         with _deadline(20):
             try:
                 ev = read_events(p)
@@ -159,11 +161,7 @@ def test_fuzz_real_davis_no_crash(tmp_path, caplog):
 def test_damaged_ros1_bag(tmp_path, caplog):
     caplog.set_level(logging.ERROR)
     data = (SHARED_REAL_DIR / "jackal_odometry.bag").read_bytes()
-    rng = np.random.default_rng(12)
-    for i in range(6):
-        bad, _ = _damage(rng, data)
-        p = tmp_path / f"j{i}.bag"
-        p.write_bytes(bad)
+    for p, _ in _damaged_copies(tmp_path, data, 12, 6, ".bag"):
         with _deadline(20):
             try:
                 rec = read_recording(p)
