@@ -60,17 +60,23 @@ def test_rendered_circle_centres_match_projection(board):
     assert np.abs(centres.reshape(-1, 2) - uv).max() < 0.3
 
 
+def _tags_and_truth(img, T, cam, grid, border_bits: int = 1):
+    """aruco tag36h11 corners and ids in ``img``, and the true corner pixels on a (2 rows, 2 cols) grid."""
+    params = cv2.aruco.DetectorParameters()
+    params.markerBorderBits = border_bits
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), params)
+    corners, ids, _ = det.detectMarkers(img)
+    uv = cam.project(transform_points(inv_T(T), grid.points)).reshape(2 * grid.rows, 2 * grid.cols, 2)
+    return corners, ids, uv, det
+
+
 def test_rendered_aprilgrid_tags_decode_with_kalibr_corner_order():
     grid = Board(pattern="aprilgrid", cols=4, rows=3, tag_size=0.05, tag_spacing=0.3)
     cam = davis346_default()
     T = _facing(grid, 0.5, (0.15, 0.25, 0.1), flip=True)
-    img = render_intensity_u8(T, cam, grid)
-    params = cv2.aruco.DetectorParameters()
-    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), params)
-    corners, ids, _ = det.detectMarkers(img)
+    corners, ids, uv, det = _tags_and_truth(render_intensity_u8(T, cam, grid), T, cam, grid)
     assert ids is not None and sorted(ids.ravel().tolist()) == list(range(12))
-    uv = cam.project(transform_points(inv_T(T), grid.points)).reshape(2 * grid.rows, 2 * grid.cols, 2)
     for c, k in zip(corners, ids.ravel(), strict=True):
         r, q = divmod(int(k), grid.cols)
         # aruco order: marker top-left, top-right, bottom-right, bottom-left (board y up on the print).
@@ -89,13 +95,8 @@ def test_kalibr_tag_layout_has_a_two_bit_border_and_turned_codes():
     cam = davis346_default()
     T = _facing(grid, 0.45, (0.1, 0.15, 0.05), flip=True)
     img = render_intensity_u8(T, cam, grid, RenderParams(tag_layout="kalibr"))
-    params = cv2.aruco.DetectorParameters()
-    params.markerBorderBits = 2
-    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11), params)
-    corners, ids, _ = det.detectMarkers(img)
+    corners, ids, uv, _ = _tags_and_truth(img, T, cam, grid, border_bits=2)
     assert ids is not None and sorted(ids.ravel().tolist()) == list(range(12))
-    uv = cam.project(transform_points(inv_T(T), grid.points)).reshape(2 * grid.rows, 2 * grid.cols, 2)
     for c, k in zip(corners, ids.ravel(), strict=True):
         r, q = divmod(int(k), grid.cols)
         # Turned by 180 degrees: OpenCV's corner 0 is the printed tag's bottom-right.
