@@ -66,10 +66,14 @@ def _empty() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     return _EMPTY_T, _EMPTY_U16, _EMPTY_U16, _EMPTY_I8
 
 
+def _whole_records(blob, size: int, stats: DecodeStats) -> int:
+    """Number of whole ``size``-byte records in ``blob``; a trailing partial record is counted as odd bytes."""
+    stats.odd_bytes += len(blob) % size
+    return len(blob) // size
+
+
 def _words16(blob, stats: DecodeStats) -> np.ndarray:
-    n = len(blob) // 2
-    if len(blob) % 2:
-        stats.odd_bytes += len(blob) % 2
+    n = _whole_records(blob, 2, stats)
     return np.frombuffer(blob, dtype="<u2", count=n).astype(np.uint16)
 
 
@@ -213,8 +217,7 @@ class LibcaerDecoder:
     stats: DecodeStats = field(default_factory=DecodeStats)
 
     def decode(self, blob, time_base_ns: int):
-        n = len(blob) // 8
-        self.stats.odd_bytes += len(blob) % 8
+        n = _whole_records(blob, 8, self.stats)
         if n == 0:
             return _empty()
         a = np.frombuffer(blob, dtype=np.dtype([("d", "<u4"), ("ts", "<i4")]), count=n)
@@ -237,8 +240,7 @@ class MonoDecoder:
     stats: DecodeStats = field(default_factory=DecodeStats)
 
     def decode(self, blob, time_base_ns: int):
-        n = len(blob) // 8
-        self.stats.odd_bytes += len(blob) % 8
+        n = _whole_records(blob, 8, self.stats)
         if n == 0:
             return _empty()
         q = np.frombuffer(blob, dtype="<u8", count=n)
