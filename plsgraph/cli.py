@@ -118,15 +118,14 @@ def _build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-refine", action="store_true", help="stop after the closed form (no GTSAM refinement)")
     s.set_defaults(func=_cmd_calibrate)
 
-    s = sub.add_parser("diagnose", help="is the recording good enough? excitation and observability only")
-    _add_recording_options(s, need_out=False)
-    s.add_argument("--json", action="store_true", help="print machine-readable JSON")
-    s.set_defaults(func=_cmd_diagnose)
-
-    s = sub.add_parser("compare", help="every closed-form solver and the refinement side by side")
-    _add_recording_options(s, need_out=False)
-    s.add_argument("--json", action="store_true", help="print machine-readable JSON")
-    s.set_defaults(func=_cmd_compare)
+    for name, help_text, func in (
+        ("diagnose", "is the recording good enough? excitation and observability only", _cmd_diagnose),
+        ("compare", "every closed-form solver and the refinement side by side", _cmd_compare),
+    ):
+        s = sub.add_parser(name, help=help_text)
+        _add_recording_options(s, need_out=False)
+        s.add_argument("--json", action="store_true", help="print machine-readable JSON")
+        s.set_defaults(func=func)
 
     s = sub.add_parser("reproduce-paper", help="the paper's synthetic Tables I and II next to ours")
     s.add_argument("--out", type=Path, required=True, help="output folder")
