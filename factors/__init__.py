@@ -1,1 +1,1 @@
-"""Custom GTSAM factors (residuals with analytic Jacobians) used by plsgraph.graph."""
+"""Custom GTSAM factors (residuals with analytic Jacobians) used by plsgraph.refine.graph."""

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from plsgraph.geometry import hat
+from plsgraph.core.geometry import hat
 
 _SMALL = 1e-6
 

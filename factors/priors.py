@@ -13,7 +13,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from plsgraph.geometry import hat, so3_log
+from plsgraph.core.geometry import hat, so3_log
 
 from ._lie import so3_right_jacobian_inv
 

@@ -8,7 +8,7 @@ Variables of the factor for frame i (camera time t_i):
 
 The base pose at ``tau = t_i + td`` is ``X(tau) = Y(s) * K(tau)`` with ``s = (tau - t_a) / (t_b - t_a)``,
 ``Y(s)`` = slerp of the rotations and linear interpolation of the positions of ``X_a`` and ``X_b`` (the
-same scheme as :func:`plsgraph.geometry.interpolate_poses`), and ``K(tau)`` the detail of the full-rate
+same scheme as :func:`plsgraph.core.geometry.interpolate_poses`), and ``K(tau)`` the detail of the full-rate
 odometry between the two knots: ``K = Y_odo(s)^-1 odo(tau)``, the odometry pose at ``tau`` relative to
 the same interpolation of the odometry's own poses at the knot times (identity without odometry, or
 when every odometry sample is a knot). ``td`` acts through ``s`` and through ``K``: the frame slides
@@ -31,9 +31,9 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from plsgraph.camera import CameraModel
+from plsgraph.core.camera import CameraModel
+from plsgraph.core.geometry import inv_T, so3_exp, so3_log
 from plsgraph.errors import InputError
-from plsgraph.geometry import inv_T, so3_exp, so3_log
 
 from ._lie import pose_adjoint, so3_right_jacobian, so3_right_jacobian_inv
 

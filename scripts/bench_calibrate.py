@@ -40,7 +40,7 @@ TRUTH_KEYS = ("refined.rot_err_deg", "refined.t_xy_err_m", "refined.td_err_ms",
 
 def _worker(log: Path, truth: Path, out: Path) -> None:
     """One calibration in this (fresh) process; prints one JSON line with the figures."""
-    from plsgraph.app import PipelineOptions, _no_progress, calibrate_to_dir
+    from plsgraph.api import PipelineOptions, _no_progress, calibrate_to_dir
 
     opts = PipelineOptions(board=BOARD, truth=truth)
     t0 = time.perf_counter()
@@ -80,7 +80,7 @@ def _ingest_worker(log: Path) -> None:
 
 def _simulate(duration: float, folder: Path, seed: int) -> tuple[Path, Path, float]:
     log = folder / f"rich_{duration:g}s.mcap"
-    cmd = [sys.executable, "-c", "import sys; from plsgraph.cli import main; sys.exit(main())", "simulate",
+    cmd = [sys.executable, "-c", "import sys; from plsgraph.cli.main import main; sys.exit(main())", "simulate",
            "--motion", "rich", "--duration", f"{duration:g}", "--seed", str(seed), "--contrast", "0.45",
            "--event-format", "evt3", "--board", BOARD, "--out", str(log), "--force"]
     t0 = time.perf_counter()

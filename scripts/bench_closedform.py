@@ -17,8 +17,8 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from plsgraph.closedform import excitation, hand_eye, solve  # noqa: E402
-from plsgraph.geometry import inv_T, random_rotation_zyx, se3_exp  # noqa: E402
+from plsgraph.calib.solvers import excitation, hand_eye, solve  # noqa: E402
+from plsgraph.core.geometry import inv_T, random_rotation_zyx, se3_exp  # noqa: E402
 
 CASES = {
     "pls (default)": lambda X, Y, w: solve(X, Y, "pls"),

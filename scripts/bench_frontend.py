@@ -30,10 +30,10 @@ sys.path.insert(0, str(REPO / "scripts"))
 
 from measure_frontend import board_motion, simulate_board_events  # noqa: E402
 
-from plsgraph.board import load_board  # noqa: E402
-from plsgraph.camera import davis346_default  # noqa: E402
-from plsgraph.events import EventStream  # noqa: E402
-from plsgraph.frontend import camera_track_from_events  # noqa: E402
+from plsgraph.core.board import load_board  # noqa: E402
+from plsgraph.core.camera import davis346_default  # noqa: E402
+from plsgraph.core.events import EventStream  # noqa: E402
+from plsgraph.frontend.track import camera_track_from_events  # noqa: E402
 
 
 def stream_at_rate(ev: EventStream, rate: float, seed: int = 0) -> EventStream:

@@ -21,10 +21,10 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from plsgraph.geometry import make_T, rotation_error_deg, so3_exp  # noqa: E402
-from plsgraph.graph import RefinementOptions, refine  # noqa: E402
-from plsgraph.odometry import base_track_from_wheels  # noqa: E402
-from plsgraph.pose import camera_track_from_detections  # noqa: E402
+from plsgraph.core.geometry import make_T, rotation_error_deg, so3_exp  # noqa: E402
+from plsgraph.frontend.pose import camera_track_from_detections  # noqa: E402
+from plsgraph.odometry.wheels import base_track_from_wheels  # noqa: E402
+from plsgraph.refine.graph import RefinementOptions, refine  # noqa: E402
 from plsgraph.sim.robot import simulate_robot  # noqa: E402
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import struct
+import sys
 import tempfile
 import time
 import tracemalloc
@@ -18,10 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from plsgraph.events import EventStream
+from plsgraph.core.events import EventStream
 from plsgraph.io import iter_event_chunks, read_events, write_recording
 from plsgraph.io.messages import parse_event_packet
-from plsgraph.paths import SHARED_REAL_DIR
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from realdata import SHARED_REAL_DIR  # noqa: E402
 
 FORMATS = ("dvs", "libcaer_cmp", "evt3", "libcaer", "mono")
 

@@ -7,7 +7,7 @@ Prints medians over repeats. The surface stream is uniform random in space and t
 cache locality); real streams cluster on edges. The simulator runs a DAVIS346 (346 x 260, preset intrinsics)
 looking at the 4 x 11 circle board from 1 m while translating at 0.3 m/s and yawing at 0.4 rad/s, like the
 robot does; it reports render rate, events/s of simulation and the real-time factor (wall time / simulated
-time, < 1 is faster than real time). ``--detect`` also runs plsgraph.detect's circle-grid detector on each
+time, < 1 is faster than real time). ``--detect`` also runs plsgraph.frontend.detect's circle-grid detector on each
 representation of that simulated stream at 30 instants and reports the detection rate and the median
 distance of the detected centres to the true projections at the surface's reference time.
 """
@@ -24,11 +24,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from plsgraph import surfaces as S  # noqa: E402
-from plsgraph.board import load_board  # noqa: E402
-from plsgraph.camera import davis346_default  # noqa: E402
-from plsgraph.events import EventStream  # noqa: E402
-from plsgraph.geometry import make_T, so3_exp  # noqa: E402
+from plsgraph.core.board import load_board  # noqa: E402
+from plsgraph.core.camera import davis346_default  # noqa: E402
+from plsgraph.core.events import EventStream  # noqa: E402
+from plsgraph.core.geometry import make_T, so3_exp  # noqa: E402
+from plsgraph.frontend import surfaces as S  # noqa: E402
 from plsgraph.sim.events import EventSimParams, render_times, simulate_events  # noqa: E402
 from plsgraph.sim.render import BoardRenderer  # noqa: E402
 
@@ -120,8 +120,8 @@ def bench_simulator(args: argparse.Namespace) -> None:
 
 
 def bench_detection(args: argparse.Namespace) -> None:
-    from plsgraph.detect import detect_circle_grid
-    from plsgraph.geometry import interpolate_poses, inv_T, transform_points
+    from plsgraph.core.geometry import interpolate_poses, inv_T, transform_points
+    from plsgraph.frontend.detect import detect_circle_grid
 
     cam, board = davis346_default(), load_board("acircles_4x11")
     t, T = robot_like_trajectory(args.sim_seconds)

@@ -4,7 +4,7 @@ For each motion profile (rich, straight, spin), each seed and each camera front 
   track     noisy camera poses (0.1 deg, 2 mm per frame; the fast path without detection),
   pnp       board detections with 0.3 px noise + PnP, OpenCV's 4 x 11 circle grid at 2.5 cm spacing,
   pnp_5cm   the same grid printed at 5 cm spacing,
-it runs plsgraph.pipeline.calibrate_closed_form and prints medians over seeds of the rotation error (deg) of
+it runs plsgraph.calib.closed_form.calibrate_closed_form and prints medians over seeds of the rotation error (deg) of
 every solver, the t_xy error (mm; planar hand-eye, and the velocity lever arm for comparison), the error of the
 camera tilt from turning alone (deg; the base's up axis in the camera frame, available also when spinning in
 place), the td error (ms), how often the result was flagged degenerate and the pipeline's runtime.
@@ -16,19 +16,21 @@ from __future__ import annotations
 
 import argparse
 import logging
+import sys
 import time
 from collections import defaultdict
+from pathlib import Path
 
 import numpy as np
 
-from plsgraph.align import estimate_time_offset
-from plsgraph.board import Board
-from plsgraph.closedform import HAND_EYE_METHODS
+from plsgraph.calib.closed_form import calibrate_closed_form
+from plsgraph.calib.solvers import HAND_EYE_METHODS
+from plsgraph.calib.time_offset import estimate_time_offset
+from plsgraph.core.board import Board
+from plsgraph.core.geometry import rotation_error_deg
 from plsgraph.errors import PlsgraphError
-from plsgraph.geometry import rotation_error_deg
-from plsgraph.odometry import base_track_from_wheels
-from plsgraph.pipeline import calibrate_closed_form
-from plsgraph.pose import camera_track_from_detections
+from plsgraph.frontend.pose import camera_track_from_detections
+from plsgraph.odometry.wheels import base_track_from_wheels
 from plsgraph.sim.robot import simulate_robot
 
 METHODS = ("pls", "pls_paper", "cca", "procrustes") + tuple(f"hand_eye_{m}" for m in HAND_EYE_METHODS)
@@ -52,9 +54,10 @@ def real_odometry() -> None:
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
-    from plsgraph.geometry import yaw_of
-    from plsgraph.odometry import base_track_from_odometry, integrate_planar
-    from plsgraph.paths import SHARED_REAL_DIR
+    from plsgraph.core.geometry import yaw_of
+    from plsgraph.odometry.wheels import base_track_from_odometry, integrate_planar
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from realdata import SHARED_REAL_DIR  # noqa: E402
 
     path = SHARED_REAL_DIR / "jackal_odometry.bag"
     odo, imu = [], []

@@ -24,13 +24,15 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from plsgraph import surfaces  # noqa: E402
-from plsgraph.board import Board, load_board  # noqa: E402
-from plsgraph.camera import davis346_default  # noqa: E402
-from plsgraph.detect import detect_aprilgrid, detect_tags, make_aruco_detector  # noqa: E402
+from plsgraph.core.board import Board, load_board  # noqa: E402
+from plsgraph.core.camera import davis346_default  # noqa: E402
+from plsgraph.core.geometry import inv_T, rotation_error_deg, transform_points  # noqa: E402
 from plsgraph.errors import InsufficientDataError  # noqa: E402
-from plsgraph.geometry import inv_T, rotation_error_deg, transform_points  # noqa: E402
-from plsgraph.paths import SHARED_REAL_DIR  # noqa: E402
+from plsgraph.frontend import surfaces  # noqa: E402
+from plsgraph.frontend.detect import detect_aprilgrid, detect_tags, make_aruco_detector  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from realdata import SHARED_REAL_DIR  # noqa: E402
 
 IMG_DIR = REPO / "docs" / "img"
 
@@ -111,8 +113,8 @@ def real_geometry(windows: list[tuple[np.ndarray, np.ndarray]], board: Board) ->
     the Kalibr layout (tag size 1) to all corners of a window and keep the ratio with the smallest
     residual. Both print layouts are tried; the one that fits says how the tags are printed.
     """
-    from plsgraph.board import aprilgrid_points
-    from plsgraph.detect import aprilgrid_corner_index
+    from plsgraph.core.board import aprilgrid_points
+    from plsgraph.frontend.detect import aprilgrid_corner_index
 
     ratios = np.round(np.arange(0.10, 0.501, 0.01), 3)
     out = {}
@@ -169,7 +171,7 @@ def board_motion(board, speed: float, duration: float, dt: float, seed: int = 0)
     image motion grows in proportion (speed 1: about 0.17 m/s and 0.5 rad/s peak, roughly 150 px/s of
     image motion; 5: about 750 px/s, 25 px per 30 Hz window). Returns (t, poses).
     """
-    from plsgraph.geometry import make_T, so3_exp
+    from plsgraph.core.geometry import make_T, so3_exp
 
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration + 1e-12, dt)
@@ -188,8 +190,8 @@ SIM_KINDS = ["count", "time_surface", "polarity_aware", "leaky"]
 
 
 def sim_part(quick: bool) -> dict:
-    from plsgraph.frontend import camera_track_from_events
-    from plsgraph.geometry import se3_log
+    from plsgraph.core.geometry import se3_log
+    from plsgraph.frontend.track import camera_track_from_events
 
     cam = davis346_default()
     board = load_board("acircles_4x11")
@@ -253,11 +255,11 @@ def sim_part(quick: bool) -> dict:
 
 
 def velocity_errors(track, t: np.ndarray, poses: np.ndarray, window_s: float = 0.2) -> tuple[float, float]:
-    """Median errors of plsgraph.velocity.camera_velocities on the track against the true body velocities
+    """Median errors of plsgraph.calib.velocity.camera_velocities on the track against the true body velocities
     (central differences of the 1 kHz true poses): angular in deg/s, linear in mm/s."""
+    from plsgraph.calib.velocity import camera_velocities
+    from plsgraph.core.geometry import se3_log
     from plsgraph.errors import InsufficientDataError as _Short
-    from plsgraph.geometry import se3_log
-    from plsgraph.velocity import camera_velocities
 
     try:
         tv, w, v = camera_velocities(track, window_s=window_s)
@@ -277,8 +279,8 @@ def velocity_errors(track, t: np.ndarray, poses: np.ndarray, window_s: float = 0
 def opencv_baseline(ev, cam, board) -> dict:
     """Windows (of the same 30 Hz grid) in which OpenCV's SimpleBlobDetector + findCirclesGrid alone find the
     grid on each surface: blurred by 1 px, bright and dark blobs, both grid finders, no lattice labelling."""
-    from plsgraph.detect import detect_circle_grid
-    from plsgraph.frontend import DEFAULT_PARAMS
+    from plsgraph.frontend.detect import detect_circle_grid
+    from plsgraph.frontend.track import DEFAULT_PARAMS
 
     period = int(round(1e9 / 30))
     tq = np.arange(ev.t_first + period, ev.t_last + 1, period, dtype=np.int64)
@@ -300,8 +302,8 @@ def opencv_baseline(ev, cam, board) -> dict:
 def save_sim_pictures(ev, t, poses, cam, board) -> None:
     """docs/img/sim_<kind>.png: each representation of one 30 Hz window, with the true circle centres (green)
     and the detected ones (red) where the front end finds the board."""
-    from plsgraph.detect import detect_circle_grid
-    from plsgraph.frontend import DEFAULT_PARAMS, _rim_image
+    from plsgraph.frontend.detect import detect_circle_grid
+    from plsgraph.frontend.track import DEFAULT_PARAMS, _rim_image
 
     IMG_DIR.mkdir(parents=True, exist_ok=True)
     tq = ev.t_first + 12 * int(round(1e9 / 30))
@@ -325,7 +327,7 @@ def save_sim_pictures(ev, t, poses, cam, board) -> None:
 
 
 def _interp_poses(t: np.ndarray, poses: np.ndarray, tq: np.ndarray) -> np.ndarray:
-    from plsgraph.geometry import interpolate_poses
+    from plsgraph.core.geometry import interpolate_poses
 
     return interpolate_poses(np.clip(tq, t[0], t[-1]), t, poses)
 

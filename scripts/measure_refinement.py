@@ -2,7 +2,7 @@
 observability report says, for the rich / straight / spin motions over several seeds.
 
 For each trial: simulate (plsgraph.sim.robot), wheel odometry -> BaseTrack, detections (0.3 px) -> PnP
-camera track, closed form (plsgraph.pipeline.calibrate_closed_form, PLS) -> seed, refine. Where the
+camera track, closed form (plsgraph.calib.closed_form.calibrate_closed_form, PLS) -> seed, refine. Where the
 closed form gives no rotation (straight, spin: it refuses degenerate motion) the seed is the truth
 turned by 3 deg about a random axis with td off by 10 ms, and the table says so.
 
@@ -19,17 +19,17 @@ import time
 
 import numpy as np
 
-from plsgraph.batch import refine_many
+from plsgraph.refine.batch import refine_many
 
 
 def trial(spec: tuple[str, float, int, float], seed: int) -> dict:
     """One simulated recording, closed form and refinement; returns the figures (runs in a worker)."""
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    from plsgraph.geometry import make_T, rotation_error_deg, so3_exp, so3_log
-    from plsgraph.graph import refine
-    from plsgraph.odometry import base_track_from_wheels
-    from plsgraph.pipeline import calibrate_closed_form
-    from plsgraph.pose import camera_track_from_detections
+    from plsgraph.calib.closed_form import calibrate_closed_form
+    from plsgraph.core.geometry import make_T, rotation_error_deg, so3_exp, so3_log
+    from plsgraph.frontend.pose import camera_track_from_detections
+    from plsgraph.odometry.wheels import base_track_from_wheels
+    from plsgraph.refine.graph import refine
     from plsgraph.sim.robot import simulate_robot
 
     motion, duration, sim_seed, slip = spec

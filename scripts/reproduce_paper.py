@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Reproduce the seed paper's synthetic Tables I and II (thin wrapper over plsgraph.paper.reproduce_paper)."""
+"""Reproduce the seed paper's synthetic Tables I and II (thin wrapper over plsgraph.sim.paper.reproduce_paper)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import argparse
 import sys
 
 from plsgraph.errors import PlsgraphError
-from plsgraph.paper import Protocol, pls_variant_study, reproduce_paper
+from plsgraph.sim.paper import Protocol, pls_variant_study, reproduce_paper
 
 
 def main(argv: list[str] | None = None) -> int:

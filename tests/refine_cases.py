@@ -7,11 +7,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from plsgraph.geometry import make_T, so3_exp
-from plsgraph.odometry import base_track_from_wheels
-from plsgraph.pose import camera_track_from_detections
+from plsgraph.core.geometry import make_T, so3_exp
+from plsgraph.core.tracks import BaseTrack, CameraTrack
+from plsgraph.frontend.pose import camera_track_from_detections
+from plsgraph.odometry.wheels import base_track_from_wheels
 from plsgraph.sim.robot import SimRecording, simulate_robot
-from plsgraph.tracks import BaseTrack, CameraTrack
 
 # A closed-form-like seed: rotation off by ~2.7 deg, translation unknown (zero), td off by 5 ms.
 SEED_ROT_DEG = np.array([1.0, -1.5, 2.0])
@@ -38,6 +38,6 @@ def sim_case(motion: str, duration: float = 10.0, seed: int = 3, noise_px: float
 
 def rotation_error_base_axes(R_est: np.ndarray, R_true: np.ndarray) -> np.ndarray:
     """Rotation vector (rad) d with R_est = Exp(d) R_true: the error about base x, y, z."""
-    from plsgraph.geometry import so3_log
+    from plsgraph.core.geometry import so3_log
 
     return so3_log(R_est @ R_true.T)

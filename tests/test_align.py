@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
 
-from plsgraph.align import camera_velocities_on_grid, estimate_time_offset, pair_samples
+from plsgraph.calib.time_offset import camera_velocities_on_grid, estimate_time_offset, pair_samples
+from plsgraph.core.geometry import make_T
+from plsgraph.core.tracks import BaseTrack, CameraTrack
 from plsgraph.errors import DegenerateMotionError, InputError, InsufficientDataError
-from plsgraph.geometry import make_T
-from plsgraph.odometry import base_track_from_wheels
+from plsgraph.odometry.wheels import base_track_from_wheels
 from plsgraph.sim.robot import simulate_robot
-from plsgraph.tracks import BaseTrack, CameraTrack
 
 
 def setup(motion="rich", td=0.037, seed=0, duration=20.0, **kw):

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import yaml
 
-from plsgraph.app import PipelineOptions, build_report, run_from_tracks, summary_text
+from plsgraph.api import PipelineOptions, build_report, run_from_tracks, summary_text
+from plsgraph.core.geometry import rotation_error_deg
 from plsgraph.errors import InputError
-from plsgraph.figures import write_html_report
-from plsgraph.geometry import rotation_error_deg
-from plsgraph.odometry import base_track_from_wheels
-from plsgraph.pose import camera_track_from_detections
-from plsgraph.report import prepare_output_dir, write_json, write_yaml
+from plsgraph.frontend.pose import camera_track_from_detections
+from plsgraph.odometry.wheels import base_track_from_wheels
+from plsgraph.report.figures import write_html_report
+from plsgraph.report.files import prepare_output_dir, write_json, write_yaml
 from plsgraph.sim.robot import simulate_robot
 
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from refine_cases import rotation_error_base_axes, sim_case
 
-from plsgraph.batch import RefineJob, item_seed, refine_job, refine_many
 from plsgraph.errors import InputError
+from plsgraph.refine.batch import RefineJob, item_seed, refine_job, refine_many
 
 
 def noisy_mean(item, seed):

@@ -3,9 +3,9 @@
 import json
 
 import pytest
+from realdata import SHARED_REAL_DIR
 
-from plsgraph.cli import main
-from plsgraph.paths import SHARED_REAL_DIR
+from plsgraph.cli.main import main
 
 DAVIS = SHARED_REAL_DIR / "davis346_tagboard.mcap"
 
@@ -73,7 +73,7 @@ def test_batch_reports_failures_without_stopping(tmp_path, capsys):
     assert all(r["error"] for r in summary["recordings"])
 
 
-SAMPLE = __import__("plsgraph.paths", fromlist=["DATA_DIR"]).DATA_DIR / "sample" / "rich_sample.mcap"
+SAMPLE = __import__("realdata").SAMPLE
 
 
 @pytest.mark.parametrize(

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from plsgraph.closedform import CCA_COND_WARN, RotationResult, excitation, hand_eye, solve
+from plsgraph.calib.solvers import CCA_COND_WARN, RotationResult, excitation, hand_eye, solve
+from plsgraph.core.geometry import inv_T, is_rotation, random_rotation_zyx, se3_exp, so3_log
 from plsgraph.errors import DegenerateMotionError, InputError, InsufficientDataError
-from plsgraph.geometry import inv_T, is_rotation, random_rotation_zyx, se3_exp, so3_log
 
 # Every solver configuration the tests exercise; (name, solve kwargs).
 CONFIGS = [

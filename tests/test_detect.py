@@ -6,9 +6,10 @@ import cv2
 import numpy as np
 import pytest
 
-from plsgraph.board import Board, load_board
-from plsgraph.camera import CameraModel, davis346_default
-from plsgraph.detect import (
+from plsgraph.core.board import Board, load_board
+from plsgraph.core.camera import CameraModel, davis346_default
+from plsgraph.core.geometry import inv_T, make_T, rotation_error_deg, so3_exp, transform_points
+from plsgraph.frontend.detect import (
     REASON_AMBIGUOUS,
     REASON_EMPTY,
     REASON_MIRRORED,
@@ -22,8 +23,7 @@ from plsgraph.detect import (
     make_aruco_detector,
     track_circle_grid,
 )
-from plsgraph.geometry import inv_T, make_T, rotation_error_deg, so3_exp, transform_points
-from plsgraph.pose import solve_pnp
+from plsgraph.frontend.pose import solve_pnp
 from plsgraph.sim.render import render_intensity_u8, render_log_intensity
 
 CAM = davis346_default()

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import yaml
 
-from plsgraph.cli import main
-from plsgraph.geometry import rotation_error_deg
+from plsgraph.cli.main import main
+from plsgraph.core.geometry import rotation_error_deg
 
 # Tolerances for an 8 s "rich" simulated recording seen through the event front end (see docs/refinement.md
 # for the spread over seeds): rotation, camera position in the floor plane, time offset.

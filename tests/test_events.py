@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
+from plsgraph.core.events import EventStream
 from plsgraph.errors import InputError
-from plsgraph.events import EventStream
 
 
 def _stream(n=100, w=10, h=8, seed=0):

@@ -15,9 +15,9 @@ from factors.reprojection import (
     evaluate_frames,
     make_reprojection_factors,
 )
-from plsgraph.board import load_board
-from plsgraph.camera import davis346_default
-from plsgraph.geometry import inv_T, make_T, se3_exp, so3_exp
+from plsgraph.core.board import load_board
+from plsgraph.core.camera import davis346_default
+from plsgraph.core.geometry import inv_T, make_T, se3_exp, so3_exp
 
 X = gtsam.symbol("x", 0)
 
@@ -89,7 +89,7 @@ def reprojection_case(rng, m=3, corr=True, holes=True):
     Xb = Xa @ se3_exp(rng.normal(scale=0.2, size=(m, 6)))
     odo = None
     if corr:
-        from plsgraph.geometry import interpolate_poses
+        from plsgraph.core.geometry import interpolate_poses
 
         to, To = odometry_track(rng)
         odo = OdometryDetail(to, To, interpolate_poses(t_a, to, To), interpolate_poses(t_b, to, To))
@@ -292,7 +292,7 @@ def test_odometry_between_factors_zero_on_odometry_and_path_increments():
 
 def test_odometry_detail_makes_the_base_pose_follow_the_odometry():
     """With the graph knots equal to the odometry's, a frame's base pose is the odometry pose at t + td."""
-    from plsgraph.geometry import interpolate_poses
+    from plsgraph.core.geometry import interpolate_poses
 
     rng = np.random.default_rng(21)
     to, To = odometry_track(rng)

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plsgraph.board import Board, load_board
-from plsgraph.camera import CameraModel, davis346_default
+from plsgraph.core.board import Board, load_board
+from plsgraph.core.camera import CameraModel, davis346_default
+from plsgraph.core.events import EventStream
+from plsgraph.core.geometry import interpolate_poses, inv_T, make_T, rotation_error_deg, so3_exp, transform_points
 from plsgraph.errors import InputError, InsufficientDataError
-from plsgraph.events import EventStream
-from plsgraph.frontend import camera_track_from_events
-from plsgraph.geometry import interpolate_poses, inv_T, make_T, rotation_error_deg, so3_exp, transform_points
+from plsgraph.frontend.track import camera_track_from_events
 from plsgraph.sim.events import simulate_events
 
 CAM = davis346_default()

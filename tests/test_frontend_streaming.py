@@ -1,12 +1,12 @@
 """The streaming front end sees the same windows as the single pass, in memory bounded by its span."""
 
 import numpy as np
+from realdata import DATA_DIR
 
-from plsgraph.board import load_board
-from plsgraph.frontend import camera_track_from_event_chunks, camera_track_from_events
+from plsgraph.core.board import load_board
+from plsgraph.frontend.track import camera_track_from_event_chunks, camera_track_from_events
 from plsgraph.io.events_reader import iter_event_chunks, read_events
 from plsgraph.io.recording import read_recording
-from plsgraph.paths import DATA_DIR
 
 SAMPLE = DATA_DIR / "sample" / "rich_sample.mcap"
 

@@ -1,10 +1,9 @@
 import numpy as np
 import pytest
 
-from plsgraph.board import Board, load_board
-from plsgraph.camera import CameraModel, davis346_default
-from plsgraph.errors import InputError
-from plsgraph.geometry import (
+from plsgraph.core.board import Board, load_board
+from plsgraph.core.camera import CameraModel, davis346_default
+from plsgraph.core.geometry import (
     interpolate_poses,
     inv_T,
     is_rotation,
@@ -14,6 +13,7 @@ from plsgraph.geometry import (
     se3_log,
     so3_exp,
 )
+from plsgraph.errors import InputError
 
 
 def test_se3_exp_log_round_trip():

@@ -5,16 +5,16 @@ import numpy as np
 import pytest
 from refine_cases import rotation_error_base_axes, sim_case
 
+from plsgraph.core.geometry import make_T, rotation_error_deg
+from plsgraph.core.tracks import CameraTrack, Detections
 from plsgraph.errors import InputError, InsufficientDataError
-from plsgraph.geometry import make_T, rotation_error_deg
-from plsgraph.graph import (
+from plsgraph.refine.graph import (
     RefinementOptions,
     compare_solutions,
     joint_marginal_covariance,
     refine,
     seed_translation_and_board,
 )
-from plsgraph.tracks import CameraTrack, Detections
 
 
 @pytest.fixture(scope="module")
@@ -146,7 +146,7 @@ def test_joint_marginal_matches_gtsam_marginals_on_a_small_graph():
     ref = np.block([[jm.at(a, b) for b in want] for a in want])
     assert np.allclose(mine, ref, rtol=1e-8, atol=1e-12)
     # The scipy fallback gives the same Schur complement as GTSAM's partial elimination.
-    from plsgraph.graph import _schur_sparse
+    from plsgraph.refine.graph import _schur_sparse
 
     S = _schur_sparse(g.linearize(v), v, want)
     assert np.allclose(np.linalg.inv(S), ref, rtol=1e-8, atol=1e-12)
@@ -172,8 +172,8 @@ def test_comparison_table_with_and_without_truth(rich):
 def test_odometry_smoothing_keeps_uniform_motion_exact_up_to_the_ends():
     """A centred moving average reproduces motion at constant linear and angular velocity everywhere; a window
     that repeats the end sample would lag (start) or lead (end) the odometry there."""
-    from plsgraph.geometry import so3_exp
-    from plsgraph.graph import smooth_poses
+    from plsgraph.core.geometry import so3_exp
+    from plsgraph.refine.graph import smooth_poses
 
     t = np.arange(40) * 0.02
     T = np.stack([make_T(so3_exp(np.array([0.1, -0.2, 0.8]) * ti), np.array([0.5, 0.1, 0.0]) * ti) for ti in t])
@@ -192,8 +192,8 @@ def test_frames_near_the_odometry_ends_do_not_bias_td(seed):
     """Exact odometry (no slip, no quantization) and noise-free detections whose first and last frames lie within
     the smoothing window of the odometry's ends: td and the rotation come out at the truth. With end samples
     repeated in the smoothing these few frames moved td by 3 to 6 ms and the rotation by 0.3 to 0.5 deg."""
-    from plsgraph.odometry import base_track_from_wheels
-    from plsgraph.pose import camera_track_from_detections
+    from plsgraph.frontend.pose import camera_track_from_detections
+    from plsgraph.odometry.wheels import base_track_from_wheels
     from plsgraph.sim.robot import simulate_robot
 
     rec = simulate_robot("rich", duration=4.0, seed=seed, slip=0.0, encoder_ticks_per_rev=0)

@@ -13,12 +13,12 @@ from contextlib import contextmanager
 
 import numpy as np
 import pytest
+from realdata import SHARED_REAL_DIR
 
-from plsgraph.camera import CameraModel
+from plsgraph.core.camera import CameraModel
+from plsgraph.core.events import EventStream
 from plsgraph.errors import RecordingError
-from plsgraph.events import EventStream
 from plsgraph.io import JointStates, OdometryMsgs, inspect_recording, read_events, read_recording, write_recording
-from plsgraph.paths import SHARED_REAL_DIR
 
 T0 = 1_700_000_000_000_000_000
 

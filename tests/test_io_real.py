@@ -6,8 +6,7 @@ import struct
 
 import numpy as np
 import pytest
-
-from plsgraph.paths import SHARED_REAL_DIR
+from realdata import SHARED_REAL_DIR
 
 DAVIS = SHARED_REAL_DIR / "davis346_tagboard.mcap"
 JACKAL = SHARED_REAL_DIR / "jackal_odometry.bag"

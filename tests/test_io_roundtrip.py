@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plsgraph.camera import CameraModel
+from plsgraph.core.camera import CameraModel
+from plsgraph.core.events import EventStream
 from plsgraph.errors import InputError, RecordingError
-from plsgraph.events import EventStream
 from plsgraph.io import (
     JointStates,
     OdometryMsgs,

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from refine_cases import rotation_error_base_axes, sim_case
 
+from plsgraph.core.geometry import make_T, se3_exp, so3_exp
 from plsgraph.errors import InputError
-from plsgraph.geometry import make_T, se3_exp, so3_exp
-from plsgraph.graph import refine
-from plsgraph.observability import AXES, not_converged_report, observability_report, user_axes_jacobian
+from plsgraph.refine.graph import refine
+from plsgraph.refine.observability import AXES, not_converged_report, observability_report, user_axes_jacobian
 
 PRIOR = np.diag([0.5**-2] * 3 + [1.0**-2] * 3 + [0.05**-2])
 

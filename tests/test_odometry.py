@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from plsgraph.core.geometry import rotation_error_deg, yaw_of
 from plsgraph.errors import InputError, InsufficientDataError
-from plsgraph.geometry import rotation_error_deg, yaw_of
-from plsgraph.odometry import (
+from plsgraph.odometry.wheels import (
     base_track_from_odometry,
     base_track_from_wheels,
     diff_drive,
@@ -152,7 +152,7 @@ def test_integrate_planar_matches_small_step_limit():
 @pytest.fixture(scope="module")
 def jackal_odometry():
     """Real Clearpath Jackal odometry (50 Hz nav_msgs/Odometry) from /work/shared/data/real."""
-    from plsgraph.paths import SHARED_REAL_DIR
+    from realdata import SHARED_REAL_DIR
 
     path = SHARED_REAL_DIR / "jackal_odometry.bag"
     if not path.is_file():

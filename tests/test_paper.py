@@ -3,9 +3,9 @@ import json
 import numpy as np
 import pytest
 
+from plsgraph.core.geometry import is_rotation
 from plsgraph.errors import InputError
-from plsgraph.geometry import is_rotation
-from plsgraph.paper import METHODS, Protocol, centering_study, reproduce_paper
+from plsgraph.sim.paper import METHODS, Protocol, centering_study, reproduce_paper
 from plsgraph.sim.routes import PLANAR_ROUTES, ROUTES, make_trials, route_samples
 
 

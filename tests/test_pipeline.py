@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
 
+from plsgraph.calib.closed_form import calibrate_closed_form
+from plsgraph.core.geometry import rotation_error_deg
+from plsgraph.core.tracks import CameraTrack
 from plsgraph.errors import DegenerateMotionError, InputError, InsufficientDataError
-from plsgraph.geometry import rotation_error_deg
-from plsgraph.odometry import base_track_from_wheels
-from plsgraph.pipeline import calibrate_closed_form
+from plsgraph.odometry.wheels import base_track_from_wheels
 from plsgraph.sim.robot import default_T_base_cam, simulate_robot
-from plsgraph.tracks import CameraTrack
 
 
 def tracks(motion="rich", seed=0, td=0.037, duration=20.0, T_base_cam=None, **cam_noise):
@@ -103,8 +103,8 @@ def test_bad_arguments():
 
 
 def test_detections_and_pnp_path():
-    from plsgraph.board import Board
-    from plsgraph.pose import camera_track_from_detections
+    from plsgraph.core.board import Board
+    from plsgraph.frontend.pose import camera_track_from_detections
 
     # OpenCV's 4 x 11 grid printed with 5 cm spacing: on the small default print (2.5 cm) the DAVIS346's PnP
     # tilt is several degrees noisy per frame and the closed form degrades to ~1-3 deg (see
@@ -121,7 +121,7 @@ def test_detections_and_pnp_path():
 
 
 def test_pose_outliers_are_rejected_and_counted():
-    from plsgraph.geometry import se3_exp
+    from plsgraph.core.geometry import se3_exp
 
     rec, base, cam = tracks("rich", seed=7)
     rng = np.random.default_rng(0)
@@ -175,8 +175,8 @@ def test_correct_odometry_gives_unit_scales():
 
 
 def test_planar_hand_eye_is_robust_to_spoiled_pairs():
-    from plsgraph.geometry import inv_T, make_T, rot_z
-    from plsgraph.pipeline import planar_hand_eye_translation
+    from plsgraph.calib.closed_form import planar_hand_eye_translation
+    from plsgraph.core.geometry import inv_T, make_T, rot_z
 
     rec = simulate_robot("rich", seed=11, td=0.0, duration=20.0)
     t0 = np.arange(0.5, 18.5, 0.1)
@@ -194,8 +194,8 @@ def test_planar_hand_eye_is_robust_to_spoiled_pairs():
 
 
 def test_model_based_time_offset_refinement_converges_from_an_offset_start():
-    from plsgraph.align import camera_velocities_on_grid
-    from plsgraph.pipeline import refine_time_offset
+    from plsgraph.calib.closed_form import refine_time_offset
+    from plsgraph.calib.time_offset import camera_velocities_on_grid
 
     rec, base, cam = tracks("rich", seed=12, td=0.05)
     cv = camera_velocities_on_grid(cam)

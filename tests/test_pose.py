@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plsgraph.board import load_board
-from plsgraph.camera import davis346_default
+from plsgraph.core.board import load_board
+from plsgraph.core.camera import davis346_default
+from plsgraph.core.geometry import inv_T, make_T, rotation_error_deg, se3_exp, se3_log, so3_exp, transform_points
+from plsgraph.core.tracks import Detections
 from plsgraph.errors import InputError, InsufficientDataError
-from plsgraph.geometry import inv_T, make_T, rotation_error_deg, se3_exp, se3_log, so3_exp, transform_points
-from plsgraph.pose import camera_track_from_detections, reprojection_jacobian, solve_pnp
-from plsgraph.tracks import Detections
+from plsgraph.frontend.pose import camera_track_from_detections, reprojection_jacobian, solve_pnp
 
 BOARD = load_board("acircles_4x11")
 CAM = davis346_default()

@@ -10,13 +10,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
+from realdata import SHARED_REAL_DIR
 
-from plsgraph import surfaces
-from plsgraph.board import aprilgrid_points, load_board
-from plsgraph.camera import davis346_default
-from plsgraph.detect import aprilgrid_corner_index, detect_tags, make_aruco_detector
-from plsgraph.frontend import camera_track_from_events
-from plsgraph.paths import SHARED_REAL_DIR
+from plsgraph.core.board import aprilgrid_points, load_board
+from plsgraph.core.camera import davis346_default
+from plsgraph.frontend import surfaces
+from plsgraph.frontend.detect import aprilgrid_corner_index, detect_tags, make_aruco_detector
+from plsgraph.frontend.track import camera_track_from_events
 
 MCAP = SHARED_REAL_DIR / "davis346_tagboard.mcap"
 pytestmark = pytest.mark.skipif(not MCAP.is_file(), reason="real recording not available")

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import yaml
 
+from plsgraph.core.geometry import make_T, so3_exp
 from plsgraph.errors import InputError
-from plsgraph.geometry import make_T, so3_exp
-from plsgraph.report import (
+from plsgraph.report.files import (
     calibration_dict,
     html_report,
     html_table,

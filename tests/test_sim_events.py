@@ -6,10 +6,10 @@ import cv2
 import numpy as np
 import pytest
 
-from plsgraph.board import Board, load_board
-from plsgraph.camera import CameraModel, davis346_default
+from plsgraph.core.board import Board, load_board
+from plsgraph.core.camera import CameraModel, davis346_default
+from plsgraph.core.geometry import inv_T, make_T, so3_exp, transform_points
 from plsgraph.errors import InputError
-from plsgraph.geometry import inv_T, make_T, so3_exp, transform_points
 from plsgraph.sim.events import EventSimParams, _step_events, render_times, simulate_events
 from plsgraph.sim.render import BoardRenderer, RenderParams, render_intensity_u8, render_log_intensity
 
@@ -251,7 +251,7 @@ def test_bad_trajectories_raise(board, small_cam):
 
 def test_leaky_surface_of_simulated_events_shows_the_board_where_it_is(board):
     # End to end: simulated events -> leaky integrator -> OpenCV's circle-grid finder, against the true pose.
-    from plsgraph.surfaces import leaky_integrator, to_uint8
+    from plsgraph.frontend.surfaces import leaky_integrator, to_uint8
 
     cam = davis346_default()
     R = so3_exp([0.1, -0.2, 0.05])
@@ -267,7 +267,7 @@ def test_leaky_surface_of_simulated_events_shows_the_board_where_it_is(board):
 
 
 def test_leaky_surface_of_simulated_events_shows_aprilgrid_tags():
-    from plsgraph.surfaces import leaky_integrator, to_uint8
+    from plsgraph.frontend.surfaces import leaky_integrator, to_uint8
 
     grid = Board(pattern="aprilgrid", cols=4, rows=3, tag_size=0.05, tag_spacing=0.3)
     cam = davis346_default()

@@ -2,8 +2,8 @@ import cv2
 import numpy as np
 import pytest
 
+from plsgraph.core.geometry import inv_T, rotation_error_deg
 from plsgraph.errors import InputError
-from plsgraph.geometry import inv_T, rotation_error_deg
 from plsgraph.sim.robot import MOTIONS, default_T_base_cam, simulate_robot
 
 

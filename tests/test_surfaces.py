@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from plsgraph import surfaces as S
+from plsgraph.core.events import EventStream
 from plsgraph.errors import InputError
-from plsgraph.events import EventStream
+from plsgraph.frontend import surfaces as S
 
 MS = 1_000_000
 

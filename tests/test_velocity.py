@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from plsgraph.calib.velocity import camera_velocities, split_at_gaps
+from plsgraph.core.geometry import make_T, se3_exp, so3_exp
+from plsgraph.core.tracks import CameraTrack
 from plsgraph.errors import InsufficientDataError
-from plsgraph.geometry import make_T, se3_exp, so3_exp
-from plsgraph.tracks import CameraTrack
-from plsgraph.velocity import camera_velocities, split_at_gaps
 
 T0 = make_T(so3_exp(np.array([0.3, -1.2, 0.5])), np.array([0.1, -0.2, -0.8]))
 

@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from plsgraph.app import PipelineOptions, PipelineRun, _wheel_track
+from plsgraph.api import PipelineOptions, PipelineRun, _wheel_track
 from plsgraph.io.recording import JointStates
-from plsgraph.odometry import base_track_from_wheels
+from plsgraph.odometry.wheels import base_track_from_wheels
 from plsgraph.sim.robot import simulate_robot
 
 

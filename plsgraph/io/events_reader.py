@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.events import EventStream
 from ..errors import RecordingError
-from ..events import EventStream
 from .cdr import CdrError
 from .event_codecs import DecodeStats, Evt3Decoder, finish_events, make_decoder
 from .messages import EVENT_ARRAY_TYPES, EVENT_PACKET_TYPES, EVENT_TYPES, parse_event_array, parse_event_packet

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import CameraModel
+from ..core.camera import CameraModel
+from ..core.events import EventStream
 from ..errors import InputError, RecordingError
-from ..events import EventStream
 from .events_reader import _iter_chunks, _TopicDecoder, join_chunks, pick_topic
 from .messages import (
     CAMERA_INFO_TYPE,

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..camera import CameraModel
+from ..core.camera import CameraModel
+from ..core.events import EventStream
 from ..errors import InputError
-from ..events import EventStream
 from .cdr import CdrWriter
 from .event_codecs import encode_evt3, encode_libcaer, encode_libcaer_cmp, encode_mono
 from .messages import typestore

@@ -28,11 +28,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..board import Board
-from ..camera import CameraModel
+from ..core.board import Board
+from ..core.camera import CameraModel
+from ..core.events import EventStream
+from ..core.geometry import interpolate_poses, inv_T
 from ..errors import InputError
-from ..events import EventStream
-from ..geometry import interpolate_poses, inv_T
 from .render import BoardRenderer, RenderParams
 
 log = logging.getLogger(__name__)
@@ -101,7 +101,7 @@ def _check_trajectory(t_cam: np.ndarray, T_board_cam: np.ndarray) -> tuple[np.nd
     if bad.size:
         raise InputError(
             f"simulate_events: {bad.size} poses (first at index {bad[0]}) have no proper rotation; "
-            "re-orthonormalize them (plsgraph.geometry.project_to_so3)"
+            "re-orthonormalize them (plsgraph.core.geometry.project_to_so3)"
         )
     return t, T
 

@@ -29,8 +29,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..board import Board
-from ..camera import CameraModel
+from ..core.board import Board
+from ..core.camera import CameraModel
 from ..errors import InputError
 
 

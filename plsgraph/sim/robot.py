@@ -22,11 +22,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..board import Board, load_board
-from ..camera import CameraModel, davis346_default
+from ..core.board import Board, load_board
+from ..core.camera import CameraModel, davis346_default
+from ..core.geometry import inv_T, make_T, rot_z, se3_exp
+from ..core.tracks import BaseTrack, CameraTrack, Detections
 from ..errors import InputError
-from ..geometry import inv_T, make_T, rot_z, se3_exp
-from ..tracks import BaseTrack, CameraTrack, Detections
 
 log = logging.getLogger(__name__)
 

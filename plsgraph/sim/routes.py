@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core.geometry import random_rotation_zyx
 from ..errors import InputError
-from ..geometry import random_rotation_zyx
 
 PLANAR_ROUTES = ("circle", "v_shape", "z_shape", "s_shape")
 ROUTES = PLANAR_ROUTES + ("6dof", "planar")

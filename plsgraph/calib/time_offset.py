@@ -28,10 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import savgol_filter
 
-from .errors import DegenerateMotionError, InputError, InsufficientDataError
-from .geometry import interpolate_poses, so3_log
-from .odometry import in_gap
-from .tracks import BaseTrack, CameraTrack
+from ..core.geometry import interpolate_poses, so3_log
+from ..core.tracks import BaseTrack, CameraTrack
+from ..errors import DegenerateMotionError, InputError, InsufficientDataError
+from ..odometry.wheels import in_gap
 
 log = logging.getLogger(__name__)
 
@@ -140,7 +140,7 @@ def camera_velocities_on_grid(
 ) -> CameraVelocities:
     """Angular and linear velocity of the camera in its own frame on a uniform grid, for pairing with the base.
 
-    Unlike ``plsgraph.velocity.camera_velocities`` (velocities at the measured poses), this resamples the
+    Unlike ``plsgraph.calib.velocity.camera_velocities`` (velocities at the measured poses), this resamples the
     track onto a uniform grid so that exactly the same filter can be applied to the base poses
     (``base_velocities_on_grid``), and it drops single-frame pose outliers first.
 

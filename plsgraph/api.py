@@ -16,8 +16,11 @@ from typing import Any
 
 import numpy as np
 
-from .board import Board, load_board
-from .camera import CameraModel
+from .core.board import Board, load_board
+from .core.camera import CameraModel
+from .core.events import EventStream
+from .core.geometry import make_T, rotation_error_deg
+from .core.tracks import BaseTrack, CameraTrack
 from .errors import (
     ConvergenceError,
     DegenerateMotionError,
@@ -26,10 +29,7 @@ from .errors import (
     PlsgraphError,
     RecordingError,
 )
-from .events import EventStream
-from .geometry import make_T, rotation_error_deg
-from .report import calibration_dict, markdown_table, prepare_output_dir, to_jsonable, write_json, write_yaml
-from .tracks import BaseTrack, CameraTrack
+from .report.files import calibration_dict, markdown_table, prepare_output_dir, to_jsonable, write_json, write_yaml
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +52,7 @@ def _no_progress(label: str) -> _NoProgress:
 
 
 def terminal_progress(label: str):
-    from .progress import ProgressBar
+    from .cli.progress import ProgressBar
 
     return ProgressBar(label)
 
@@ -190,7 +190,7 @@ def read_inputs(run: PipelineRun, progress: ProgressFactory) -> Any:
 
 
 def build_base_track(run: PipelineRun, rec: Any) -> BaseTrack:
-    from .odometry import base_track_from_odometry
+    from .odometry.wheels import base_track_from_odometry
 
     opts = run.options
     have_odom = rec.odometry is not None and len(rec.odometry.t) > 1
@@ -217,7 +217,7 @@ def build_base_track(run: PipelineRun, rec: Any) -> BaseTrack:
 
 def _wheel_track(run: PipelineRun, joints: Any) -> BaseTrack:
     """BaseTrack from wheel joint states: angles unwrapped, repeated stamps dropped, rates if angles are missing."""
-    from .odometry import base_track_from_wheels
+    from .odometry.wheels import base_track_from_wheels
 
     opts = run.options
     try:
@@ -274,7 +274,7 @@ def _fill_unwrapped(t: np.ndarray, x: np.ndarray, unwrap: bool) -> np.ndarray:
 
 def build_camera_track(run: PipelineRun, progress: ProgressFactory) -> CameraTrack:
     """The event front end, streaming the events through in spans of a few seconds (bounded memory)."""
-    from .frontend import camera_track_from_event_chunks
+    from .frontend.track import camera_track_from_event_chunks
     from .io.events_reader import EVENT_TYPES, iter_event_chunks, pick_topic
     from .io.source import open_source
 
@@ -327,7 +327,7 @@ def build_camera_track(run: PipelineRun, progress: ProgressFactory) -> CameraTra
 
 
 def run_closed_form(run: PipelineRun) -> Any:
-    from .pipeline import calibrate_closed_form
+    from .calib.closed_form import calibrate_closed_form
 
     td = run.options.td_range
     cf = calibrate_closed_form(run.camera_track, run.base_track, method=run.options.method, td_range=(-td, td))
@@ -337,7 +337,7 @@ def run_closed_form(run: PipelineRun) -> Any:
 
 
 def run_refinement(run: PipelineRun, progress: ProgressFactory) -> Any:
-    from .graph import RefinementOptions, refine
+    from .refine.graph import RefinementOptions, refine
 
     cf = run.closed_form  # its rotation exists: _solve and diagnose check before they refine
     t = cf.t_base_cam if cf.t_base_cam is not None else np.zeros(3)
@@ -644,7 +644,7 @@ def calibrate_to_dir(
     progress: ProgressFactory = terminal_progress,
 ) -> dict:
     """Run the pipeline and write calibration.yaml, report.json, report.html (+ PNGs) into ``out_dir``."""
-    from .figures import write_html_report
+    from .report.figures import write_html_report
 
     out = prepare_output_dir(out_dir, force=force, create=False)  # refuse before hours of work, not after
     try:
@@ -725,7 +725,7 @@ def motion_advice(cf: Any, obs: list[dict]) -> list[str]:
 
 def compare(log_path: str | Path, options: PipelineOptions, progress: ProgressFactory = terminal_progress) -> dict:
     """Every closed-form solver and the refinement side by side (errors against --truth when given)."""
-    from .graph import compare_solutions
+    from .refine.graph import compare_solutions
 
     run = run_pipeline(log_path, options, refine=True, progress=progress)
     sols = {name: m for name, m in run.closed_form.methods.items() if m.R_base_cam is not None}
@@ -853,7 +853,7 @@ def _batch_item(item: tuple[str, str, dict, bool], seed: int = 0) -> dict:
 
 def run_batch(args) -> dict:
     """Calibrate many recordings in parallel (local processes, or a Dask cluster with --scheduler)."""
-    from .batch import refine_many
+    from .refine.batch import refine_many
 
     logs = find_recordings(args.inputs)
     out = prepare_output_dir(args.out, force=args.force)
@@ -878,7 +878,7 @@ def run_batch(args) -> dict:
             raise InputError(f"cannot reach the Dask scheduler at {args.scheduler}: {exc}") from exc
         executor = client.get_executor()
     else:
-        from .batch import default_executor
+        from .refine.batch import default_executor
 
         executor = default_executor(len(items), args.jobs)
     try:

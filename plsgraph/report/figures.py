@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from .geometry import inv_T, rotation_error_deg
-from .report import html_report, html_table, status_colour, write_text
+from ..core.geometry import inv_T, rotation_error_deg
+from .files import html_report, html_table, status_colour, write_text
 
 log = logging.getLogger(__name__)
 

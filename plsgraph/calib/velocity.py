@@ -20,8 +20,8 @@ import logging
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .errors import InputError, InsufficientDataError
-from .tracks import CameraTrack
+from ..core.tracks import CameraTrack
+from ..errors import InputError, InsufficientDataError
 
 log = logging.getLogger(__name__)
 

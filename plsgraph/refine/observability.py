@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg
 
-from .errors import InputError
+from ..errors import InputError
 
 OBSERVABLE_RATIO = 0.1
 UNOBSERVABLE_RATIO = 0.5

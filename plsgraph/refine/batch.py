@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from .camera import CameraModel
-from .errors import InputError
-from .tracks import BaseTrack, CameraTrack
+from ..core.camera import CameraModel
+from ..core.tracks import BaseTrack, CameraTrack
+from ..errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -127,14 +127,14 @@ def refine_many(
 
 @dataclass(frozen=True)
 class RefineJob:
-    """Everything :func:`plsgraph.graph.refine` needs for one recording (picklable)."""
+    """Everything :func:`plsgraph.refine.graph.refine` needs for one recording (picklable)."""
 
     camera_track: CameraTrack
     base_track: BaseTrack
     camera: CameraModel
     seed_T_base_cam: np.ndarray
     seed_td: float
-    options: Any = None  # plsgraph.graph.RefinementOptions or None
+    options: Any = None  # plsgraph.refine.graph.RefinementOptions or None
 
 
 def refine_job(job: RefineJob, seed: int = 0):

@@ -19,7 +19,7 @@ What planar motion can determine (frames: base x forward, y left, z up; ``R = R_
 * Constant-curvature driving (v proportional to w, e.g. one steady circle) confounds yaw with the sideways
   lever arm in the velocity equations; it is detected and reported.
 
-The default rotation solver is PLS (``plsgraph.closedform.solve``) on the stacked angular and linear velocity
+The default rotation solver is PLS (``plsgraph.calib.solvers.solve``) on the stacked angular and linear velocity
 rows, the linear rows scaled to the same RMS as the angular ones so that both axes weigh alike, weighted by the
 pose covariances and reweighted (Huber) against samples the model does not explain. The lever arm comes with
 the odometry's speed and turn-rate scale factors (wrong wheel radius, effective track width), and td is refined
@@ -33,8 +33,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import closedform
-from .align import (
+from ..core.geometry import inv_T
+from ..core.tracks import BaseTrack, CameraTrack
+from ..errors import DegenerateMotionError, InputError, PlsgraphError
+from ..odometry.wheels import in_gap, rescale_planar_track
+from . import solvers as closedform
+from .time_offset import (
     DEFAULT_WINDOW_S,
     CameraVelocities,
     PairedSamples,
@@ -43,10 +47,6 @@ from .align import (
     estimate_time_offset,
     pair_samples,
 )
-from .errors import DegenerateMotionError, InputError, PlsgraphError
-from .geometry import inv_T
-from .odometry import in_gap, rescale_planar_track
-from .tracks import BaseTrack, CameraTrack
 
 log = logging.getLogger(__name__)
 

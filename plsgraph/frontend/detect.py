@@ -23,9 +23,9 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from .board import Board
-from .camera import CameraModel
-from .errors import InputError
+from ..core.board import Board
+from ..core.camera import CameraModel
+from ..errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -793,7 +793,7 @@ def detect_aprilgrid(
         raise InputError(f"detect_aprilgrid: board {board.name!r} is a {board.pattern}, not an aprilgrid")
     img = np.asarray(image8)
     if img.dtype != np.uint8:
-        raise InputError("detect_aprilgrid: give an 8-bit image (see plsgraph.surfaces.to_uint8)")
+        raise InputError("detect_aprilgrid: give an 8-bit image (see plsgraph.frontend.surfaces.to_uint8)")
     n = board.n_points
     det = detect_tags(img, detector or make_aruco_detector())
     n_tags = board.cols * board.rows

@@ -6,9 +6,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from .errors import InputError
+from ..errors import InputError
+from .resources import bundled_dir, read_yaml_mapping
 
 
 @dataclass(frozen=True)
@@ -125,21 +125,9 @@ class CameraModel:
     @classmethod
     def from_yaml(cls, path: str | Path) -> CameraModel:
         """Load from plsgraph's camera YAML or a ROS camera_calibration YAML (camera_matrix / ...)."""
-        path = Path(path)
-        if not path.is_file():
-            raise InputError(f"camera file {path} does not exist")
-        try:
-            with open(path) as f:
-                d = yaml.safe_load(f)
-        except (yaml.YAMLError, UnicodeDecodeError) as exc:
-            raise InputError(f"camera file {path} is not valid YAML: {exc}") from exc
-        if not isinstance(d, dict):
-            raise InputError(f"camera file {path} is not a YAML mapping")
-        return cls.from_dict(d)
+        return cls.from_dict(read_yaml_mapping(path, "camera file"))
 
 
 def davis346_default() -> CameraModel:
     """Preset for a DAVIS346 (346 x 260, 18 um pixels) with a ~4.5 mm lens (data/cameras/davis346.yaml)."""
-    from .paths import CAMERAS_DIR
-
-    return CameraModel.from_yaml(CAMERAS_DIR / "davis346.yaml")
+    return CameraModel.from_yaml(bundled_dir("cameras") / "davis346.yaml")

@@ -1,7 +1,7 @@
 """Image representations of event streams: count frames, time surfaces, the paper's polarity-aware surface
 and a leaky polarity integrator.
 
-Every representation is computed from a slice of an :class:`~plsgraph.events.EventStream` without a Python
+Every representation is computed from a slice of an :class:`~plsgraph.core.events.EventStream` without a Python
 loop per event: per-pixel "last event" quantities come from ``np.maximum.at`` over the event index (events
 are sorted by time, so the largest index at a pixel is its most recent event), sums from ``np.bincount``.
 
@@ -36,8 +36,8 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from .errors import InputError
-from .events import EventStream
+from ..core.events import EventStream
+from ..errors import InputError
 
 log = logging.getLogger(__name__)
 

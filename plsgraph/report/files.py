@@ -19,7 +19,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from .errors import InputError
+from ..errors import InputError
 
 COVARIANCE_ORDER = ["roll", "pitch", "yaw", "x", "y", "z", "td"]
 COVARIANCE_NOTE = (

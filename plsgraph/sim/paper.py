@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .closedform import solve
-from .errors import InputError, PlsgraphError
-from .geometry import rotation_error_deg
-from .sim.routes import PLANAR_ROUTES, ROUTE_TITLES, make_trials
+from ..calib.solvers import solve
+from ..core.geometry import rotation_error_deg
+from ..errors import InputError, PlsgraphError
+from .routes import PLANAR_ROUTES, ROUTE_TITLES, make_trials
 
 log = logging.getLogger(__name__)
 

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from .errors import InputError
+from ..errors import InputError
+from .resources import bundled_file, bundled_names, read_yaml_mapping
 
 PATTERNS = ("asymmetric_circles", "aprilgrid")
 
@@ -112,14 +112,8 @@ class Board:
     @classmethod
     def from_yaml(cls, path: str | Path) -> Board:
         path = Path(path)
-        if not path.is_file():
-            raise InputError(f"board file {path} does not exist (bundled boards are in data/boards/)")
-        try:
-            with open(path) as f:
-                d = yaml.safe_load(f)
-        except (yaml.YAMLError, UnicodeDecodeError) as exc:
-            raise InputError(f"board file {path} is not valid YAML: {exc}") from exc
-        if isinstance(d, dict) and d.get("target_type") == "aprilgrid":  # a Kalibr target file
+        d = read_yaml_mapping(path, "board file")
+        if d.get("target_type") == "aprilgrid":  # a Kalibr target file
             d = dict(d, pattern="aprilgrid")
         return cls.from_dict(d, name=path.stem)
 
@@ -142,13 +136,11 @@ def aprilgrid_points(cols: int, rows: int, tag_size: float, spacing_ratio: float
 
 def load_board(name_or_path: str | Path) -> Board:
     """A board from a YAML path, or by bundled name (e.g. ``acircles_4x11``)."""
-    from .paths import BOARDS_DIR
-
     p = Path(name_or_path)
     if p.is_file():
         return Board.from_yaml(p)
-    bundled = BOARDS_DIR / f"{p.stem}.yaml"
-    if bundled.is_file():
+    bundled = bundled_file("boards", str(p))
+    if bundled is not None:
         return Board.from_yaml(bundled)
-    have = ", ".join(sorted(q.stem for q in BOARDS_DIR.glob("*.yaml")))
+    have = ", ".join(bundled_names("boards"))
     raise InputError(f"board {name_or_path!r} not found; give a YAML path or one of: {have}")

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import DegenerateMotionError, InputError, InsufficientDataError
-from .geometry import inv_T, so3_log
+from ..core.geometry import inv_T, so3_log
+from ..errors import DegenerateMotionError, InputError, InsufficientDataError
 
 log = logging.getLogger(__name__)
 

@@ -18,9 +18,9 @@ import logging
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .errors import InputError, InsufficientDataError
-from .geometry import interpolate_poses, make_T, rot_z
-from .tracks import BaseTrack
+from ..core.geometry import interpolate_poses, make_T, rot_z
+from ..core.tracks import BaseTrack
+from ..errors import InputError, InsufficientDataError
 
 log = logging.getLogger(__name__)
 

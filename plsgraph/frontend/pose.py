@@ -1,7 +1,7 @@
 """Board pose from pixel detections: planar PnP, outlier handling, covariance, and the camera track.
 
 OpenCV's PnP returns T_cam_board (rvec, tvec); everything leaving this module is T_board_cam, the
-camera pose in the board frame, which is what :class:`plsgraph.tracks.CameraTrack` stores.
+camera pose in the board frame, which is what :class:`plsgraph.core.tracks.CameraTrack` stores.
 
 Covariance convention: T_board_cam(xi) = T_board_cam * Exp(xi), xi = (rotation, translation), so
 the 6 x 6 matrices returned here are directly usable as GTSAM Pose3 noise models.
@@ -17,10 +17,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .camera import CameraModel
-from .errors import InputError, InsufficientDataError
-from .geometry import hat, inv_T, make_T
-from .tracks import CameraTrack, Detections
+from ..core.camera import CameraModel
+from ..core.geometry import hat, inv_T, make_T
+from ..core.tracks import CameraTrack, Detections
+from ..errors import InputError, InsufficientDataError
 
 log = logging.getLogger(__name__)
 

@@ -15,8 +15,8 @@ import sys
 import traceback
 from pathlib import Path
 
-from . import __version__
-from .errors import PlsgraphError
+from .. import __version__
+from ..errors import PlsgraphError
 
 EPILOG = """\
 typical session:
@@ -158,7 +158,7 @@ def _emit(args: argparse.Namespace, text: str, code: int) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    from .paper import reproduce_paper
+    from ..sim.paper import reproduce_paper
     from .progress import ProgressBar
 
     trials = 20 if args.quick and args.trials == 200 else args.trials
@@ -171,7 +171,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
-    from .io.inspect import format_inspection, inspect_recording
+    from ..io.inspect import format_inspection, inspect_recording
 
     info = inspect_recording(args.log)
     if not info.get("topics"):
@@ -186,7 +186,7 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from .app import simulate_to_file
+    from ..api import simulate_to_file
 
     paths = simulate_to_file(args.out, motion=args.motion, duration=args.duration, seed=args.seed, td=args.td,
                              event_format=args.event_format, overwrite=args.force, board=args.board,
@@ -197,28 +197,28 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _options(args: argparse.Namespace):
-    from .app import PipelineOptions
+    from ..api import PipelineOptions
 
     return PipelineOptions.from_namespace(args)
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from .app import calibrate_to_dir
+    from ..api import calibrate_to_dir
 
     summary = calibrate_to_dir(args.log, args.out, _options(args), refine=not args.no_refine, force=args.force)
     return _emit(args, summary["text"], 0 if summary["ok"] else 1)
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
-    from .app import diagnose
+    from ..api import diagnose
 
     res = diagnose(args.log, _options(args))
     return _emit(args, json.dumps(res["json"], indent=2) if args.json else res["text"], 0 if res["ok"] else 1)
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
-    from .app import compare
-    from .errors import DegenerateMotionError
+    from ..api import compare
+    from ..errors import DegenerateMotionError
 
     try:
         res = compare(args.log, _options(args))
@@ -229,7 +229,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from .app import run_batch
+    from ..api import run_batch
 
     res = run_batch(args)
     return _emit(args, res["text"], 0 if res["ok"] else 1)

@@ -1,8 +1,8 @@
 """The event front end: event surfaces at a fixed rate -> board detection -> PnP -> camera track.
 
 For each window the events just before the query time t_k are turned into an image
-(:mod:`plsgraph.surfaces`), the board is detected in it (:mod:`plsgraph.detect`) and the pose is
-solved by PnP (:mod:`plsgraph.pose`). What is counted in ``track.info``:
+(:mod:`plsgraph.frontend.surfaces`), the board is detected in it (:mod:`plsgraph.frontend.detect`) and the pose is
+solved by PnP (:mod:`plsgraph.frontend.pose`). What is counted in ``track.info``:
 
 * ``windows``: windows tried; ``detected``: windows with a verified board detection;
   ``poses``: windows that produced a pose;
@@ -12,11 +12,11 @@ solved by PnP (:mod:`plsgraph.pose`). What is counted in ``track.info``:
   (``pnp_failed``, ``rms_above_threshold``);
 * ``detected_at_window_fraction``, ``seconds`` (surfaces, detection, PnP), ``warnings``.
 
-Circle grids are found as rims (:func:`plsgraph.detect.detect_circle_grid` with
+Circle grids are found as rims (:func:`plsgraph.frontend.detect.detect_circle_grid` with
 ``foreground="rims"``): each kind's image is binarized at a level that keeps the pixels with recent
 events (:func:`_rim_image`) and the circles' insides are the holes. After a detection the next
 window is searched around the board first and its circles are labelled by their constant-velocity
-predictions (:func:`plsgraph.detect.track_circle_grid`, which refuses anything a one-circle shift
+predictions (:func:`plsgraph.frontend.detect.track_circle_grid`, which refuses anything a one-circle shift
 could explain); the full lattice search runs otherwise.
 
 Detection time stamps. A surface built from the events of (t_k - W, t_k] shows the board where
@@ -44,9 +44,12 @@ from collections.abc import Callable, Iterable
 import cv2
 import numpy as np
 
+from ..core.board import Board
+from ..core.camera import CameraModel
+from ..core.events import EventStream
+from ..core.tracks import CameraTrack, Detections
+from ..errors import InputError, InsufficientDataError
 from . import surfaces
-from .board import Board
-from .camera import CameraModel
 from .detect import (
     REASON_OK,
     board_is_symmetric,
@@ -54,14 +57,11 @@ from .detect import (
     detect_circle_grid,
     make_aruco_detector,
 )
-from .errors import InputError, InsufficientDataError
-from .events import EventStream
 from .pose import camera_track_from_detections
-from .tracks import CameraTrack, Detections
 
 log = logging.getLogger(__name__)
 
-#: Short names accepted for ``kind`` in addition to :data:`plsgraph.surfaces.KINDS`.
+#: Short names accepted for ``kind`` in addition to :data:`plsgraph.frontend.surfaces.KINDS`.
 KIND_ALIASES = {"polarity": "polarity_aware", "classic": "time_surface", "ts": "time_surface"}
 TIMESTAMPS = ("events", "query", "window_centre")
 
@@ -457,14 +457,14 @@ def camera_track_from_events(
 ) -> CameraTrack:
     """Camera track T_board_cam(t) from an event stream: surfaces at ``rate_hz`` -> detection -> PnP.
 
-    ``kind``: a :mod:`plsgraph.surfaces` kind (``count``, ``polarity_sum``, ``time_surface``,
+    ``kind``: a :mod:`plsgraph.frontend.surfaces` kind (``count``, ``polarity_sum``, ``time_surface``,
     ``polarity_aware``, ``leaky``) or an alias (``polarity``, ``classic``/``ts``). ``window_s``: the
     events' look-back per window (default one frame period, or 5 tau for decaying kinds);
     ``surface_params`` override :data:`DEFAULT_PARAMS`. Windows with fewer than ``min_events``
     events are skipped. ``timestamp``: how detections are stamped (module docstring). PnP frames
     with reprojection RMS above ``max_rms_px`` are dropped; ``sigma_px`` fixes the pixel noise of the
     covariance (default: estimated per frame). AprilGrids: ``tag_layout`` / ``tag_border_bits`` as
-    in :func:`plsgraph.detect.detect_aprilgrid`, the image blurred by ``tag_blur_sigma`` px first.
+    in :func:`plsgraph.frontend.detect.detect_aprilgrid`, the image blurred by ``tag_blur_sigma`` px first.
     ``workers`` > 1 processes the windows in that many forked processes (Linux). Each chunk of
     windows starts its search afresh (no region of interest, full span first), so an occasional
     window may be found from another span than in one process. ``progress(done, total)`` is called

@@ -39,9 +39,10 @@ from factors.planar import make_planar_factor
 from factors.priors import make_height_prior, make_rotation_prior, make_subspace_prior, make_vertical_board_prior
 from factors.reprojection import FrameBatch, OdometryDetail, ReprojectionFrames, make_reprojection_factors
 
-from .camera import CameraModel
-from .errors import ConvergenceError, InputError, InsufficientDataError
-from .geometry import inv_T, is_rotation, make_T, project_to_so3, rotation_error_deg, so3_exp, so3_log
+from ..core.camera import CameraModel
+from ..core.geometry import inv_T, is_rotation, make_T, project_to_so3, rotation_error_deg, so3_exp, so3_log
+from ..core.tracks import BaseTrack, CameraTrack
+from ..errors import ConvergenceError, InputError, InsufficientDataError
 from .observability import (
     AXES,
     OBSERVABLE_RATIO,
@@ -50,7 +51,6 @@ from .observability import (
     observability_report,
     user_axes_jacobian,
 )
-from .tracks import BaseTrack, CameraTrack
 
 log = logging.getLogger(__name__)
 
@@ -265,7 +265,7 @@ def _prepare(
     if det is None or len(det) == 0:
         raise InputError(
             "refine needs the pixel detections: camera_track.detections is empty "
-            "(build the camera track with plsgraph.pose.camera_track_from_detections)"
+            "(build the camera track with plsgraph.frontend.pose.camera_track_from_detections)"
         )
     if len(base_track) < 2:
         raise InsufficientDataError("refine: the base track has fewer than 2 odometry samples")
@@ -276,7 +276,7 @@ def _prepare(
     inside = (tau >= t_odo[0]) & (tau <= t_odo[-1])
     keep = (n_valid >= opt.min_points) & inside
     try:
-        from .odometry import in_gap
+        from ..odometry.wheels import in_gap
 
         gap = in_gap(base_track, tau)
         if np.any(gap & keep):

@@ -1,0 +1,1 @@
+"""The ``plsgraph`` command: the only layer that parses arguments and prints."""
