@@ -40,11 +40,12 @@ TRUTH_KEYS = ("refined.rot_err_deg", "refined.t_xy_err_m", "refined.td_err_ms",
 
 def _worker(log: Path, truth: Path, out: Path) -> None:
     """One calibration in this (fresh) process; prints one JSON line with the figures."""
-    from plsgraph.api import PipelineOptions, _no_progress, calibrate_to_dir
+    from plsgraph.api import calibrate_to_dir
+    from plsgraph.options import CalibrationOptions
 
-    opts = PipelineOptions(board=BOARD, truth=truth)
+    opts = CalibrationOptions.build(board=BOARD, truth=truth)
     t0 = time.perf_counter()
-    res = calibrate_to_dir(log, out, opts, force=True, progress=_no_progress)
+    res = calibrate_to_dir(log, out, opts, force=True)
     wall = time.perf_counter() - t0
     rep = res["report"]
     # ru_maxrss is in KiB on Linux (bytes on macOS).

@@ -1,4 +1,4 @@
-"""The orchestration tail (closed form -> refinement -> result files) on simulated tracks, no events."""
+"""The library API's calibration tail (closed form -> refinement -> result files) on simulated tracks, no events."""
 
 import json
 
@@ -6,13 +6,16 @@ import numpy as np
 import pytest
 import yaml
 
-from plsgraph.api import PipelineOptions, build_report, run_from_tracks, summary_text
+import plsgraph
 from plsgraph.core.geometry import rotation_error_deg
 from plsgraph.errors import InputError
 from plsgraph.frontend.pose import camera_track_from_detections
 from plsgraph.odometry.wheels import base_track_from_wheels
-from plsgraph.report.figures import write_html_report
-from plsgraph.report.files import prepare_output_dir, write_json, write_yaml
+from plsgraph.options import CalibrationOptions, FrontendOptions, OdometryOptions
+from plsgraph.report.files import prepare_output_dir
+from plsgraph.report.output import write_calibration
+from plsgraph.report.text import calibration_text
+from plsgraph.result import CalibrationResult
 from plsgraph.sim.robot import simulate_robot
 
 
@@ -22,13 +25,19 @@ def sim_run():
     cam_track = camera_track_from_detections(sim.detections(noise_px=0.1, seed=4), sim.camera)
     base = base_track_from_wheels(sim.wheel_t, sim.wheel_left, sim.wheel_right, sim.wheel_radius, sim.track_width)
     truth = {"T_base_cam": sim.T_base_cam.tolist(), "td": sim.td}
-    run = run_from_tracks(cam_track, base, sim.camera, PipelineOptions(), truth=truth)
-    return sim, run
+    result = plsgraph.calibrate_tracks(cam_track, base, sim.camera, board="acircles_4x11", truth=truth)
+    return sim, result
 
 
 def test_refined_result_recovers_truth(sim_run):
-    sim, run = sim_run
+    sim, result = sim_run
+    assert isinstance(result, CalibrationResult) and result.ok and result.source == "refined"
+    run = result.run
     ref = run.refinement
+    np.testing.assert_allclose(result.T_base_cam, ref.T_base_cam)
+    assert result.time_offset_s == ref.td
+    assert result.covariance.shape == (7, 7) and result.covariance_order[-1] == "td"
+    assert set(result.closed_form) >= {"pls", "cca", "procrustes"}
     assert ref.converged
     # Tolerances: 0.1 px detection noise, no wheel slip; the refinement must beat the closed form.
     assert rotation_error_deg(ref.R_base_cam, sim.R_base_cam) < 0.1
@@ -39,12 +48,10 @@ def test_refined_result_recovers_truth(sim_run):
 
 
 def test_report_files_are_complete_and_parse(sim_run, tmp_path):
-    sim, run = sim_run
-    report = build_report(run)
+    sim, result = sim_run
+    report = result.to_dict()
     out = prepare_output_dir(tmp_path / "calib")
-    write_yaml(out / "calibration.yaml", report["calibration"])
-    write_json(out / "report.json", report)
-    write_html_report(out, run, report)
+    write_calibration(out, result)
     calib = yaml.safe_load((out / "calibration.yaml").read_text())
     rep = json.loads((out / "report.json").read_text())
     T = np.array(calib["T_base_cam"])
@@ -61,11 +68,15 @@ def test_report_files_are_complete_and_parse(sim_run, tmp_path):
     page = (out / "report.html").read_text()
     for png in ("trajectories.png", "residuals.png", "time_offset.png", "observability.png", "methods.png"):
         assert (out / png).stat().st_size > 1000 and png in page
-    assert "refined" in summary_text(report)
+    assert "refined" in calibration_text(report)
 
 
 def test_options_reject_nonsense():
     with pytest.raises(InputError):
-        PipelineOptions(wheel_radius=-1.0)
+        OdometryOptions(wheel_radius=-1.0)
     with pytest.raises(InputError):
-        PipelineOptions(rate_hz=float("nan"))
+        FrontendOptions(rate_hz=float("nan"))
+    with pytest.raises(InputError, match="unknown calibration option"):
+        CalibrationOptions.build(wheel_radus=0.1)
+    opts = CalibrationOptions.build(board="b", wheel_radius=0.1, surface="polarity", camera_height=0.3)
+    assert (opts.odometry.wheel_radius, opts.frontend.surface, opts.refine.camera_height) == (0.1, "polarity", 0.3)

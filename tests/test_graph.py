@@ -8,9 +8,9 @@ from refine_cases import rotation_error_base_axes, sim_case
 from plsgraph.core.geometry import make_T, rotation_error_deg
 from plsgraph.core.tracks import CameraTrack, Detections
 from plsgraph.errors import InputError, InsufficientDataError
+from plsgraph.refine.compare import compare_solutions
 from plsgraph.refine.graph import (
     RefinementOptions,
-    compare_solutions,
     joint_marginal_covariance,
     refine,
     seed_translation_and_board,

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from plsgraph.api import PipelineOptions, PipelineRun, _wheel_track
 from plsgraph.io.recording import JointStates
+from plsgraph.odometry.joints import wheel_track_from_joints
 from plsgraph.odometry.wheels import base_track_from_wheels
 from plsgraph.sim.robot import simulate_robot
 
@@ -15,7 +15,7 @@ def _wrap(a):
 def _reference_and_run():
     sim = simulate_robot("rich", duration=6.0, seed=4, slip=0.0, encoder_ticks_per_rev=0)
     ref = base_track_from_wheels(sim.wheel_t, sim.wheel_left, sim.wheel_right, sim.wheel_radius, sim.track_width)
-    return sim, ref, PipelineRun("sim", PipelineOptions())
+    return sim, ref, (sim.wheel_radius, sim.track_width)
 
 
 def test_four_wrapped_wheels_give_the_same_track():
@@ -24,7 +24,7 @@ def test_four_wrapped_wheels_give_the_same_track():
     pos = _wrap(np.stack([L, R, L + 1.0, R + 2.0], axis=1))  # rear wheels offset, all reported in [-pi, pi)
     names = ("front_left_wheel", "front_right_wheel", "rear_left_wheel", "rear_right_wheel")
     js = JointStates((sim.wheel_t * 1e9).astype(np.int64), names, pos, np.full_like(pos, np.nan))
-    track = _wheel_track(run, js)
+    track, _ = wheel_track_from_joints(js, *run)
     assert np.abs(track.T_world_base[:, :3, 3] - ref.T_world_base[:, :3, 3]).max() < 1e-6
     assert len(track.info.get("jumps", [])) == 0
 
@@ -42,7 +42,7 @@ def test_wheels_published_in_separate_messages_are_merged():
     pos[n:, 1] = right_later
     js = JointStates((tt[order] * 1e9).astype(np.int64), ("left_wheel", "right_wheel"), pos[order],
                      np.full((2 * n, 2), np.nan))
-    track = _wheel_track(run, js)
+    track, _ = wheel_track_from_joints(js, *run)
     end = ref.T_world_base[-1, :3, 3]
     got = track.poses_at([ref.t[-1] - 0.01])[0, :3, 3]
     assert np.linalg.norm(got - ref.poses_at([ref.t[-1] - 0.01])[0, :3, 3]) < 1e-3

@@ -76,6 +76,9 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
     p.add_argument("--truth", type=Path, help="truth YAML (from 'plsgraph simulate') to report errors against")
     p.add_argument("--camera-height", type=float,
                    help="camera height above the base frame origin in m, if measured: planar motion cannot observe it")
+    p.add_argument("--board-height", type=float,
+                   help="height of the board's origin above the floor in m, if measured: makes the camera height "
+                   "observable through the board")
     if need_out:
         p.add_argument("--out", type=Path, required=True, help="output folder (must not exist unless --force)")
         p.add_argument("--force", action="store_true", help="write into an existing output folder")
@@ -186,52 +189,88 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from ..api import simulate_to_file
+    from ..api import simulate
+    from .progress import ProgressBar
 
-    paths = simulate_to_file(args.out, motion=args.motion, duration=args.duration, seed=args.seed, td=args.td,
-                             event_format=args.event_format, overwrite=args.force, board=args.board,
-                             contrast=args.contrast)
+    paths = simulate(args.out, motion=args.motion, duration=args.duration, seed=args.seed, td=args.td,
+                     event_format=args.event_format, overwrite=args.force, board=args.board,
+                     contrast=args.contrast, progress=ProgressBar)
     for p in paths:
         print(f"written: {p}")
     return 0
 
 
 def _options(args: argparse.Namespace):
-    from ..api import PipelineOptions
+    """The calibration options from the flags (the only place that maps flags to settings)."""
+    from ..options import CalibrationOptions
 
-    return PipelineOptions.from_namespace(args)
+    topics = {
+        role: getattr(args, attr)
+        for role, attr in (("events", "events_topic"), ("joints", "joints_topic"), ("odometry", "odom_topic"))
+        if getattr(args, attr, None)
+    }
+    settings = dict(board=args.board, camera_info=args.camera_info, wheel_radius=args.wheel_radius,
+                    track_width=args.track_width)
+    if hasattr(args, "surface"):  # calibrate, diagnose, compare (batch takes the defaults)
+        settings.update(topics=topics, left_joint=args.left_joint, right_joint=args.right_joint,
+                        surface=args.surface, rate_hz=args.rate, td_range=args.td_range, method=args.method,
+                        truth=args.truth, camera_height=args.camera_height, board_height=args.board_height)
+    return CalibrationOptions.build(**settings)
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     from ..api import calibrate_to_dir
+    from .progress import ProgressBar
 
-    summary = calibrate_to_dir(args.log, args.out, _options(args), refine=not args.no_refine, force=args.force)
+    summary = calibrate_to_dir(args.log, args.out, _options(args), refine=not args.no_refine, force=args.force,
+                               progress=ProgressBar)
     return _emit(args, summary["text"], 0 if summary["ok"] else 1)
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from ..api import diagnose
+    from ..report.text import diagnosis_text
+    from .progress import ProgressBar
 
-    res = diagnose(args.log, _options(args))
-    return _emit(args, json.dumps(res["json"], indent=2) if args.json else res["text"], 0 if res["ok"] else 1)
+    res = diagnose(args.log, options=_options(args), progress=ProgressBar)
+    return _emit(args, json.dumps(res.to_dict(), indent=2) if args.json else diagnosis_text(res), 0 if res.ok else 1)
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
     from ..api import compare
     from ..errors import DegenerateMotionError
+    from ..report.text import comparison_text
+    from .progress import ProgressBar
 
     try:
-        res = compare(args.log, _options(args))
+        res = compare(args.log, options=_options(args), progress=ProgressBar)
     except DegenerateMotionError as exc:  # a result of the recording, not a user error
         print(f"plsgraph: no comparison: {exc}", file=sys.stderr)
         return 1
-    return _emit(args, json.dumps(res["json"], indent=2) if args.json else res["text"], 0)
+    return _emit(args, json.dumps(res.to_dict(), indent=2) if args.json else comparison_text(res), 0)
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
-    from ..api import run_batch
+    from ..batch import run_batch
+    from ..errors import InputError
 
-    res = run_batch(args)
+    if args.jobs is not None and args.jobs < 1:
+        raise InputError(f"--jobs must be at least 1, got {args.jobs}")
+    if not args.scheduler:
+        res = run_batch(args.inputs, args.out, _options(args), force=args.force, jobs=args.jobs)
+        return _emit(args, res["text"], 0 if res["ok"] else 1)
+    try:
+        from dask.distributed import Client
+    except ImportError as exc:
+        raise InputError("--scheduler needs dask.distributed: pip install 'plsgraph[dask]'") from exc
+    try:
+        client = Client(args.scheduler, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise InputError(f"cannot reach the Dask scheduler at {args.scheduler}: {exc}") from exc
+    try:
+        res = run_batch(args.inputs, args.out, _options(args), force=args.force, executor=client.get_executor())
+    finally:
+        client.close()
     return _emit(args, res["text"], 0 if res["ok"] else 1)
 
 

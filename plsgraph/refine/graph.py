@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -40,9 +40,9 @@ from factors.priors import make_height_prior, make_rotation_prior, make_subspace
 from factors.reprojection import FrameBatch, OdometryDetail, ReprojectionFrames, make_reprojection_factors
 
 from ..core.camera import CameraModel
-from ..core.geometry import inv_T, is_rotation, make_T, project_to_so3, rotation_error_deg, so3_exp, so3_log
+from ..core.geometry import inv_T, is_rotation, make_T, project_to_so3, so3_exp, so3_log
 from ..core.tracks import BaseTrack, CameraTrack
-from ..errors import ConvergenceError, InputError, InsufficientDataError
+from ..errors import InputError, InsufficientDataError
 from .observability import (
     AXES,
     OBSERVABLE_RATIO,
@@ -908,141 +908,3 @@ def _prior_notes(opt: RefinementOptions, frozen: list[np.ndarray]) -> dict[str, 
         ax = AXES[int(np.argmax(share))]
         notes[ax] = (notes.get(ax, "") + " Held at the seed value during the solve (not observable).").strip()
     return notes
-
-
-def refine_or_raise(*args, **kwargs) -> RefinementResult:
-    """:func:`refine`, raising :class:`ConvergenceError` instead of returning an unconverged result."""
-    res = refine(*args, **kwargs)
-    if not res.converged:
-        raise ConvergenceError("; ".join(res.warnings) or "refinement did not converge")
-    return res
-
-
-# ---------------------------------------------------------------------------------------------------- comparison
-def solution_rms_px(
-    camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, T_base_cam: np.ndarray, td: float,
-    translation_known: bool = True,
-) -> float:
-    """Reprojection RMS (px) of a calibration with the odometry taken as is and the board fitted to it.
-
-    When ``translation_known`` is False (a rotation-only closed form), the camera translation is fitted
-    by least squares first, so that the number compares rotations and td, not a missing translation.
-    """
-    det = camera_track.detections
-    if det is None:
-        raise InputError("solution_rms_px needs camera_track.detections")
-    T = np.asarray(T_base_cam, dtype=float)
-    if T.shape == (3, 3):
-        T, translation_known = make_T(T, np.zeros(3)), False
-    t_C, B = seed_translation_and_board(camera_track, base_track, T[:3, :3], td, T[:3, 3])
-    if translation_known:
-        t_C = T[:3, 3]
-        # Board refit with the given translation: average of the per-frame board positions.
-        tau = camera_track.t + td
-        ok = (tau >= base_track.t[0]) & (tau <= base_track.t[-1])
-        Tw = base_track.poses_at(tau[ok]) @ make_T(T[:3, :3], t_C) @ inv_T(camera_track.T_board_cam[ok])
-        B = make_T(B[:3, :3], np.median(Tw[:, :3, 3], axis=0))
-    C = make_T(T[:3, :3], t_C)
-    tau = det.t + td
-    ok = (tau >= base_track.t[0]) & (tau <= base_track.t[-1])
-    X = base_track.poses_at(tau[ok])
-    T_cam_board = inv_T(X @ C)[:, None] @ B  # (m, 1, 4, 4)
-    P = det.board_points
-    pc = np.einsum("mij,nj->mni", T_cam_board[:, 0, :3, :3], P) + T_cam_board[:, 0, None, :3, 3]
-    pc[..., 2] = np.maximum(pc[..., 2], 1e-3)
-    uv = camera.project(pc.reshape(-1, 3)).reshape(pc.shape[0], -1, 2)
-    e2 = np.sum((uv - det.uv[ok]) ** 2, axis=-1)
-    if not np.any(np.isfinite(e2)):  # no detection falls inside the odometry under this solution's td
-        return float("nan")
-    return float(np.sqrt(np.nanmean(e2)))
-
-
-@dataclass(frozen=True)
-class ComparisonTable:
-    rows: tuple[dict, ...]
-    markdown: str
-
-
-def _as_solution(sol) -> tuple[np.ndarray, float | None, bool]:
-    """(T or R, td or None, translation known) from a RotationResult, RefinementResult, array or dict."""
-    if isinstance(sol, RefinementResult):
-        return sol.T_base_cam, sol.td, True
-    if isinstance(sol, Mapping):
-        if "T_base_cam" in sol:
-            return np.asarray(sol["T_base_cam"], float), sol.get("td"), True
-        R = np.asarray(sol["R_base_cam"], float)
-        t = sol.get("t_base_cam")
-        return (make_T(R, t), sol.get("td"), True) if t is not None else (R, sol.get("td"), False)
-    if hasattr(sol, "R_base_cam"):
-        t = getattr(sol, "t_base_cam", None)
-        R = np.asarray(sol.R_base_cam, float)
-        return (make_T(R, t), getattr(sol, "td", None), True) if t is not None else (R, getattr(sol, "td", None), False)
-    a = np.asarray(sol, float)
-    return a, None, a.shape == (4, 4)
-
-
-def compare_solutions(
-    solutions: Mapping[str, object],
-    refinement: RefinementResult,
-    *,
-    camera_track: CameraTrack | None = None,
-    base_track: BaseTrack | None = None,
-    camera: CameraModel | None = None,
-    truth_T_base_cam: np.ndarray | None = None,
-    truth_td: float | None = None,
-) -> ComparisonTable:
-    """One table comparing closed-form solutions with the refinement.
-
-    ``solutions``: name -> closedform.RotationResult, a 3 x 3 rotation, a 4 x 4 transform or a dict with
-    ``R_base_cam`` / ``T_base_cam`` (and optionally ``t_base_cam``, ``td``). A solution without td uses
-    the refinement's seed td. With truth: rotation error (deg), translation and xy errors (m), td error
-    (ms). Without: differences to the refinement. With the tracks and the camera: reprojection RMS (px).
-    """
-    entries = dict(solutions)
-    entries["refined"] = refinement
-    rows = []
-    have_tracks = camera_track is not None and base_track is not None and camera is not None
-    for name, sol in entries.items():
-        T, td, t_known = _as_solution(sol)
-        td = refinement.seed_td if td is None else float(td)
-        R = T[:3, :3]
-        row: dict = {"method": name}
-        ref_T = refinement.T_base_cam if truth_T_base_cam is None else np.asarray(truth_T_base_cam, float)
-        z_unknown = t_known and T.shape == (4, 4) and not np.isfinite(T[2, 3])
-        if z_unknown:  # a planar closed form knows x, y only: borrow the reference height to score the rest
-            T = T.copy()
-            T[2, 3] = ref_T[2, 3]
-        ref_td = refinement.td if truth_td is None else float(truth_td)
-        key = "err" if truth_T_base_cam is not None else "diff"
-        row[f"rot_{key}_deg"] = float(rotation_error_deg(R, ref_T[:3, :3]))
-        if t_known and T.shape == (4, 4):
-            dt = T[:3, 3] - ref_T[:3, 3]
-            row[f"t_{key}_m"] = float("nan") if z_unknown else float(np.linalg.norm(dt))
-            row[f"t_xy_{key}_m"] = float(np.linalg.norm(dt[:2]))
-        else:
-            row[f"t_{key}_m"] = float("nan")
-            row[f"t_xy_{key}_m"] = float("nan")
-        if truth_td is not None or name != "refined":
-            row[f"td_{key}_ms"] = float(1e3 * (td - ref_td))
-        else:
-            row[f"td_{key}_ms"] = 0.0
-        if have_tracks:
-            try:
-                row["rms_px"] = solution_rms_px(camera_track, base_track, camera, T, td, t_known)
-            except (InputError, InsufficientDataError) as exc:
-                log.warning("rms of %s: %s", name, exc)
-                row["rms_px"] = float("nan")
-        if name == "refined":
-            row["rms_px_graph"] = refinement.rms_px_final
-        rows.append(row)
-    cols = list(dict.fromkeys(k for r in rows for k in r))
-    md = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for r in rows:
-        cells = [r["method"]] + [("" if k not in r else f"{r[k]:.4g}") for k in cols[1:]]
-        md.append("| " + " | ".join(cells) + " |")
-    return ComparisonTable(tuple(rows), "\n".join(md))
-
-
-def with_options(options: RefinementOptions | None = None, **changes) -> RefinementOptions:
-    """A copy of ``options`` (or the defaults) with some fields changed."""
-    return replace(options or RefinementOptions(), **changes)

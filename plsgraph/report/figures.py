@@ -9,7 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from ..core.geometry import inv_T, rotation_error_deg
+from ..core.geometry import rotation_error_deg
+from ..refine.residuals import residuals
 from .files import html_report, html_table, status_colour, write_text
 
 log = logging.getLogger(__name__)
@@ -27,22 +28,12 @@ def _plt():
 def frame_residuals(run: Any, T_base_cam: np.ndarray, td: float, T_world_board: np.ndarray):
     """Per-frame reprojection RMS (px) and all residual vectors (n, 2) of the detections under a calibration."""
     det = run.camera_track.detections
-    base = run.base_track
     if det is None or len(det) == 0:
         return np.zeros(0), np.zeros(0), np.zeros((0, 2))
-    t_odom = det.t + td
-    ok = (t_odom >= base.t[0]) & (t_odom <= base.t[-1])
-    T_wb = base.poses_at(t_odom[ok])
-    T_cam_board = inv_T(T_wb @ T_base_cam) @ T_world_board
-    pts = det.board_points
-    p_cam = np.einsum("fij,nj->fni", T_cam_board[:, :3, :3], pts) + T_cam_board[:, None, :3, 3]
-    valid = p_cam[..., 2] > 1e-6
-    uv = np.full(p_cam.shape[:2] + (2,), np.nan)
-    uv[valid] = run.camera.project(p_cam[valid])
-    r = uv - det.uv[ok]
+    t, r = residuals(det, run.base_track, run.camera, T_base_cam, td, T_world_board)
     rms = np.sqrt(np.nanmean(np.sum(r**2, axis=-1), axis=1))
     flat = r.reshape(-1, 2)
-    return det.t[ok], rms, flat[np.all(np.isfinite(flat), axis=1)]
+    return t, rms, flat[np.all(np.isfinite(flat), axis=1)]
 
 
 def _save(plt, fig, out: Path, name: str) -> str:

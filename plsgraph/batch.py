@@ -1,0 +1,116 @@
+"""Many recordings at once: each calibrated into its own folder, in parallel (local processes or any
+``concurrent.futures`` executor, e.g. a Dask client's), one summary table."""
+
+from __future__ import annotations
+
+import logging
+import time
+from concurrent.futures import Executor
+from pathlib import Path
+from typing import Any
+
+from .errors import InputError, PlsgraphError
+from .options import CalibrationOptions
+
+log = logging.getLogger(__name__)
+
+RECORDING_SUFFIXES = (".mcap", ".bag", ".db3")
+
+
+def find_recordings(inputs: list[Path]) -> list[Path]:
+    """The recordings named, or held by the folders named; two with one name are refused (their folders
+    would collide)."""
+    found: list[Path] = []
+    for p in inputs:
+        p = Path(p)
+        if p.is_dir():
+            found += sorted(q for q in p.iterdir() if q.suffix in RECORDING_SUFFIXES and q.is_file())
+        elif p.is_file():
+            found.append(p)
+        else:
+            raise InputError(f"{p} does not exist")
+    if not found:
+        raise InputError(f"no recordings ({', '.join(RECORDING_SUFFIXES)}) in {', '.join(map(str, inputs))}")
+    names = [p.stem for p in found]
+    if len(set(names)) != len(names):
+        raise InputError("two recordings share a name; their output folders would collide")
+    return found
+
+
+def _batch_item(item: tuple[str, str, CalibrationOptions, bool], seed: int = 0) -> dict:
+    """Worker: calibrate one recording into its own folder; never raises for a user-level failure.
+
+    The pipeline is deterministic, so the per-item ``seed`` that the executor layer hands out is not needed."""
+    from .api import calibrate_to_dir
+
+    log_path, out_dir, opts, force = item
+    t0 = time.perf_counter()
+    try:
+        res = calibrate_to_dir(log_path, out_dir, opts, force=force)
+        rep = res["report"]
+        c = rep["calibration"] or {}  # None when the motion only allowed a diagnosis
+        row = {"recording": log_path, "status": "ok" if res["ok"] else "flagged", "source": c.get("source"),
+               "rpy_deg": c.get("rpy_deg"), "translation_m": c.get("translation_m"),
+               "time_offset_s": c.get("time_offset_s"), "problems": rep["problems"]}
+        if "truth_errors" in rep:
+            row["truth_errors"] = rep["truth_errors"]
+    except PlsgraphError as exc:
+        row = {"recording": log_path, "status": "failed", "error": f"{type(exc).__name__}: {exc}"}
+    except Exception as exc:  # a bug must not stop the other recordings; it is reported in the summary
+        log.exception("unexpected failure on %s", log_path)
+        row = {"recording": log_path, "status": "failed", "error": f"internal error {type(exc).__name__}: {exc}"}
+    row["seconds"] = round(time.perf_counter() - t0, 2)
+    return row
+
+
+def _as_row(result: Any, item: tuple) -> dict:
+    """refine_many's per-item outcome -> summary row (an exception it caught becomes a failed row)."""
+    if result.ok and isinstance(result.value, dict):
+        return result.value
+    return {"recording": item[0], "status": "failed", "error": f"{result.error_type}: {result.error}",
+            "seconds": round(result.seconds, 2)}
+
+
+def run_batch(
+    inputs: list[Path],
+    out_dir: str | Path,
+    options: CalibrationOptions,
+    force: bool = False,
+    jobs: int | None = None,
+    executor: Executor | None = None,
+) -> dict:
+    """Calibrate every recording in ``inputs`` into ``out_dir/<name>/``; a ``<name>.truth.yaml`` beside a
+    recording is used as its truth. Returns ``{ok, text, rows}`` and writes summary.json / summary.md."""
+    from dataclasses import replace
+
+    from .refine.batch import default_executor, refine_many
+    from .report.files import markdown_table, prepare_output_dir, write_json
+
+    if jobs is not None and jobs < 1:
+        raise InputError(f"--jobs must be at least 1, got {jobs}")
+    logs = find_recordings(inputs)
+    out = prepare_output_dir(out_dir, force=force)
+    items = []
+    for p in logs:
+        truth = p.with_name(p.stem + ".truth.yaml")
+        items.append((str(p), str(out / p.stem), replace(options, truth=truth if truth.exists() else None), force))
+    own = executor is None
+    if own:
+        executor = default_executor(len(items), jobs)
+    try:
+        results = refine_many(items, _batch_item, executor=executor)
+    finally:
+        if own:
+            executor.shutdown(wait=True)
+    rows = [_as_row(r, item) for r, item in zip(results, items, strict=True)]
+    write_json(out / "summary.json", {"recordings": rows})
+    table = markdown_table(
+        [{"recording": Path(r["recording"]).name, "status": r["status"], "seconds": r.get("seconds"),
+          "roll": (r.get("rpy_deg") or [None] * 3)[0], "pitch": (r.get("rpy_deg") or [None] * 3)[1],
+          "yaw": (r.get("rpy_deg") or [None] * 3)[2], "td_ms": None if r.get("time_offset_s") is None
+          else 1e3 * r["time_offset_s"], "error": r.get("error", "; ".join(r.get("problems", [])))} for r in rows],
+        ["recording", "status", "roll", "pitch", "yaw", "td_ms", "seconds", "error"],
+    )
+    (out / "summary.md").write_text(table + "\n")
+    ok = all(r["status"] == "ok" for r in rows)
+    return {"ok": ok, "text": table + f"\n\nwritten: {out / 'summary.json'}, {out / 'summary.md'}", "rows": rows}

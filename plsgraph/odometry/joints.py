@@ -1,0 +1,86 @@
+"""Wheel joint states as drivers publish them -> a base track: the cleaning between the message and the
+differential-drive model (which joints are the wheels, unwrapping, one joint per message, repeated stamps,
+rate-only drivers)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..core.tracks import BaseTrack
+from ..errors import InputError
+from .wheels import base_track_from_wheels
+
+
+@dataclass(frozen=True)
+class JointCleaning:
+    """What :func:`wheel_track_from_joints` found and set aside."""
+
+    wheel_joints: dict[str, list[str]]
+    kind: str  # "position" or "velocity"
+    discarded: dict[str, int] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+
+def fill_unwrapped(t: np.ndarray, x: np.ndarray, unwrap: bool) -> np.ndarray:
+    """One joint's values on every stamp: its finite samples (unwrapped if asked), linearly interpolated in
+    between; NaN outside its own first and last sample."""
+    m = np.isfinite(x)
+    out = np.full(t.size, np.nan)
+    if np.count_nonzero(m) < 2:
+        out[m] = x[m]
+        return out
+    xs = np.unwrap(x[m]) if unwrap else x[m]
+    inside = (t >= t[m][0]) & (t <= t[m][-1])
+    out[inside] = np.interp(t[inside], t[m], xs)
+    return out
+
+
+def wheel_track_from_joints(
+    joints: Any,
+    wheel_radius: float,
+    track_width: float,
+    left_joint: str | None = None,
+    right_joint: str | None = None,
+) -> tuple[BaseTrack, JointCleaning]:
+    """BaseTrack from a ``JointStates`` container: the wheel joints picked by name (or given), angles unwrapped
+    per joint, each joint filled onto every stamp, repeated stamps dropped, wheel rates integrated when the
+    driver publishes no angles."""
+    try:
+        lc, rc = joints.wheel_columns(left_joint, right_joint)
+    except InputError as exc:
+        raise InputError(f"{exc}; name them with --left-joint/--right-joint") from exc
+    names = {"left": [joints.names[i] for i in lc], "right": [joints.names[i] for i in rc]}
+    discarded: dict[str, int] = {}
+    warnings: list[str] = []
+    t = joints.t.astype(np.float64) * 1e-9
+    # Per joint, before the sides are averaged: unwrap angles that a driver reports in [-pi, pi) (a wrap of one
+    # wheel of a pair would move the average by only ~pi, below what unwrapping catches), and fill each joint
+    # onto every stamp, as drivers that publish each wheel in its own message leave the others NaN.
+    pos = np.column_stack([fill_unwrapped(t, joints.position[:, c], unwrap=True) for c in lc + rc])
+    vel = np.column_stack([fill_unwrapped(t, joints.velocity[:, c], unwrap=False) for c in lc + rc])
+    nl = len(lc)
+    left, right = pos[:, :nl].mean(axis=1), pos[:, nl:].mean(axis=1)
+    left_rate, right_rate = vel[:, :nl].mean(axis=1), vel[:, nl:].mean(axis=1)
+    keep = np.r_[True, np.diff(joints.t) > 0]  # a driver that republishes a state repeats its stamp
+    if not np.all(keep):
+        discarded["joint_states_repeated_stamp"] = int(np.count_nonzero(~keep))
+    kind = "position"
+    a, b = left, right
+    if np.count_nonzero(np.isfinite(left) & np.isfinite(right)) < 2 and np.any(np.isfinite(left_rate)):
+        kind, a, b = "velocity", left_rate, right_rate  # some drivers publish only wheel rates
+        warnings.append("the joint states carry no wheel angles; integrated the wheel rates instead")
+    ok = keep & np.isfinite(a) & np.isfinite(b)
+    if np.count_nonzero(keep & ~ok):
+        discarded["joint_states_without_wheel_values"] = int(np.count_nonzero(keep & ~ok))
+    track = base_track_from_wheels(t[ok], a[ok], b[ok], wheel_radius=wheel_radius, track_width=track_width,
+                                   kind=kind)
+    n_jumps = len(track.info.get("jumps", []))
+    if kind == "position" and n_jumps > 0.5 * max(1, ok.sum() - 1):
+        raise InputError(
+            f"{n_jumps} of {ok.sum() - 1} wheel steps are implausibly large: the joint positions do not look like "
+            "wheel angles in radians (encoder ticks?); convert them or check --wheel-radius"
+        )
+    return track, JointCleaning(names, kind, discarded, warnings)

@@ -1,0 +1,276 @@
+"""The calibration as steps over one :class:`Run`: read the recording, build the base and camera tracks, the
+closed form, the refinement it seeds. Each step fills the run, so a failure late keeps what came before.
+
+:mod:`plsgraph.api` wraps these into the public calls; nothing here prints or parses arguments.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .core.board import Board, load_board
+from .core.camera import CameraModel
+from .core.geometry import make_T
+from .core.progress import ProgressFactory, no_progress
+from .core.resources import read_yaml_mapping
+from .core.tracks import BaseTrack, CameraTrack
+from .errors import DegenerateMotionError, InputError, InsufficientDataError, RecordingError
+from .options import CalibrationOptions
+
+log = logging.getLogger(__name__)
+
+MIN_CAMERA_FRAMES = 10  # fewer board detections than this: no calibration is attempted
+
+
+@dataclass
+class Run:
+    """What one run produced so far."""
+
+    log_path: Path
+    options: CalibrationOptions
+    board: Board | None = None
+    camera: CameraModel | None = None
+    camera_track: CameraTrack | None = None
+    base_track: BaseTrack | None = None
+    closed_form: Any = None
+    refinement: Any = None
+    truth: dict | None = None
+    warnings: list[str] = field(default_factory=list)
+    discarded: dict[str, Any] = field(default_factory=dict)
+    timing_s: dict[str, float] = field(default_factory=dict)
+    recording_info: dict[str, Any] = field(default_factory=dict)
+
+    def warn(self, *messages: str) -> None:
+        """Add warnings once each (a message repeated by several steps is kept once)."""
+        for m in messages:
+            if m not in self.warnings:
+                self.warnings.append(m)
+
+
+class _Timer:
+    def __init__(self, run: Run, name: str):
+        self.run, self.name = run, name
+
+    def __enter__(self) -> None:
+        self.t0 = time.perf_counter()
+
+    def __exit__(self, *exc: object) -> None:
+        self.run.timing_s[self.name] = round(time.perf_counter() - self.t0, 4)
+
+
+def load_truth(truth: Path | None) -> dict | None:
+    """A truth YAML (from ``plsgraph simulate``), or a recording's path whose ``<name>.truth.yaml`` is beside it."""
+    if truth is None:
+        return None
+    from .io.writer import read_truth
+
+    p = Path(truth)
+    try:
+        t = read_yaml_mapping(p, "truth file") if p.is_file() else read_truth(p)
+    except InputError as exc:
+        raise InputError(f"{exc}; a truth file is a mapping with a 4 x 4 T_base_cam (and td)") from exc
+    if not isinstance(t, dict) or np.asarray(t.get("T_base_cam", []), dtype=float).shape != (4, 4):
+        raise InputError(f"truth file {p} must be a mapping with a 4 x 4 T_base_cam (and td)")
+    return t
+
+
+def read_inputs(run: Run) -> Any:
+    """Read the recording (all but the events, which are streamed later); fill camera and board."""
+    from .io.recording import read_recording
+
+    opts = run.options
+    run.board = load_board(opts.board)
+    if not Path(run.log_path).exists():
+        raise InputError(f"recording {run.log_path} does not exist")
+    topics = {k: v for k, v in opts.inputs.topics.items() if k != "events"} or None
+    with _Timer(run, "read"):
+        rec = read_recording(run.log_path, topics=topics, with_events=False)
+    run.warn(*rec.warnings)
+    if rec.lost:
+        run.discarded["lost_while_reading"] = dict(rec.lost)
+    run.recording_info = {"used_topics": dict(rec.used_topics)}
+    if opts.inputs.camera_info is not None:
+        run.camera = CameraModel.from_yaml(opts.inputs.camera_info)
+    elif rec.camera is not None:
+        run.camera = rec.camera
+    else:
+        raise InputError(
+            f"{run.log_path} has no sensor_msgs/CameraInfo topic; pass the intrinsics with --camera-info FILE "
+            "(a plsgraph or ROS camera_calibration YAML)"
+        )
+    return rec
+
+
+def build_base_track(run: Run, rec: Any) -> BaseTrack:
+    """The robot's motion from the wheel joints (preferred) or the odometry messages."""
+    from .odometry.joints import wheel_track_from_joints
+    from .odometry.wheels import base_track_from_odometry
+
+    opts = run.options
+    odo = opts.odometry
+    have_odom = rec.odometry is not None and len(rec.odometry.t) > 1
+    use_joints = rec.joints is not None and len(rec.joints) > 1 and "odometry" not in opts.inputs.topics
+    if use_joints and have_odom and odo.left_joint is None and not any("wheel" in j.lower() for j in rec.joints.names):
+        use_joints = False  # joints without a wheel among them (an arm, a gripper): the odometry is the base
+        run.warn(f"no wheel among the joints {', '.join(rec.joints.names)}; used nav_msgs/Odometry")
+    if use_joints:
+        track, cleaning = wheel_track_from_joints(rec.joints, odo.wheel_radius, odo.track_width,
+                                                  odo.left_joint, odo.right_joint)
+        run.recording_info["wheel_joints"] = cleaning.wheel_joints
+        run.recording_info["base_source"] = f"wheel joint states ({cleaning.kind})"
+        run.discarded.update(cleaning.discarded)
+        run.warn(*cleaning.warnings)
+    elif have_odom:
+        o = rec.odometry
+        track = base_track_from_odometry(
+            o.t.astype(np.float64) * 1e-9, o.position, o.orientation, linear=o.linear, angular=o.angular
+        )
+        run.recording_info["base_source"] = "nav_msgs/Odometry"
+    else:
+        raise RecordingError(
+            f"{run.log_path} has neither wheel joint states nor odometry messages; "
+            "record sensor_msgs/JointState or nav_msgs/Odometry, or name the topic with --joints-topic/--odom-topic"
+        )
+    run.warn(*track.info.get("warnings", []))
+    return track
+
+
+def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
+    """The event front end, streaming the events through in spans of a few seconds (bounded memory)."""
+    from .frontend.track import camera_track_from_event_chunks
+    from .io.events_reader import EVENT_TYPES, iter_event_chunks, pick_topic
+    from .io.source import open_source
+    from .report.files import to_jsonable
+
+    opts = run.options
+    src = open_source(run.log_path)
+    topic = pick_topic(src, EVENT_TYPES, opts.inputs.topics.get("events"), "event")
+    info = src.topics()[topic]
+    counts = {"events": 0, "on": 0, "first": None, "last": None}
+
+    def checked(chunks):
+        for ch in chunks:
+            if counts["first"] is None and (ch.width, ch.height) != (run.camera.width, run.camera.height):
+                raise InputError(
+                    f"the event sensor is {ch.width} x {ch.height} but the camera intrinsics are for "
+                    f"{run.camera.width} x {run.camera.height}; pass the right --camera-info"
+                )
+            if len(ch):
+                counts["events"] += len(ch)
+                counts["on"] += ch.n_on
+                counts["first"] = ch.t_first if counts["first"] is None else counts["first"]
+                counts["last"] = ch.t_last
+            yield ch
+
+    span = None if info.t_first_ns is None or info.t_last_ns is None else (info.t_first_ns, info.t_last_ns)
+    with progress("detecting board") as bar:
+        try:
+            track = camera_track_from_event_chunks(
+                checked(iter_event_chunks(src, topic)), run.camera, run.board, rate_hz=opts.frontend.rate_hz,
+                kind=opts.frontend.surface, expected_span_ns=span, progress=bar,
+            )
+        finally:
+            run.warn(*src.log.warnings)
+    run.recording_info.update({
+        "event_topic": topic,
+        "event_type": info.msgtype,
+        "events": counts["events"],
+        "events_on": counts["on"],
+        "duration_s": 0.0 if counts["first"] is None else (counts["last"] - counts["first"]) * 1e-9,
+    })
+    for k in ("windows", "detected", "skipped"):
+        if k in track.info:
+            run.discarded[f"frontend_{k}"] = to_jsonable(track.info[k])
+    if len(track) < MIN_CAMERA_FRAMES:
+        raise InsufficientDataError(
+            f"the board was found in only {len(track)} of the event windows; check the board definition "
+            f"(--board), the intrinsics and that the board is in view while the robot moves"
+        )
+    return track
+
+
+def run_closed_form(run: Run) -> Any:
+    from .calib.closed_form import calibrate_closed_form
+
+    td = run.options.closed_form.td_range
+    with _Timer(run, "closed_form"):
+        cf = calibrate_closed_form(run.camera_track, run.base_track, method=run.options.closed_form.method,
+                                   td_range=(-td, td))
+    run.warn(*cf.warnings)
+    run.discarded.update({f"closed_form_{k}": v for k, v in cf.discarded.items()})
+    run.closed_form = cf
+    return cf
+
+
+def run_refinement(run: Run, progress: ProgressFactory) -> Any:
+    from .refine.graph import RefinementOptions, refine
+
+    cf = run.closed_form  # its rotation exists: solve and diagnose check before they refine
+    t = cf.t_base_cam if cf.t_base_cam is not None else np.zeros(3)
+    t = np.where(np.isfinite(t), t, 0.0)
+    seed = make_T(cf.R_base_cam, t)
+    user = run.options.refine
+    with _Timer(run, "refinement"), progress("refining (GTSAM)") as bar:
+        opts = RefinementOptions(camera_height=user.camera_height, board_height=user.board_height)
+        res = refine(run.camera_track, run.base_track, run.camera, seed, cf.td, opts, progress=bar)
+    run.warn(*res.warnings)
+    run.discarded["refinement_frames_rejected"] = int(res.n_frames_rejected)
+    run.discarded["refinement_frames_dropped"] = int(res.n_frames_dropped)
+    run.refinement = res
+    return res
+
+
+def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress) -> Run:
+    """Closed form, then (optionally) the refinement it seeds, on a run whose tracks are set."""
+    cf = run_closed_form(run)
+    if cf.R_base_cam is None:
+        raise DegenerateMotionError(
+            "the closed form could not determine the rotation (" + "; ".join(cf.degenerate_reasons)
+            + "); drive forwards and backwards while turning in front of the board"
+        )
+    if refine:
+        run_refinement(run, progress)
+    return run
+
+
+def build_tracks(run: Run, progress: ProgressFactory = no_progress) -> Run:
+    """Recording -> camera and base tracks (and camera, board)."""
+    rec = read_inputs(run)
+    with _Timer(run, "odometry"):
+        run.base_track = build_base_track(run, rec)
+    del rec
+    with _Timer(run, "frontend"):
+        run.camera_track = build_camera_track(run, progress)
+    return run
+
+
+def run_recording(
+    log_path: str | Path, options: CalibrationOptions, refine: bool = True, progress: ProgressFactory = no_progress
+) -> Run:
+    """The whole calibration of one recording. Raises typed errors on user mistakes."""
+    run = Run(Path(log_path), options)
+    run.truth = load_truth(options.truth)
+    build_tracks(run, progress)
+    return solve(run, refine, progress)
+
+
+def run_tracks(
+    camera_track: CameraTrack,
+    base_track: BaseTrack,
+    camera: CameraModel,
+    options: CalibrationOptions,
+    refine: bool = True,
+    truth: dict | None = None,
+    label: str = "<tracks>",
+    progress: ProgressFactory = no_progress,
+) -> Run:
+    """The calibration tail (closed form, refinement) on tracks the caller already has."""
+    run = Run(Path(label), options, board=load_board(options.board), camera=camera, camera_track=camera_track,
+              base_track=base_track, truth=truth)
+    return solve(run, refine, progress)

@@ -1,0 +1,80 @@
+"""Plain-text renderings of the results, for people (the command prints these)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def _num(v: Any, width: int, digits: int) -> str:
+    return f"{v:{width}.{digits}f}" if isinstance(v, int | float) else "n/a".rjust(width)
+
+
+def _height_note(report: dict) -> str:
+    obs = report["calibration"]["observability"]
+    if not any(o.get("name") == "z" and o["status"] != "observable" for o in obs):
+        return ""
+    if report["options"]["refine"].get("camera_height") is not None:
+        return "   (z from --camera-height: the motion cannot observe it)"
+    return "   (z is only the seed: the height is not observable; give --camera-height)"
+
+
+def calibration_text(report: dict) -> str:
+    """The summary of a calibration's report dict."""
+    c = report["calibration"]
+    lines = [
+        f"recording      {report['recording']}",
+        f"result from    {c['source']}",
+        "T_base_cam     " + "\n               ".join(" ".join(_num(v, 9, 5) for v in row) for row in c["T_base_cam"]),
+        f"rpy (deg)      {' '.join(_num(v, 8, 3) for v in c['rpy_deg'])}",
+        f"translation m  {' '.join(_num(v, 8, 4) for v in c['translation_m'])}" + _height_note(report),
+        f"time offset    {1e3 * c['time_offset_s']:.2f} ms (t_odom = t_cam + offset)",
+    ]
+    ref = report.get("refinement")
+    if ref:
+        lines.append(
+            f"refinement     converged={ref['converged']} iterations={ref['iterations']} "
+            f"reprojection RMS {ref['rms_px_initial']:.3f} -> {ref['rms_px_final']:.3f} px"
+        )
+    if c["observability"]:
+        lines.append("observability:")
+        for o in c["observability"]:
+            sig = "-" if o["sigma"] is None else f"{o['sigma']:.3g} {o.get('unit', '')}"
+            lines.append(f"  {o['status']:<13} {o['direction']:<40} sigma {sig}")
+    if "truth_errors" in report:
+        lines.append("errors against truth:")
+        lines += [f"  {k:<36} {v:.4g}" for k, v in report["truth_errors"].items() if v is not None]
+    if report["problems"]:
+        lines.append("PROBLEMS:")
+        lines += [f"  - {p}" for p in report["problems"]]
+    if report["warnings"]:
+        lines.append(f"warnings ({len(report['warnings'])}):")
+        lines += [f"  - {w}" for w in report["warnings"][:12]]
+    return "\n".join(lines)
+
+
+def diagnosis_text(d: Any) -> str:
+    """A :class:`plsgraph.result.Diagnosis` for people."""
+    lines = [f"recording {d.recording}"]
+    if d.camera_frames or d.odometry_samples:
+        lines += [f"camera frames with the board: {d.camera_frames}", f"odometry samples: {d.odometry_samples}"]
+    if d.excitation:
+        lines.append("excitation (closed form):")
+        lines += [f"  {k:<28} {v:.4g}" for k, v in d.excitation.items()]
+    if d.observable_closed_form:
+        lines.append("observable from the closed form: "
+                     + ", ".join(f"{k}={'yes' if v else 'NO'}" for k, v in d.observable_closed_form.items()))
+    if d.observability:
+        lines.append("observability after refinement:")
+        lines += [f"  {o['status']:<13} {o['direction']:<40} {o['note']}" for o in d.observability]
+    lines += [f"problem: {p}" for p in d.problems]
+    lines.append("verdict: " + ("good enough" if d.ok else "NOT good enough"))
+    lines += [f"advice: {a}" for a in d.advice]
+    return "\n".join(lines)
+
+
+def comparison_text(c: Any) -> str:
+    """A :class:`plsgraph.result.Comparison` for people."""
+    text = c.markdown
+    if c.failed:
+        text += "\n\nno answer from: " + "; ".join(f"{n}: {e}" for n, e in c.failed.items())
+    return text

@@ -1,0 +1,244 @@
+"""Typed results of the library calls: :class:`CalibrationResult`, :class:`Diagnosis`, :class:`Comparison`.
+
+Each is a frozen value with ``to_dict()`` (what report.json holds); people read them through
+:mod:`plsgraph.report.text`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .core.geometry import make_T, rotation_error_deg
+from .gate import problems_of
+from .pipeline import Run
+from .report.files import COVARIANCE_ORDER, calibration_dict, to_jsonable
+
+HEIGHT_FROM_USER = "--camera-height prior"
+HEIGHT_UNMEASURED = "not observable from planar motion: seed value, not a measurement"
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """One calibration: the extrinsic, the time offset, how sure, and whether it is fit to use.
+
+    ``covariance`` (7 x 7, or None when the refinement did not run or converge) is in base axes, parameter order
+    ``covariance_order`` (roll, pitch, yaw [rad], x, y, z [m], td [s]). ``closed_form`` holds every closed-form
+    solver's answer by name; ``refinement`` the optimizer's statistics. ``ok`` is False when the result is flagged:
+    ``problems`` says why.
+    """
+
+    recording: str
+    ok: bool
+    problems: tuple[str, ...]
+    source: str
+    T_base_cam: np.ndarray
+    time_offset_s: float
+    covariance: np.ndarray | None
+    covariance_order: tuple[str, ...]
+    observability: tuple[dict, ...]
+    closed_form: dict[str, dict]
+    refinement: dict | None
+    warnings: tuple[str, ...]
+    truth_errors: dict | None
+    report: dict = field(repr=False)
+    run: Run | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def R_base_cam(self) -> np.ndarray:
+        return self.T_base_cam[:3, :3]
+
+    @property
+    def sigmas(self) -> dict[str, float] | None:
+        """One-sigma per parameter (rad, m, s) in ``covariance_order``, or None."""
+        if self.covariance is None:
+            return None
+        return dict(zip(self.covariance_order, np.sqrt(np.diag(self.covariance)).tolist(), strict=True))
+
+    def to_dict(self) -> dict:
+        """Everything, JSON-ready (the content of report.json)."""
+        return to_jsonable(dict(self.report))
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Is a recording good enough, and which motion is missing?"""
+
+    recording: str
+    ok: bool
+    problems: tuple[str, ...]
+    advice: tuple[str, ...]
+    excitation: dict[str, float] = field(default_factory=dict)
+    observable_closed_form: dict[str, bool] = field(default_factory=dict)
+    observability: tuple[dict, ...] = ()
+    degenerate_reasons: tuple[str, ...] = ()
+    camera_frames: int = 0
+    odometry_samples: int = 0
+
+    def to_dict(self) -> dict:
+        return to_jsonable({
+            "recording": self.recording, "ok": self.ok, "problems": list(self.problems), "advice": list(self.advice),
+            "excitation": self.excitation, "observable_closed_form": self.observable_closed_form,
+            "observability": list(self.observability), "degenerate_reasons": list(self.degenerate_reasons),
+            "camera_frames": self.camera_frames, "odometry_samples": self.odometry_samples,
+        })
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Every closed-form solver and the refinement side by side (errors against the truth when given)."""
+
+    recording: str
+    rows: tuple[dict, ...]
+    failed: dict[str, str]
+    markdown: str
+
+    def to_dict(self) -> dict:
+        return to_jsonable({"recording": self.recording, "rows": list(self.rows), "failed": self.failed})
+
+
+# ------------------------------------------------------------------------------------------------ building
+
+
+def method_rows(run: Run) -> dict[str, dict]:
+    out: dict[str, dict] = {}
+    for name, m in run.closed_form.methods.items():
+        out[name] = {
+            "R_base_cam": None if m.R_base_cam is None else np.asarray(m.R_base_cam).tolist(),
+            "t_base_cam": None if m.t_base_cam is None else np.asarray(m.t_base_cam).tolist(),
+            "error": m.error,
+            "warnings": list(m.warnings),
+            "diagnostics": to_jsonable(m.diagnostics),
+        }
+    return out
+
+
+def observability_rows(run: Run) -> list[dict]:
+    ref = run.refinement
+    if ref is None or ref.observability is None:
+        return []
+    return [
+        {"direction": a.description or a.name, "name": a.name, "status": a.status, "sigma": a.sigma,
+         "unit": a.unit, "note": a.message}
+        for a in ref.observability.axes
+    ]
+
+
+def truth_errors(run: Run) -> dict | None:
+    if run.truth is None:
+        return None
+    T_gt = np.asarray(run.truth["T_base_cam"], dtype=float)
+    td_gt = float(run.truth.get("td", run.truth.get("time_offset_s", float("nan"))))
+    out: dict[str, Any] = {}
+    cf = run.closed_form
+    if cf is not None:
+        for name, m in cf.methods.items():
+            if m.R_base_cam is not None:
+                out[f"closed_form.{name}.rot_err_deg"] = float(rotation_error_deg(m.R_base_cam, T_gt[:3, :3]))
+        if cf.t_xy is not None:
+            out["closed_form.t_xy_err_m"] = float(np.linalg.norm(np.asarray(cf.t_xy) - T_gt[:2, 3]))
+        out["closed_form.td_err_ms"] = 1e3 * (cf.td - td_gt)
+    ref = run.refinement
+    if ref is not None:
+        out["refined.rot_err_deg"] = float(rotation_error_deg(ref.R_base_cam, T_gt[:3, :3]))
+        out["refined.t_xy_err_m"] = float(np.linalg.norm(ref.T_base_cam[:2, 3] - T_gt[:2, 3]))
+        out["refined.t_z_err_m"] = float(ref.T_base_cam[2, 3] - T_gt[2, 3])
+        out["refined.td_err_ms"] = 1e3 * (ref.td - td_gt)
+    return out
+
+
+def final_estimate(run: Run) -> tuple[np.ndarray, float, np.ndarray | None, str]:
+    """(T_base_cam, td, covariance or None, source) of the best result the run has."""
+    ref = run.refinement
+    if ref is not None and ref.converged:
+        return ref.T_base_cam, ref.td, ref.cov_base_axes, "refined"
+    cf = run.closed_form
+    t = np.asarray(cf.t_base_cam if cf.t_base_cam is not None else np.full(3, np.nan), dtype=float).copy()
+    # Planar motion never gives the height: report the user's --camera-height (or 0) rather than a NaN that
+    # would poison the transform; the observability list and the warnings say it is not measured.
+    h = run.options.refine.camera_height
+    t[2] = h if h is not None else 0.0
+    if not np.all(np.isfinite(t[:2])):
+        t[:2] = 0.0
+        run.warn("the closed form did not determine the camera position; translation_m is not measured")
+    run.warn("translation z (camera height) is not measured by the closed form: "
+             + ("it is --camera-height" if h is not None else "it is set to 0; give --camera-height"))
+    return make_T(cf.R_base_cam, t), cf.td, None, f"closed_form.{cf.method}"
+
+
+def calibration_result(run: Run) -> CalibrationResult:
+    """The typed result (and its report dict) of a solved run."""
+    from . import __version__
+
+    T, td, cov, source = final_estimate(run)
+    if T[2, 1] > 0.5:  # the camera's "down" axis (optical y) points up in the base frame
+        run.warn(
+            "the camera comes out upside down (its image 'down' axis points up in the base frame); if it is not "
+            "mounted that way, the wheels are probably swapped (check --left-joint/--right-joint), which mirrors "
+            "the whole solution"
+        )
+    problems = problems_of(run.closed_form, run.refinement)
+    ok = not problems
+    height = HEIGHT_FROM_USER if run.options.refine.camera_height is not None else HEIGHT_UNMEASURED
+    obs = observability_rows(run)
+    calib = calibration_dict(T, td, cov, obs, extra={"source": source, "translation_z_source": height})
+    cf = run.closed_form
+    methods = method_rows(run)
+    errs = truth_errors(run)
+    report: dict[str, Any] = {
+        "plsgraph_version": __version__,
+        "recording": str(run.log_path),
+        "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "ok": ok,
+        "problems": problems,
+        "calibration": calib,
+        "closed_form": methods,
+        "closed_form_summary": {
+            "method": cf.method,
+            "R_base_cam": None if cf.R_base_cam is None else np.asarray(cf.R_base_cam).tolist(),
+            "t_xy": None if cf.t_xy is None else np.asarray(cf.t_xy).tolist(),
+            "td": cf.td,
+            "observable": dict(cf.observable),
+            "excitation": dict(cf.excitation),
+            "n_pairs": cf.n_pairs,
+            "degenerate": cf.degenerate,
+            "degenerate_reasons": list(cf.degenerate_reasons),
+        },
+        "time_offset": None
+        if cf.time_offset is None
+        else {
+            "td_s": cf.time_offset.td,
+            "score": cf.time_offset.score,
+            "sharpness": cf.time_offset.sharpness,
+            "second_peak_ratio": cf.time_offset.second_peak_ratio,
+            "method": cf.time_offset.method,
+            "ok": cf.time_offset.ok,
+        },
+        "refinement": None if run.refinement is None else run.refinement.to_dict(),
+        "options": run.options.to_dict(),
+        "recording_info": run.recording_info,
+        "counts": {
+            "camera_frames": len(run.camera_track) if run.camera_track is not None else 0,
+            "odometry_samples": len(run.base_track) if run.base_track is not None else 0,
+        },
+        "discarded": run.discarded,
+        "warnings": run.warnings,
+        "timing_s": run.timing_s,
+    }
+    if errs is not None:
+        report["truth_errors"] = errs
+    report = to_jsonable(report)
+    ref_stats = None
+    if run.refinement is not None:
+        ref_stats = {k: v for k, v in report["refinement"].items() if not isinstance(v, list)}
+    return CalibrationResult(
+        recording=str(run.log_path), ok=ok, problems=tuple(problems), source=source,
+        T_base_cam=np.asarray(T, dtype=float), time_offset_s=float(td),
+        covariance=None if cov is None else np.asarray(cov, dtype=float), covariance_order=tuple(COVARIANCE_ORDER),
+        observability=tuple(obs), closed_form=methods, refinement=ref_stats, warnings=tuple(run.warnings),
+        truth_errors=errs, report=report, run=run,
+    )
+
