@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from plsgraph.errors import InputError
+from .errors import FactorInputError as InputError
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from plsgraph.core.geometry import hat
+from .lie import hat
 
 _HAT_X = hat(np.array([1.0, 0.0, 0.0]))
 _HAT_Y = hat(np.array([0.0, 1.0, 0.0]))

@@ -13,9 +13,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from plsgraph.core.geometry import hat, so3_log
-
-from ._lie import so3_right_jacobian_inv
+from .lie import hat, so3_log, so3_right_jacobian_inv
 
 _HAT_Z = hat(np.array([0.0, 0.0, 1.0]))
 

@@ -31,11 +31,9 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from plsgraph.core.camera import CameraModel
-from plsgraph.core.geometry import inv_T, so3_exp, so3_log
-from plsgraph.errors import InputError
-
-from ._lie import pose_adjoint, so3_right_jacobian, so3_right_jacobian_inv
+from .camera import Camera as CameraModel
+from .errors import FactorInputError as InputError
+from .lie import inv_T, pose_adjoint, so3_exp, so3_log, so3_right_jacobian, so3_right_jacobian_inv
 
 log = logging.getLogger(__name__)
 

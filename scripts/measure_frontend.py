@@ -255,14 +255,16 @@ def sim_part(quick: bool) -> dict:
 
 
 def velocity_errors(track, t: np.ndarray, poses: np.ndarray, window_s: float = 0.2) -> tuple[float, float]:
-    """Median errors of plsgraph.calib.velocity.camera_velocities on the track against the true body velocities
-    (central differences of the 1 kHz true poses): angular in deg/s, linear in mm/s."""
-    from plsgraph.calib.velocity import camera_velocities
+    """Median errors of the pipeline's camera velocities (plsgraph.calib.time_offset.camera_velocities_on_grid,
+    valid grid samples) against the true body velocities (central differences of the 1 kHz true poses): angular in
+    deg/s, linear in mm/s."""
+    from plsgraph.calib.time_offset import camera_velocities_on_grid
     from plsgraph.core.geometry import se3_log
     from plsgraph.errors import InsufficientDataError as _Short
 
     try:
-        tv, w, v = camera_velocities(track, window_s=window_s)
+        cv = camera_velocities_on_grid(track, window_s=window_s)
+        tv, w, v = cv.t[cv.valid], cv.omega[cv.valid], cv.v[cv.valid]
     except _Short:
         return float("nan"), float("nan")
     h = 1e-3

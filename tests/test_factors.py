@@ -4,7 +4,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from factors._lie import so3_right_jacobian, so3_right_jacobian_inv
+from factors.lie import so3_right_jacobian, so3_right_jacobian_inv
 from factors.odometry import OdometryNoise, make_odometry_factors, odometry_covariance, path_increments
 from factors.planar import make_planar_factor
 from factors.priors import make_height_prior, make_rotation_prior, make_subspace_prior, make_vertical_board_prior
@@ -311,7 +311,34 @@ def test_inv_T_consistent_with_corr_adjoint():
     rng = np.random.default_rng(9)
     Y, K = random_pose(rng), random_pose(rng, rot=0.1, trans=0.05)
     xi = rng.normal(scale=1e-7, size=6)
-    from factors._lie import pose_adjoint
+    from factors.lie import pose_adjoint
 
     lhs = inv_T(Y @ K) @ (Y @ se3_exp(xi) @ K)
     assert np.allclose(lhs, se3_exp(pose_adjoint(inv_T(K)) @ xi), atol=1e-12)
+
+
+def test_lie_maps_match_scipy_including_near_pi():
+    from scipy.spatial.transform import Rotation
+
+    from factors.lie import inv_T, make_T, so3_exp, so3_log
+
+    rng = np.random.default_rng(7)
+    w = rng.normal(size=(500, 3))
+    w *= rng.uniform(0.0, np.pi, (500, 1)) / np.linalg.norm(w, axis=1, keepdims=True)
+    w = np.r_[w, [[0.0, 0.0, 0.0], [1e-9, 0.0, 0.0], [np.pi, 0.0, 0.0], [0.0, np.pi - 1e-7, 0.0]]]
+    R = so3_exp(w)
+    np.testing.assert_allclose(R, Rotation.from_rotvec(w).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(so3_exp(so3_log(R)), R, atol=1e-8)
+    T = make_T(R[:3], rng.normal(size=(3, 3)))
+    np.testing.assert_allclose(inv_T(T) @ T, np.broadcast_to(np.eye(4), (3, 4, 4)), atol=1e-12)
+
+
+def test_factor_library_stands_alone():
+    """factors imports gtsam and numpy only: importing every module loads nothing of plsgraph (nor scipy)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, factors.lie, factors.odometry, factors.planar, factors.priors, factors.reprojection; "
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'plsgraph', 'scipy', 'cv2'}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]"

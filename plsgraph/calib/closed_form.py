@@ -53,7 +53,7 @@ log = logging.getLogger(__name__)
 #: RMS turn rate (rad/s) below which the angular velocity says nothing about roll and pitch.
 MIN_TURN_RATE = 0.05
 #: RMS forward speed (m/s) below which the linear velocity says nothing about yaw.
-MIN_SPEED = 0.05
+MIN_DRIVING_SPEED = 0.05  # RMS speed (m/s) below which the robot only spins: yaw unobservable
 #: Huber threshold in robust sigmas for the velocity rows and the td refinement.
 HUBER_K = 2.5
 #: |cosine| between forward speed and turn rate above which the driving is constant-curvature.
@@ -123,11 +123,6 @@ def _stack_rows(
     X = np.vstack([pairs.omega_cam, k * pairs.v_cam])
     Y = np.vstack([w_b, k * v_eff])
     return X, Y, float(k)
-
-
-def lever_arm_from_velocities(pairs: PairedSamples, R_base_cam: np.ndarray) -> np.ndarray:
-    """t_xy by least squares on R v_cam - v_base = w (-t_y, t_x) (the camera's speed due to turning)."""
-    return lever_arm_and_odometry_scales(pairs, R_base_cam, estimate_scales=False)[0]
 
 
 def lever_arm_and_odometry_scales(
@@ -468,7 +463,7 @@ def calibrate_closed_form(
     speed_rms = float(np.sqrt(np.mean(v**2)))
     cos_vw = float(abs(v @ w) / np.sqrt((v @ v) * (w @ w))) if turn_rms > 0 and speed_rms > 0 else 0.0
     turning = turn_rms >= MIN_TURN_RATE
-    driving = speed_rms >= MIN_SPEED
+    driving = speed_rms >= MIN_DRIVING_SPEED
     excitation = {"turn_rate_rms": turn_rms, "speed_rms": speed_rms, "speed_turn_cosine": cos_vw}
     if not turning and not driving:
         reasons.append(
@@ -482,8 +477,8 @@ def calibrate_closed_form(
         )
     elif not driving:
         reasons.append(
-            f"no driving (RMS speed {speed_rms:.3f} m/s < {MIN_SPEED}): the yaw is unobservable (spinning in place "
-            "fixes only the camera's tilt); drive forwards/backwards while turning"
+            f"no driving (RMS speed {speed_rms:.3f} m/s < {MIN_DRIVING_SPEED}): the yaw is unobservable (spinning in "
+            "place fixes only the camera's tilt); drive forwards/backwards while turning"
         )
     elif cos_vw > MAX_SPEED_TURN_COSINE:
         warnings.append(

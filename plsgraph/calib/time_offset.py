@@ -29,7 +29,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from ..core.geometry import interpolate_poses, so3_log
-from ..core.tracks import BaseTrack, CameraTrack
+from ..core.tracks import BaseTrack, CameraTrack, gap_indices
 from ..errors import DegenerateMotionError, InputError, InsufficientDataError
 from ..odometry.wheels import in_gap
 
@@ -44,8 +44,8 @@ MIN_TURN_RATE = 0.05
 #: (the same filter is applied to both sensors, so it attenuates both alike) while averaging PnP noise; with
 #: 0.3 s a small board's PnP noise swamped the speed signal of straight driving (docs/odometry_and_time_offset.md).
 DEFAULT_WINDOW_S = 0.5
-#: Below this RMS speed (m/s) of the chosen signal's source the robot is considered not to move.
-MIN_SPEED = 0.02
+#: Below this RMS speed (m/s) the speed signal is too weak to correlate (the turn rate is used, or none).
+MIN_SIGNAL_SPEED = 0.02
 
 
 @dataclass(frozen=True)
@@ -140,9 +140,8 @@ def camera_velocities_on_grid(
 ) -> CameraVelocities:
     """Angular and linear velocity of the camera in its own frame on a uniform grid, for pairing with the base.
 
-    Unlike ``plsgraph.calib.velocity.camera_velocities`` (velocities at the measured poses), this resamples the
-    track onto a uniform grid so that exactly the same filter can be applied to the base poses
-    (``base_velocities_on_grid``), and it drops single-frame pose outliers first.
+    The track is resampled onto a uniform grid so that exactly the same filter can be applied to the base poses
+    (``base_velocities_on_grid``), and single-frame pose outliers are dropped first.
 
     The board does not move, so the body velocity of T_board_cam is the camera's velocity relative to the
     world, expressed in the camera frame. ``window_s`` is the Savitzky-Golay window (s); ``rate`` the grid
@@ -170,7 +169,7 @@ def camera_velocities_on_grid(
     half = _window_half(window_s, rate, polyorder)
     omega, v = body_velocities(track.poses_at(tg), rate, half, polyorder)
     # Validity: no hole in the original track within half a window of a grid sample.
-    holes = np.flatnonzero(np.diff(t) > max(gap_factor * dt_med, min_gap_s))
+    holes = gap_indices(t, gap_factor, min_gap_s)
     valid = np.ones(tg.size, dtype=bool)
     reach = half / rate
     for k in holes:
@@ -360,7 +359,7 @@ def estimate_time_offset(
             f"the robot hardly turns (RMS turn rate {turn_rms:.3f} rad/s < {MIN_TURN_RATE}); the angular signal "
             "cannot fix the time offset. Turn while recording or use signal='linear'"
         )
-    if used == "linear" and speed_rms < MIN_SPEED:
+    if used == "linear" and speed_rms < MIN_SIGNAL_SPEED:
         raise DegenerateMotionError(
             f"the robot neither turns (RMS {turn_rms:.3f} rad/s) nor drives (RMS speed {speed_rms:.3f} m/s); "
             "the time offset is unobservable. Record while driving and turning"

@@ -10,49 +10,14 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+# The one implementation of these maps is the factor library's; re-exported here for the rest of plsgraph.
+from factors.lie import hat as hat
+from factors.lie import inv_T as inv_T
+from factors.lie import make_T as make_T
+from factors.lie import so3_exp as so3_exp
+from factors.lie import so3_log as so3_log
+
 _EPS = 1e-12
-
-
-def hat(w: np.ndarray) -> np.ndarray:
-    """Skew-symmetric matrix(es) of vector(s) ``w`` (..., 3) -> (..., 3, 3)."""
-    w = np.asarray(w, dtype=float)
-    out = np.zeros(w.shape[:-1] + (3, 3))
-    out[..., 0, 1] = -w[..., 2]
-    out[..., 0, 2] = w[..., 1]
-    out[..., 1, 0] = w[..., 2]
-    out[..., 1, 2] = -w[..., 0]
-    out[..., 2, 0] = -w[..., 1]
-    out[..., 2, 1] = w[..., 0]
-    return out
-
-
-def so3_exp(w: np.ndarray) -> np.ndarray:
-    """Rotation matrix(es) from rotation vector(s)."""
-    return Rotation.from_rotvec(np.asarray(w, dtype=float)).as_matrix()
-
-
-def so3_log(R: np.ndarray) -> np.ndarray:
-    """Rotation vector(s) of rotation matrix(es)."""
-    return Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec()
-
-
-def make_T(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Stack rotation(s) (..., 3, 3) and translation(s) (..., 3) into homogeneous matrices."""
-    R = np.asarray(R, dtype=float)
-    t = np.asarray(t, dtype=float)
-    shape = np.broadcast_shapes(R.shape[:-2], t.shape[:-1])
-    T = np.zeros(shape + (4, 4))
-    T[..., :3, :3] = R
-    T[..., :3, 3] = t
-    T[..., 3, 3] = 1.0
-    return T
-
-
-def inv_T(T: np.ndarray) -> np.ndarray:
-    """Inverse of homogeneous transform(s)."""
-    T = np.asarray(T, dtype=float)
-    Rt = np.swapaxes(T[..., :3, :3], -1, -2)
-    return make_T(Rt, -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3]))
 
 
 def transform_points(T: np.ndarray, p: np.ndarray) -> np.ndarray:

@@ -34,6 +34,16 @@ def _check_poses(name: str, T: np.ndarray, n: int) -> np.ndarray:
     return T
 
 
+
+def gap_indices(t: np.ndarray, gap_factor: float, min_gap_s: float = 0.0) -> np.ndarray:
+    """Indices k of the steps t[k] -> t[k + 1] longer than ``gap_factor`` times the median step and than
+    ``min_gap_s``: the one definition of a gap in a sampled stream."""
+    d = np.diff(np.asarray(t, dtype=float))
+    if d.size == 0:
+        return np.zeros(0, dtype=int)
+    return np.flatnonzero(d > max(gap_factor * float(np.median(d)), min_gap_s))
+
+
 @dataclass(frozen=True)
 class Detections:
     """Board detections, one row per image frame.

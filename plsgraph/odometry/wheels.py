@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..core.geometry import interpolate_poses, make_T, rot_z
-from ..core.tracks import BaseTrack
+from ..core.tracks import BaseTrack, gap_indices
 from ..errors import InputError, InsufficientDataError
 
 log = logging.getLogger(__name__)
@@ -55,11 +55,8 @@ def _check_stream(name: str, t: np.ndarray, *arrays: np.ndarray) -> tuple[np.nda
 
 def find_gaps(t: np.ndarray, gap_factor: float = 5.0) -> np.ndarray:
     """Steps longer than ``gap_factor`` times the median step, as (k, 2) [t_start, t_end] rows."""
-    d = np.diff(t)
-    if d.size == 0:
-        return np.zeros((0, 2))
-    big = np.flatnonzero(d > gap_factor * np.median(d))
-    return np.stack([t[big], t[big + 1]], axis=1)
+    big = gap_indices(t, gap_factor)
+    return np.stack([t[big], t[big + 1]], axis=1) if big.size else np.zeros((0, 2))
 
 
 def arc_increments(ds: np.ndarray, dtheta: np.ndarray) -> np.ndarray:
