@@ -61,11 +61,20 @@ class Source(Protocol):
 
 
 def open_source(path: str | Path) -> Source:
-    """Open an MCAP file, a ROS 1 ``.bag``, a ROS 2 ``.db3`` or a ROS 2 bag directory."""
+    """Open an MCAP file, a ROS 1 ``.bag``, a ROS 2 ``.db3`` or a ROS 2 bag directory.
+
+    A ``.db3`` without ``metadata.yaml`` beside it (or a bag folder without one) is read from its sqlite
+    tables directly.
+    """
     p = Path(path)
     if not p.exists():
         raise RecordingError(f"recording {p} does not exist")
     if p.is_dir() or p.suffix in (".bag", ".db3"):
+        from .db3_reader import Db3Source, bare_db3_files
+
+        bare = bare_db3_files(p)
+        if bare is not None:
+            return Db3Source(bare, name=p)
         from .rosbags_reader import open_bag
 
         return open_bag(p)
