@@ -28,7 +28,8 @@ def _mcap(tmp_path, event_format="dvs"):
     tj = T0 + np.arange(0, int(seconds * 1e9), 20_000_000)
     js = JointStates(tj, ("left_wheel", "right_wheel"), rng.normal(size=(tj.size, 2)), rng.normal(size=(tj.size, 2)))
     q = np.tile([0.0, 0.0, 0.0, 1.0], (tj.size, 1))
-    od = OdometryMsgs(tj, rng.normal(size=(tj.size, 3)), q, rng.normal(size=(tj.size, 3)), rng.normal(size=(tj.size, 3)))
+    v3 = lambda: rng.normal(size=(tj.size, 3))
+    od = OdometryMsgs(tj, v3(), q, v3(), v3())
     cam = CameraModel(346, 260, np.array([[320.0, 0, 173], [0, 321.0, 130], [0, 0, 1]]), [0.1, -0.01, 0, 0, 0])
     p = tmp_path / f"rec_{event_format}.mcap"
     write_recording(p, ev, js, od, cam, event_format=event_format)

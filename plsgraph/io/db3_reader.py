@@ -60,10 +60,12 @@ class Db3Source:
                 counts = dict(
                     con.execute("SELECT topic_id, COUNT(*) FROM messages GROUP BY topic_id").fetchall()
                 )
-                span = dict(
-                    (r[0], (r[1], r[2]))
-                    for r in con.execute("SELECT topic_id, MIN(timestamp), MAX(timestamp) FROM messages GROUP BY topic_id")
-                )
+                span = {
+                    r[0]: (r[1], r[2])
+                    for r in con.execute(
+                        "SELECT topic_id, MIN(timestamp), MAX(timestamp) FROM messages GROUP BY topic_id"
+                    )
+                }
                 tables = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table'")}
                 if "message_definitions" in tables:
                     for typ, enc, text in con.execute(
@@ -101,9 +103,12 @@ class Db3Source:
         finally:
             for tp, n in read.items():
                 self.log.messages_read[tp] = self.log.messages_read.get(tp, 0) + n
+        if not self.log.stopped_early:
+            return
         for tp, info in self._topics.items():
-            if (topics is None or tp in topics) and self.log.stopped_early and info.messages and read[tp] < info.messages:
-                self.log.warn(f"{self.path.name}: topic {tp}: {info.messages - read[tp]} of {info.messages} messages lost")
+            want = info.messages or 0
+            if (topics is None or tp in topics) and read[tp] < want:
+                self.log.warn(f"{self.path.name}: topic {tp}: {want - read[tp]} of {want} messages lost")
 
     def _iter_file(self, f: Path, topics: set[str] | None, read: Counter) -> Iterator[RawMessage]:
         try:
