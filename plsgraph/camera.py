@@ -6,7 +6,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from .errors import InputError
 
@@ -124,18 +123,11 @@ class CameraModel:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> CameraModel:
-        """Load from plsgraph's camera YAML or a ROS camera_calibration YAML (camera_matrix / ...)."""
-        path = Path(path)
-        if not path.is_file():
-            raise InputError(f"camera file {path} does not exist")
-        try:
-            with open(path) as f:
-                d = yaml.safe_load(f)
-        except (yaml.YAMLError, UnicodeDecodeError) as exc:
-            raise InputError(f"camera file {path} is not valid YAML: {exc}") from exc
-        if not isinstance(d, dict):
-            raise InputError(f"camera file {path} is not a YAML mapping")
-        return cls.from_dict(d)
+        """Load from plsgraph's camera YAML, ROS camera_calibration YAML, OpenCV FileStorage YAML or a Kalibr
+        camchain (``path:camN`` picks a camera); see :mod:`plsgraph.io.camera_files`."""
+        from .io.camera_files import load_camera_file
+
+        return load_camera_file(path)
 
 
 def davis346_default() -> CameraModel:
