@@ -242,3 +242,18 @@ def test_hdf5_is_refused_with_a_reason(tmp_path):
     p.write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 64)
     with pytest.raises(RecordingError, match="ECF"):
         read_events(p)
+
+
+@pytest.mark.parametrize("enc", ["evt2", "evt3"])
+def test_cli_inspect_json_lists_raw_files(tmp_path, capsys, enc):
+    from plsgraph.cli import main
+
+    path, (t, *_rest) = _raw(tmp_path, enc, n=3000, seconds=1.0)
+    assert main(["inspect", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    (row,) = info["topics"]
+    assert row["events"] == t.size and row["encoding"] == enc and row["width"] == SIZE[enc][0]
+    bad = tmp_path / "bad.raw"
+    bad.write_bytes(b"% evt 9.0\n% end\n")
+    assert main(["inspect", str(bad)]) != 0
+    assert "EVT 2.0 and EVT 3.0" in capsys.readouterr().err
