@@ -162,3 +162,27 @@ def test_missing_and_broken_files(tmp_path):
     p.write_text("%YAML:1.0\ncamera_matrix: !!opencv-matrix\n   rows: 3\n")
     with pytest.raises(InputError, match=str(p)):
         load_camera_file(p)
+
+
+def test_pipeline_picks_the_camchain_camera_of_the_events_topic(tmp_path):
+    """read_inputs matches a camchain camera to the recording's events topic (here /dvs/events -> cam1)."""
+    from plsgraph.app import PipelineOptions, PipelineRun, read_inputs
+    from plsgraph.events import EventStream
+    from plsgraph.io import JointStates, write_recording
+
+    rng = np.random.default_rng(0)
+    t = 10**18 + np.arange(200) * 1_000_000
+    ev = EventStream.from_arrays(t, rng.integers(0, 346, 200), rng.integers(0, 260, 200), rng.random(200) < 0.5,
+                                 346, 260)
+    js = JointStates(t[::10], ("left_wheel", "right_wheel"), np.zeros((20, 2)), np.zeros((20, 2)))
+    rec_path = tmp_path / "r.mcap"
+    write_recording(rec_path, ev, js, None, None)
+    chain = tmp_path / "camchain.yaml"
+    chain.write_text(CHAIN)
+    run = PipelineRun(rec_path, PipelineOptions(camera_info=chain))
+    read_inputs(run, lambda label: None)
+    np.testing.assert_allclose(run.camera.K, K)
+    assert run.warnings == [] or all("cam0 is used" not in w for w in run.warnings)
+    run = PipelineRun(rec_path, PipelineOptions(camera_info=f"{chain}:cam0"))
+    read_inputs(run, lambda label: None)
+    assert run.camera.width == 640
