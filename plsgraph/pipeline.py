@@ -96,15 +96,29 @@ def read_inputs(run: Run) -> Any:
         run.discarded["lost_while_reading"] = dict(rec.lost)
     run.recording_info = {"used_topics": dict(rec.used_topics)}
     if opts.inputs.camera_info is not None:
-        run.camera = CameraModel.from_yaml(opts.inputs.camera_info)
+        from .io.camera_files import read_camera_file
+
+        cam_file = read_camera_file(opts.inputs.camera_info, events_topic=_events_topic(rec, opts))
+        run.camera = cam_file.camera
+        run.warn(*cam_file.warnings)
     elif rec.camera is not None:
         run.camera = rec.camera
     else:
         raise InputError(
             f"{run.log_path} has no sensor_msgs/CameraInfo topic; pass the intrinsics with --camera-info FILE "
-            "(a plsgraph or ROS camera_calibration YAML)"
+            "(a plsgraph, ROS camera_calibration or OpenCV YAML, or a Kalibr camchain as FILE[:camN])"
         )
     return rec
+
+
+def _events_topic(rec: Any, opts: CalibrationOptions) -> str | None:
+    """The events topic a Kalibr camchain's camera is matched against: the one asked for, else the busiest."""
+    from .io.messages import EVENT_TYPES
+
+    if opts.inputs.topics.get("events"):
+        return opts.inputs.topics["events"]
+    cands = [(-(i.messages or 0), t) for t, i in rec.topics.items() if i.msgtype in EVENT_TYPES]
+    return min(cands)[1] if cands else None
 
 
 def build_base_track(run: Run, rec: Any) -> BaseTrack:

@@ -46,7 +46,14 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
         help="the target: a board YAML or a bundled name (acircles_4x11, acircles_4x11_a2, aprilgrid_6x6); its "
         "size must match the print, or every distance is scaled",
     )
-    p.add_argument("--camera-info", type=Path, help="camera intrinsics YAML (default: CameraInfo in the recording)")
+    p.add_argument(
+        "--camera-info",
+        type=Path,
+        metavar="FILE[:camN]",
+        help="camera intrinsics: plsgraph / ROS camera_calibration / OpenCV FileStorage YAML, or a Kalibr camchain "
+        "(FILE:cam1 picks a camera; default: the one whose rostopic matches the events topic, else cam0). "
+        "Default: CameraInfo in the recording",
+    )
     p.add_argument("--wheel-radius", type=float, default=0.098, help="wheel radius r in m (default: %(default)s)")
     p.add_argument("--track-width", type=float, default=0.37, help="wheel separation b in m (default: %(default)s)")
     p.add_argument("--events-topic", help="event topic (default: detected by message type)")
@@ -142,7 +149,7 @@ def _build_parser() -> argparse.ArgumentParser:
     s.add_argument("inputs", nargs="+", type=Path, help="recordings, or folders holding them")
     s.add_argument("--out", type=Path, required=True, help="output folder (one sub-folder per recording)")
     s.add_argument("--board", required=True, help="board YAML or bundled name, as for calibrate")
-    s.add_argument("--camera-info", type=Path)
+    s.add_argument("--camera-info", type=Path, metavar="FILE[:camN]", help="camera intrinsics file, as for calibrate")
     s.add_argument("--wheel-radius", type=float, default=0.098)
     s.add_argument("--track-width", type=float, default=0.37)
     s.add_argument("--jobs", type=int, default=None, help="local worker processes (default: CPU count)")

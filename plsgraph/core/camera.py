@@ -124,7 +124,8 @@ class CameraModel:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> CameraModel:
-        """Load from plsgraph's camera YAML or a ROS camera_calibration YAML (camera_matrix / ...)."""
+        """Load from plsgraph's camera YAML or a ROS camera_calibration YAML (camera_matrix / ...); OpenCV and Kalibr
+        files are read by :func:`plsgraph.io.camera_files.read_camera_file`."""
         return cls.from_dict(read_yaml_mapping(path, "camera file"))
 
 

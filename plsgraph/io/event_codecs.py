@@ -20,6 +20,10 @@ Layouts follow ros-event-camera's event_camera_codecs (studied, not copied):
     The time is the sensor's clock, not the host clock; see :class:`Evt3Decoder`.
 ``mono`` (8-byte words)
     bits 0..31 time offset (ns) from ``time_base``, 32..47 x, 48..62 y, 63 polarity.
+``evt2`` (Prophesee EVT 2.0, 32-bit little-endian words, type in the top 4 bits; Metavision ``.raw`` files)
+    0 CD_OFF / 1 CD_ON (bits 22..27 time LSBs, 11..21 x, 0..10 y), 8 EV_TIME_HIGH (bits 0..27: time >> 6),
+    10 EXT_TRIGGER, 14 OTHERS, 15 CONTINUED. Sensor time in µs with 34 bits; nothing is decoded before the
+    first EV_TIME_HIGH. Not an EventPacket encoding: only :mod:`plsgraph.io.prophesee` uses it.
 
 All decoders work on whole packets with numpy (no Python loop over words or events) and return
 ``(t_ns int64, x uint16, y uint16, p int8 in {+1, -1})``. Events outside the sensor are dropped and counted.
@@ -48,6 +52,8 @@ class DecodeStats:
     unknown_codes: int = 0
     triggers: int = 0
     odd_bytes: int = 0
+    before_time: int = 0  # events before the first time word (no valid time yet), dropped
+    time_backwards: int = 0  # time words stepping back without being a rollover (damage or jitter)
 
 
 def _state_at(mask: np.ndarray, values: np.ndarray, default: int, at: np.ndarray) -> np.ndarray:
@@ -342,6 +348,56 @@ class Evt3Decoder:
         return hi_at
 
 
+@dataclass
+class Evt2Decoder:
+    """Stateful EVT 2.0 decoder (32-bit words). Returns sensor time in ns (µs resolution).
+
+    The time-high state carries over between blocks. A time-high word below its predecessor is a rollover
+    of the 28-bit counter only when the step back is more than half the range; a smaller step back cannot
+    be a rollover (damage, or words out of order) and is counted instead.
+    """
+
+    width: int
+    height: int
+    time_high: int = -1  # (rollovers << 28) | last EV_TIME_HIGH; -1 before the first one
+    stats: DecodeStats = field(default_factory=DecodeStats)
+
+    def decode(self, blob, time_base_ns: int = 0):
+        n = _whole_records(blob, 4, self.stats)
+        if n == 0:
+            return _empty()
+        w = np.frombuffer(blob, dtype="<u4", count=n)
+        typ = (w >> 28).astype(np.uint8)
+        counts = np.bincount(typ, minlength=16)
+        self.stats.triggers += int(counts[10])
+        self.stats.unknown_codes += int(counts[[2, 3, 4, 5, 6, 7, 9, 11, 12, 13]].sum())
+        is_hi = typ == 8
+        cd = np.flatnonzero(typ <= 1)
+        h = (w[is_hi] & 0x0FFFFFFF).astype(np.int64)
+        hi_at = np.full(cd.size, self.time_high, np.int64)
+        if h.size:
+            prev = np.empty_like(h)
+            prev[0] = self.time_high & 0x0FFFFFFF if self.time_high >= 0 else h[0]
+            prev[1:] = h[:-1]
+            step_back = h < prev
+            roll = step_back & (prev - h > 1 << 27)
+            self.stats.time_backwards += int(np.count_nonzero(step_back & ~roll))
+            base = (self.time_high >> 28) if self.time_high >= 0 else 0
+            full = ((base + np.cumsum(roll)) << 28) | h
+            hi_at = _state_at(is_hi, full, self.time_high, cd)
+            self.time_high = int(full[-1])
+        valid = hi_at >= 0
+        if not np.all(valid):
+            self.stats.before_time += int(np.count_nonzero(~valid))
+            cd, hi_at = cd[valid], hi_at[valid]
+        wc = w[cd].astype(np.int64)
+        t_ns = ((hi_at << 6) | ((wc >> 22) & 0x3F)) * 1000
+        return _finish(
+            None, t_ns, (wc >> 11) & 0x7FF, wc & 0x7FF, typ[cd].astype(np.int64), self.width, self.height,
+            self.stats, False,
+        )
+
+
 def make_decoder(encoding: str, width: int, height: int):
     """Decoder object for an EventPacket ``encoding``; raises RecordingError for an unknown one."""
     enc = encoding.strip().lower()
@@ -449,6 +505,35 @@ def encode_evt3(
         out[pos[present]] = word[present]
         pos = pos + present
     return out.astype("<u2").tobytes(), int(hi[-1])
+
+
+def encode_evt2(
+    t_us: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, prev_high: int = -1
+) -> tuple[bytes, int]:
+    """EVT 2.0 words for events at sensor times ``t_us`` (µs, sorted, below 2**34): an EV_TIME_HIGH word
+    whenever ``t_us >> 6`` changes (like a sensor, at least one per 64 µs period that holds events).
+    ``prev_high`` is the last time-high value written before; returns the bytes and the new value."""
+    t = np.asarray(t_us, np.int64)
+    n = t.size
+    if n == 0:
+        return b"", prev_high
+    if t.min() < 0 or t.max() >= 1 << 34 or np.any(np.diff(t) < 0):
+        raise RecordingError("evt2: event times must be sorted and within [0, 2**34) µs")
+    hi = t >> 6
+    new_hi = np.concatenate([[hi[0] != prev_high], hi[1:] != hi[:-1]])
+    counts = new_hi.astype(np.int64) + 1
+    cd = (
+        ((np.asarray(p) > 0).astype(np.int64) << 28)
+        | ((t & 0x3F) << 22)
+        | (np.asarray(x, np.int64) << 11)
+        | np.asarray(y, np.int64)
+    )
+    total = int(counts.sum())
+    out = np.empty(total, np.uint32)
+    pos = np.cumsum(counts) - counts
+    out[pos[new_hi]] = (8 << 28) | (hi[new_hi] & 0x0FFFFFFF)
+    out[pos + new_hi] = cd
+    return out.astype("<u4").tobytes(), int(hi[-1])
 
 
 def encode_libcaer(t_offset_us: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray) -> bytes:

@@ -14,7 +14,7 @@ from ..errors import RecordingError
 from .cdr import CdrError
 from .event_codecs import DecodeStats, Evt3Decoder, finish_events, make_decoder
 from .messages import EVENT_ARRAY_TYPES, EVENT_PACKET_TYPES, EVENT_TYPES, parse_event_array, parse_event_packet
-from .source import RawMessage, ReadLog, Source, TopicInfo, open_source
+from .source import DecodedEvents, RawMessage, ReadLog, Source, TopicInfo, open_source
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +115,11 @@ class _TopicDecoder:
             self.src_log.warn(f"{self.name}: skipped an unreadable event message at {m.log_time_ns} ns: {exc}")
 
     def _decode(self, m: RawMessage) -> list[tuple[np.ndarray, ...]]:
+        if isinstance(m.data, DecodedEvents):  # an event file's block, decoded by its source
+            d = m.data
+            self._size(d.width, d.height)
+            self.encoding = d.encoding
+            return [finish_events(d.t, d.x, d.y, d.p, self.width, self.height, self.stats)]
         if m.msgtype in EVENT_PACKET_TYPES:
             return self._packet(m)
         _stamp, w, h, t, x, y, p = parse_event_array(m.data, m.serialization)

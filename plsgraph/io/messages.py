@@ -17,7 +17,9 @@ from .cdr import CdrError, CdrReader
 # event_array_msgs/EventArray is the predecessor of EventPacket with the same fields.
 EVENT_PACKET_TYPES = ("event_camera_msgs/msg/EventPacket", "event_array_msgs/msg/EventArray")
 EVENT_ARRAY_TYPES = ("dvs_msgs/msg/EventArray",)
-EVENT_TYPES = EVENT_PACKET_TYPES + EVENT_ARRAY_TYPES
+# Event streams of event-camera files (no ROS messages): their sources hand out decoded blocks.
+EVENT_FILE_TYPES = ("aedat4/events", "prophesee/raw/evt2", "prophesee/raw/evt3")
+EVENT_TYPES = EVENT_PACKET_TYPES + EVENT_ARRAY_TYPES + EVENT_FILE_TYPES
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 IMU_TYPE = "sensor_msgs/msg/Imu"

@@ -8,17 +8,37 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
+import numpy as np
+
 from ..errors import RecordingError
 
 
 @dataclass(frozen=True)
+class DecodedEvents:
+    """A block of events that an event-file container (AEDAT4, Metavision .raw) has already decoded.
+
+    ``t`` int64 ns on the file's clock, ``x``/``y`` pixels, ``p`` polarity (+1 / -1 or bool), ``width`` x
+    ``height`` the sensor as the file declares it, ``encoding`` the file's event format.
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    p: np.ndarray
+    width: int
+    height: int
+    encoding: str
+
+
+@dataclass(frozen=True)
 class RawMessage:
-    """One message as stored: ``serialization`` is 'cdr' (ROS 2) or 'ros1'."""
+    """One message as stored: ``serialization`` is 'cdr' (ROS 2) or 'ros1'; event files (``serialization``
+    'events') hand out :class:`DecodedEvents` as ``data``."""
 
     topic: str
     msgtype: str
     log_time_ns: int
-    data: bytes | memoryview
+    data: bytes | memoryview | DecodedEvents
     serialization: str
 
 
@@ -61,24 +81,49 @@ class Source(Protocol):
 
 
 def open_source(path: str | Path) -> Source:
-    """Open an MCAP file, a ROS 1 ``.bag``, a ROS 2 ``.db3`` or a ROS 2 bag directory."""
+    """Open an MCAP file, a ROS 1 ``.bag``, a ROS 2 ``.db3`` or a ROS 2 bag directory, an AEDAT4 file
+    (``.aedat4``) or a Prophesee Metavision ``.raw`` file (EVT 2.0 / 3.0).
+
+    A ``.db3`` without ``metadata.yaml`` beside it (or a bag folder without one) is read from its sqlite
+    tables directly.
+    """
     p = Path(path)
     if not p.exists():
         raise RecordingError(f"recording {p} does not exist")
     if p.is_dir() or p.suffix in (".bag", ".db3"):
+        from .db3_reader import Db3Source, bare_db3_files
+
+        bare = bare_db3_files(p)
+        if bare is not None:
+            return Db3Source(bare, name=p)
         from .rosbags_reader import open_bag
 
         return open_bag(p)
-    if p.suffix == ".mcap" or _looks_like_mcap(p):
+    head = _head(p)
+    if p.suffix == ".mcap" or head.startswith(b"\x89MCAP0\r\n"):
         from .mcap_reader import McapSource
 
         return McapSource(p)
+    if p.suffix in (".aedat4", ".aedat") or head.startswith(b"#!AER-DAT"):
+        from .aedat4 import Aedat4Source
+
+        return Aedat4Source(p)
+    if p.suffix == ".raw" or head.startswith(b"% "):
+        from .prophesee import RawEventSource
+
+        return RawEventSource(p)
+    if p.suffix in (".hdf5", ".h5"):
+        raise RecordingError(
+            f"{p}: Metavision HDF5 event files are not supported (their ECF compression plugin has no maintained "
+            "Python package); record RAW (.raw, Metavision's default) "
+            "or write the events to a ROS bag or AEDAT4 instead"
+        )
     raise RecordingError(
         f"cannot tell the container type of {p}: expected a .mcap file, a ROS 1 .bag, a ROS 2 .db3 "
-        "or a ROS 2 bag directory"
+        "or a ROS 2 bag directory, an AEDAT4 file (.aedat4) or a Prophesee .raw file"
     )
 
 
-def _looks_like_mcap(p: Path) -> bool:
+def _head(p: Path) -> bytes:
     with open(p, "rb") as f:
-        return f.read(8) == b"\x89MCAP0\r\n"
+        return f.read(16)

@@ -1,0 +1,158 @@
+"""ROS 2 sqlite bags read from their tables alone: a bare .db3, or a bag folder that lost metadata.yaml."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+
+import numpy as np
+import pytest
+
+from plsgraph.core.camera import CameraModel
+from plsgraph.core.events import EventStream
+from plsgraph.errors import RecordingError
+from plsgraph.io import JointStates, OdometryMsgs, inspect_recording, read_events, read_recording, write_recording
+from plsgraph.io.db3_reader import Db3Source
+from plsgraph.io.mcap_reader import McapSource
+from plsgraph.io.messages import typestore
+from plsgraph.io.source import open_source
+
+T0 = 1_700_000_000_000_000_000
+
+
+def _mcap(tmp_path, event_format="dvs"):
+    rng = np.random.default_rng(3)
+    n, seconds = 3000, 0.5
+    t = np.sort(rng.integers(0, int(seconds * 1e6), n)) * 1000 + T0
+    ev = EventStream.from_arrays(t, rng.integers(0, 346, n), rng.integers(0, 260, n), rng.random(n) < 0.5, 346, 260)
+    tj = T0 + np.arange(0, int(seconds * 1e9), 20_000_000)
+    js = JointStates(tj, ("left_wheel", "right_wheel"), rng.normal(size=(tj.size, 2)), rng.normal(size=(tj.size, 2)))
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (tj.size, 1))
+    v3 = lambda: rng.normal(size=(tj.size, 3))
+    od = OdometryMsgs(tj, v3(), q, v3(), v3())
+    cam = CameraModel(346, 260, np.array([[320.0, 0, 173], [0, 321.0, 130], [0, 0, 1]]), [0.1, -0.01, 0, 0, 0])
+    p = tmp_path / f"rec_{event_format}.mcap"
+    write_recording(p, ev, js, od, cam, event_format=event_format)
+    return p
+
+
+def _to_db3(mcap, folder, version=8, split=1):
+    """Copy every message of an MCAP file into a rosbags-written ROS 2 sqlite bag; return the .db3 files."""
+    from rosbags.rosbag2 import Writer
+
+    src = McapSource(mcap)
+    msgs = list(src.iter_raw())
+    ts = typestore()
+    parts = np.array_split(np.arange(len(msgs)), split)
+    files = []
+    for k, idx in enumerate(parts):
+        d = folder / f"part{k}"
+        with Writer(d, version=version) as w:
+            conns = {tp: w.add_connection(tp, info.msgtype, typestore=ts) for tp, info in src.topics().items()}
+            for i in idx:
+                m = msgs[i]
+                w.write(conns[m.topic], m.log_time_ns, bytes(m.data))
+        (f,) = d.glob("*.db3")
+        files.append(f)
+    return files
+
+
+def _same_recording(a, b):
+    np.testing.assert_array_equal(a.events.t, b.events.t)
+    np.testing.assert_array_equal(a.events.x, b.events.x)
+    np.testing.assert_array_equal(a.events.p, b.events.p)
+    np.testing.assert_array_equal(a.joints.position, b.joints.position)
+    np.testing.assert_array_equal(a.odometry.linear, b.odometry.linear)
+    np.testing.assert_array_equal(a.camera.K, b.camera.K)
+    np.testing.assert_array_equal(a.camera.dist, b.camera.dist)
+    assert a.used_topics == b.used_topics
+
+
+@pytest.mark.parametrize("version", [8, 9])
+def test_bare_db3_reads_like_the_mcap(tmp_path, version):
+    mcap = _mcap(tmp_path)
+    (db3,) = _to_db3(mcap, tmp_path, version=version)
+    with_meta = read_recording(db3.parent)  # rosbags, through metadata.yaml
+    (db3.parent / "metadata.yaml").unlink()
+    src = open_source(db3)
+    assert isinstance(src, Db3Source)
+    bare = read_recording(db3)
+    assert bare.warnings == ()
+    ref = read_recording(mcap)
+    _same_recording(bare, ref)
+    _same_recording(with_meta, ref)
+    # The folder without metadata.yaml reads the same.
+    _same_recording(read_recording(db3.parent), ref)
+    assert bare.topics["/joint_states"].messages == len(ref.joints)
+
+
+def test_bare_db3_event_packets_and_inspect(tmp_path):
+    mcap = _mcap(tmp_path, event_format="libcaer_cmp")
+    (db3,) = _to_db3(mcap, tmp_path)
+    (db3.parent / "metadata.yaml").unlink()
+    ev = read_events(db3)
+    ref = read_events(mcap)
+    np.testing.assert_array_equal(ev.t, ref.t)
+    info = inspect_recording(db3)
+    json.dumps(info)
+    rows = {r["topic"]: r for r in info["topics"]}
+    ev_row = next(r for r in rows.values() if "events" in r)
+    assert ev_row["events"] == len(ref) and ev_row["encoding"] == "libcaer_cmp"
+    assert (ev_row["width"], ev_row["height"]) == (346, 260)
+    assert ev_row["t_first_ns"] == int(ref.t[0]) and ev_row["t_last_ns"] == int(ref.t[-1])
+    assert rows["/joint_states"]["messages"] == 25
+
+
+def test_folder_of_split_db3_files_without_metadata(tmp_path):
+    mcap = _mcap(tmp_path)
+    files = _to_db3(mcap, tmp_path, split=3)
+    folder = tmp_path / "bag"
+    folder.mkdir()
+    for k, f in enumerate(files):
+        f.rename(folder / f"bag_{k}.db3")
+    rec = read_recording(folder)
+    _same_recording(rec, read_recording(mcap))
+
+
+def test_damaged_db3_gives_recording_error_or_warned_result(tmp_path):
+    mcap = _mcap(tmp_path)
+    (db3,) = _to_db3(mcap, tmp_path)
+    (db3.parent / "metadata.yaml").unlink()
+    data = db3.read_bytes()
+    ref = read_recording(db3)
+    rng = np.random.default_rng(7)
+    outcomes = set()
+    for i in range(12):
+        b = bytearray(data)
+        if i % 2 == 0:
+            b = b[: int(rng.integers(0, len(b)))]
+        else:
+            for _ in range(3):
+                j = int(rng.integers(0, len(b)))
+                b[j] ^= 1 << int(rng.integers(0, 8))
+        p = tmp_path / f"bad{i}.db3"
+        p.write_bytes(bytes(b))
+        try:
+            rec = read_recording(p)
+        except RecordingError as exc:
+            outcomes.add("error")
+            assert str(p) in str(exc) or p.name in str(exc)
+            continue
+        outcomes.add("read")
+        if rec.events is not None and rec.warnings == () and len(rec.events) == len(ref.events):
+            assert rec.used_topics == ref.used_topics
+    assert "error" in outcomes
+
+
+def test_not_a_bag_sqlite_file(tmp_path):
+    p = tmp_path / "other.db3"
+    con = sqlite3.connect(p)
+    con.execute("CREATE TABLE things (a INTEGER)")
+    con.commit()
+    con.close()
+    with pytest.raises(RecordingError, match="not a ROS 2 bag"):
+        read_recording(p)
+    q = tmp_path / "text.db3"
+    q.write_text("hello")
+    with pytest.raises(RecordingError, match="cannot be read as a ROS 2 sqlite bag"):
+        inspect_recording(q)
