@@ -1,3 +1,5 @@
+"""The closed-form calibration (plsgraph.calib.closed_form) on simulated tracks: rotation, translation, td, verdicts."""
+
 import numpy as np
 import pytest
 
