@@ -25,7 +25,7 @@ typical session:
   plsgraph calibrate run.mcap --board acircles_4x11 --out calib/
   plsgraph compare run.mcap --board acircles_4x11 --truth run.truth.yaml
 
-BOARD is a YAML file or the name of a bundled board in data/boards/ (e.g. acircles_4x11).
+BOARD is a YAML file or the name of a bundled board (acircles_4x11, acircles_4x11_a2, aprilgrid_6x6, ...).
 Conventions: T_base_cam maps camera points into the robot base frame; t_odom = t_cam + time_offset_s.
 """
 
