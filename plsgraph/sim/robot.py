@@ -566,7 +566,7 @@ def simulate_robot(
         phi_l = np.round(phi_l / q) * q
     if lam or rob.odom_jitter_s > 0:
         jitter = np.clip(rng_fx.normal(0.0, rob.odom_jitter_s, wheel_t.size), -0.4 / odom_rate, 0.4 / odom_rate)
-        wheel_t = wheel_t + lam + jitter
+        wheel_t = np.maximum(wheel_t + lam + jitter, 0.0)  # stamps are unsigned
 
     rec = SimRecording(
         T_base_cam=T_base_cam,
