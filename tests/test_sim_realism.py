@@ -306,3 +306,17 @@ def test_truth_yaml_carries_nominal_and_true_values(tmp_path):
     assert back["realism"]["name"] == "realistic" and back["realism"]["sensor"]["flicker_hz"] == 100.0
     assert 0.0 < back["board_in_view_fraction"] <= 1.0
     yaml.safe_dump(back)  # plain types only
+
+
+def test_simulate_command_is_realistic_unless_ideal(tmp_path, capsys):
+    from plsgraph.cli import main
+
+    for flags, name in (([], "realistic"), (["--ideal"], "ideal")):
+        out = tmp_path / f"{name}.mcap"
+        assert main(["simulate", "--duration", "1.2", "--event-format", "evt3", "--out", str(out), *flags]) == 0
+        truth = read_truth(out)
+        assert truth["realism"]["name"] == name
+        assert {"T_base_cam", "td", "wheel_radius", "track_width", "wheel_radius_nominal", "track_width_effective",
+                "board_scale", "board_in_view_fraction"} <= set(truth)
+    assert truth["track_width_effective"] == truth["track_width_nominal"] == truth["track_width"]
+    capsys.readouterr()
