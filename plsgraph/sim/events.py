@@ -394,7 +394,9 @@ def simulate_events(
         if noise is not None:
             parts.append(noise)
         if hot is not None:
-            parts.append(hot.events(rel[c0], rel[c1], rng_fx))
+            hot_ev = hot.events(rel[c0], rel[c1], rng_fx)
+            if hot_ev.t.size:
+                parts.append(hot_ev)
         if parts:
             chunks.append(_to_stream(parts, t_origin_ns, camera, params.timestamp_resolution_s))
         if progress is not None:
