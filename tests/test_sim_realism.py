@@ -169,6 +169,15 @@ def test_flicker_fires_at_the_flicker_frequency_by_depth_on_bright_pixels():
     assert np.sum(img[slow.y.astype(np.int64) * CAM.width + slow.x] > 0.8) > 0.8 * np.sum(img > 0.8) * 100
 
 
+def test_drawn_lenses_map_the_image_one_to_one():
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        draw_realism(rng).sensor.camera(davis346_default())  # raises if the lens folds back in the image
+    bad = dataclasses.replace(ideal().sensor, k1=-0.3, k2=0.0)
+    with pytest.raises(InputError, match="folds back"):
+        bad.camera(davis346_default())
+
+
 def test_strong_lens_distortion_renders_consistently():
     cam = only("lens_distortion").sensor.camera(davis346_default())
     cam = dataclasses.replace(cam, dist=np.array([-0.3, 0.08, 0.0, 0.0, 0.0]))

@@ -139,7 +139,32 @@ class SensorEffects:
             d[0] = self.k1
         if self.k2 is not None:
             d[1] = self.k2
-        return CameraModel(base.width, base.height, base.K.copy(), d)
+        cam = CameraModel(base.width, base.height, base.K.copy(), d)
+        # A real lens maps the image one to one; a polynomial that folds back before the corners cannot be
+        # inverted there (the renderer's rays would be wrong).
+        corners = np.array([[0.0, 0.0], [cam.width - 1, 0.0], [0.0, cam.height - 1], [cam.width - 1, cam.height - 1]])
+        xn = cam.undistort_pixels(corners)
+        back = cam.project(np.concatenate([xn, np.ones((4, 1))], axis=1))
+        if not np.all(np.isfinite(back)) or np.abs(back - corners).max() > 0.01:
+            raise InputError(
+                f"lens distortion k1={d[0]:.3g}, k2={d[1]:.3g} folds back inside the image; raise k2 "
+                "(plsgraph.sim.realism.invertible_k2 gives the smallest one that works)"
+            )
+        return cam
+
+
+def invertible_k2(k1: float, k2: float, rho_max: float = 1.0, min_slope: float = 0.3) -> float:
+    """The smallest k2' >= k2 (steps of 0.005) for which the radial distortion r (1 + k1 r^2 + k2' r^4) rises
+    with slope >= ``min_slope`` until it reaches the distorted radius ``rho_max`` (normalized; 1.0 covers a
+    DAVIS346 with a 4.5 mm lens, whose corners are at 0.89)."""
+    r = np.linspace(0.0, 3.0, 3001)
+    while True:
+        rd = r * (1.0 + k1 * r**2 + k2 * r**4)
+        slope = 1.0 + 3.0 * k1 * r**2 + 5.0 * k2 * r**4
+        reach = np.flatnonzero(rd >= rho_max)
+        if reach.size and np.all(slope[: reach[0] + 1] >= min_slope):
+            return float(k2)
+        k2 = round(k2 + 0.005, 6)
 
 
 @dataclass(frozen=True)
@@ -370,10 +395,18 @@ def _switch_on(values: dict, specs: list[dict], rng: np.random.Generator) -> Non
         values[r["group"]][r["name"]] = _draw(r, rng) if r["range"] is not None else r["default"]
 
 
+def _lens_fix(values: dict) -> None:
+    s = values["sensor"]
+    if s["k1"] is not None and s["k2"] is not None:
+        s["k2"] = invertible_k2(s["k1"], s["k2"])
+
+
 def draw_realism(rng: np.random.Generator) -> Realism:
-    """Every effect drawn from its study range (fields without a range take their default)."""
+    """Every effect drawn from its study range (fields without a range take their default). A drawn k2 is
+    raised where needed so that the lens maps the whole image one to one (``invertible_k2``)."""
     values = _values("ideal")
     _switch_on(values, field_specs(), rng)
+    _lens_fix(values)
     return _build(values, "drawn")
 
 
@@ -387,6 +420,7 @@ def only(effect: str, rng: np.random.Generator | None = None) -> Realism:
             values[r["group"]][r["name"]] = r["default"] if r["default"] is not None else _middle(r)
     else:
         _switch_on(values, specs, rng)
+    _lens_fix(values)
     return _build(values, f"only:{effect}")
 
 
