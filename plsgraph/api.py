@@ -8,6 +8,7 @@ keyword arguments) and returns a typed result; nothing here parses arguments or 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -175,35 +176,35 @@ def calibrate_to_dir(
 SIM_EPOCH_NS = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z: simulated stamps look like a live ROS clock
 
 
-def simulate(
-    out: str | Path,
+@dataclass(frozen=True)
+class SimulatedRecording:
+    """A simulated recording before it is written: the truth (``sim``), the event stream and the wheel joint
+    states, both stamped from ``epoch_ns`` as a live robot would, and the truth file's content."""
+
+    sim: Any
+    events: Any
+    joints: Any
+    truth: dict
+    epoch_ns: int
+
+
+def simulate_recording(
     motion: str = "rich",
     duration: float = 10.0,
     seed: int = 0,
     td: float = 0.03,
-    event_format: str = "dvs",
-    overwrite: bool = False,
     board: str = "acircles_4x11_a2",
     contrast: float = 0.25,
     realism: Any = "realistic",
     progress: ProgressFactory = no_progress,
-) -> list[Path]:
-    """Simulate a recording (events, wheel joint states, camera info) and write it as ROS 2 MCAP + truth.
-
-    ``realism``: "realistic", "ideal" or a :class:`plsgraph.sim.realism.Realism` (see docs/simulation.md)."""
+) -> SimulatedRecording:
+    """Simulate a recording in memory (see :func:`simulate`, which also writes it)."""
     from .core.board import load_board
     from .core.events import EventStream
     from .io.recording import JointStates
-    from .io.writer import truth_path, write_recording, write_truth
     from .sim.events import EventSimParams
     from .sim.robot import simulate_robot
 
-    out = Path(out)
-    if out.suffix != ".mcap":
-        raise InputError(f"--out must end in .mcap, got {out}")
-    if not overwrite and (out.exists() or truth_path(out).exists()):
-        raise InputError(f"{out} (or its truth file) exists; choose another path or pass --force")
-    out.parent.mkdir(parents=True, exist_ok=True)
     sim = simulate_robot(motion=motion, duration=duration, seed=seed, td=td, board=load_board(board),
                          realism=realism)
     with progress("simulating events") as bar:
@@ -235,7 +236,34 @@ def simulate(
         "contrast_threshold": contrast,
     }
     truth.update(sim.truth_dict())  # nominal vs true odometry intrinsics, board scale, effects, visibility
-    write_recording(out, events, joints, None, sim.camera, truth=None, event_format=event_format,
+    return SimulatedRecording(sim, events, joints, truth, epoch_ns)
+
+
+def simulate(
+    out: str | Path,
+    motion: str = "rich",
+    duration: float = 10.0,
+    seed: int = 0,
+    td: float = 0.03,
+    event_format: str = "dvs",
+    overwrite: bool = False,
+    board: str = "acircles_4x11_a2",
+    contrast: float = 0.25,
+    realism: Any = "realistic",
+    progress: ProgressFactory = no_progress,
+) -> list[Path]:
+    """Simulate a recording (events, wheel joint states, camera info) and write it as ROS 2 MCAP + truth.
+
+    ``realism``: "realistic", "ideal" or a :class:`plsgraph.sim.realism.Realism` (see docs/simulation.md)."""
+    from .io.writer import truth_path, write_recording, write_truth
+
+    out = Path(out)
+    if out.suffix != ".mcap":
+        raise InputError(f"--out must end in .mcap, got {out}")
+    if not overwrite and (out.exists() or truth_path(out).exists()):
+        raise InputError(f"{out} (or its truth file) exists; choose another path or pass --force")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    rec = simulate_recording(motion, duration, seed, td, board, contrast, realism, progress)
+    write_recording(out, rec.events, rec.joints, None, rec.sim.camera, truth=None, event_format=event_format,
                     overwrite=overwrite)
-    tp = write_truth(out, truth)
-    return [out, tp]
+    return [out, write_truth(out, rec.truth)]

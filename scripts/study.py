@@ -1,0 +1,387 @@
+#!/usr/bin/env python3
+"""The validation study: N seeded random realistic recordings, each calibrated with the defaults.
+
+    scripts/study.py --n 30 --out out/study --workers 2            # the full study (docs/validation.md)
+    scripts/study.py --quick --out out/study_quick                   # 3 short runs, for CI
+    scripts/study.py --only latency --n 3 --out out/abl_latency      # one effect over the ideal simulator
+    scripts/study.py --ablation --n 2 --out out/ablation             # every effect alone, plus the ideal base
+
+Each run draws every realism effect from its study range (plsgraph.sim.realism.draw_realism; --only switches
+a single effect on over the ideal simulator), simulates the recording in memory, writes it as a ROS 2 MCAP
+(EVT3 event packets, wheel joint states, camera info), and calibrates it through the library call with the
+user's nominal wheel radius and track width and the board as its YAML states (the printed board may differ).
+Everything is measured against the simulator's truth:
+
+* ``visible_fraction``: share of the front end's detection windows in which the whole (printed) board is in the
+  image; ``detected_fraction``: share of those windows in which the board was detected;
+* ``wrong_detections``: detections whose labelled points lie far (median > 5 px) from the true projections
+  (a wrong correspondence); ``centre_err_px_median``: median point error of the other detections;
+* closed-form and refined errors (rotation, td, floor-plane position), the refined per-axis sigmas and
+  ``z`` = error / sigma in base axes (roll, pitch, yaw, x, y, td), the rotation NEES;
+* ``flagged`` (the result's gate said not ok) and ``outcome`` (ok, flagged, diagnosis, error).
+
+Writes DIR/study.json (runs + summary) and DIR/study.md (the tables). Runs are independent processes
+(--workers); the recording of a run is deleted unless --keep.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+import numpy as np
+
+BOARD = "acircles_4x11_a2"
+AXES = ("roll", "pitch", "yaw", "x", "y", "td")
+WRONG_PX = 5.0  # a detection whose median point error exceeds this is a wrong correspondence
+
+
+def _realism(kind: str, effect: str | None, rng: np.random.Generator):
+    from plsgraph.sim import realism as R
+
+    if kind == "ideal":
+        return R.ideal()
+    if kind == "only":
+        return R.only(effect, rng)
+    return R.draw_realism(rng)
+
+
+def _board_in_view(sim, t_cam: np.ndarray) -> np.ndarray:
+    """Whole printed board inside the image at camera stamps (simulation seconds)."""
+    from plsgraph.core.geometry import inv_T
+
+    T_cam_board = inv_T(sim.camera_poses_at(t_cam))
+    pts = sim.board_true.points if getattr(sim, "board_true", None) is not None else sim.board.points
+    p = np.einsum("mij,nj->mni", T_cam_board[:, :3, :3], pts) + T_cam_board[:, None, :3, 3]
+    front = p[..., 2] > 1e-3
+    uv = sim.camera.project(np.where(front[..., None], p, [0.0, 0.0, 1.0]).reshape(-1, 3)).reshape(p.shape[:2] + (2,))
+    inside = front & (uv[..., 0] >= 0) & (uv[..., 0] <= sim.camera.width - 1) & (uv[..., 1] >= 0) & (
+        uv[..., 1] <= sim.camera.height - 1)
+    return inside.all(axis=1)
+
+
+def _true_pixels(sim, t_cam: np.ndarray) -> np.ndarray:
+    from plsgraph.core.geometry import inv_T
+
+    T_cam_board = inv_T(sim.camera_poses_at(t_cam))
+    pts = sim.board_true.points if getattr(sim, "board_true", None) is not None else sim.board.points
+    p = np.einsum("mij,nj->mni", T_cam_board[:, :3, :3], pts) + T_cam_board[:, None, :3, 3]
+    p[..., 2] = np.maximum(p[..., 2], 1e-3)
+    return sim.camera.project(p.reshape(-1, 3)).reshape(p.shape[:2] + (2,))
+
+
+def _frontend_metrics(rec, run, rate_hz: float = 30.0) -> dict:
+    """Coverage, wrong labels and centre error of the front end's detections against the truth."""
+    sim, ev = rec.sim, rec.events
+    period = int(round(1e9 / rate_hz))
+    grid = np.arange(ev.t_first + period, ev.t_last + 1, period, dtype=np.int64)
+    t_grid = (grid - rec.epoch_ns) * 1e-9
+    in_view = _board_in_view(sim, t_grid)
+    det = run.camera_track.detections if run is not None and run.camera_track is not None else None
+    out = {"windows": int(grid.size), "windows_in_view": int(in_view.sum()),
+           "visible_fraction": float(in_view.mean()) if grid.size else 0.0}
+    if det is None or len(det) == 0:
+        out.update(detected_fraction=0.0, detections=0, wrong_detections=0, centre_err_px_median=None)
+        return out
+    # Detection times are seconds on the recording's clock (epoch included); map them onto the window grid.
+    t_det_s = np.asarray(det.t, dtype=float) - rec.epoch_ns * 1e-9
+    k = np.rint((t_det_s - (grid[0] - rec.epoch_ns) * 1e-9) * rate_hz).astype(int)
+    on_grid = (k >= 0) & (k < grid.size)
+    detected = np.zeros(grid.size, dtype=bool)
+    detected[k[on_grid]] = True
+    uv_true = _true_pixels(sim, t_det_s)
+    err = np.linalg.norm(np.asarray(det.uv) - uv_true, axis=-1)
+    med = np.nanmedian(err, axis=1)
+    wrong = med > WRONG_PX
+    good_err = err[~wrong]
+    out.update(
+        detections=int(len(det)),
+        detected_fraction=float((detected & in_view).sum() / max(1, in_view.sum())),
+        detected_out_of_view=int((detected & ~in_view).sum()),
+        wrong_detections=int(wrong.sum()),
+        centre_err_px_median=float(np.nanmedian(good_err)) if good_err.size else None,
+    )
+    return out
+
+
+def _errors(run, truth: dict) -> dict:
+    """Closed-form and refined errors; per-axis z of the refined result in base axes."""
+    from plsgraph.core.geometry import rotation_error_deg, so3_log
+
+    T_gt = np.asarray(truth["T_base_cam"], dtype=float)
+    td_gt = float(truth["td"])
+    cf = run.closed_form
+    out: dict = {"closed_form": None, "refined": None}
+    if cf is not None and cf.R_base_cam is not None:
+        out["closed_form"] = {
+            "rot_err_deg": float(rotation_error_deg(cf.R_base_cam, T_gt[:3, :3])),
+            "td_err_ms": 1e3 * (cf.td - td_gt),
+            "txy_err_m": None if cf.t_xy is None else float(np.linalg.norm(np.asarray(cf.t_xy) - T_gt[:2, 3])),
+            "odometry_scale": {k: float(v) for k, v in (cf.odometry_scale or {}).items()
+                               if isinstance(v, int | float)},
+        }
+    ref = run.refinement
+    if ref is not None and ref.converged:
+        d_rot = so3_log(ref.R_base_cam @ T_gt[:3, :3].T)  # small rotation about the base axes
+        e = np.r_[d_rot, ref.T_base_cam[:2, 3] - T_gt[:2, 3], ref.td - td_gt]
+        cov = ref.cov_base_axes
+        refined = {
+            "rot_err_deg": float(rotation_error_deg(ref.R_base_cam, T_gt[:3, :3])),
+            "td_err_ms": 1e3 * (ref.td - td_gt),
+            "txy_err_m": float(np.linalg.norm(ref.T_base_cam[:2, 3] - T_gt[:2, 3])),
+            "err": dict(zip(AXES, e.tolist(), strict=True)),
+        }
+        if cov is not None:
+            idx = [0, 1, 2, 3, 4, 6]
+            sig = np.sqrt(np.diag(cov)[idx])
+            refined["sigma"] = dict(zip(AXES, sig.tolist(), strict=True))
+            refined["z"] = dict(zip(AXES, (e / sig).tolist(), strict=True))
+            try:
+                refined["nees_rot"] = float(d_rot @ np.linalg.solve(cov[:3, :3], d_rot))
+            except np.linalg.LinAlgError:
+                refined["nees_rot"] = None
+        out["refined"] = refined
+    return out
+
+
+def run_one(args: tuple) -> dict:
+    """One study run in a worker process: draw, simulate, write, calibrate, measure."""
+    index, base_seed, kind, effect, duration, keep_dir = args
+    from plsgraph.api import simulate_recording
+    from plsgraph.errors import DegenerateMotionError, InsufficientDataError
+    from plsgraph.io.writer import write_recording, write_truth
+    from plsgraph.options import CalibrationOptions
+    from plsgraph.pipeline import Run, build_tracks, load_truth, solve
+    from plsgraph.result import calibration_result
+
+    seed = int(np.random.SeedSequence([base_seed, index]).generate_state(1)[0] % (2**31))
+    rng = np.random.default_rng(seed)
+    realism = _realism(kind, effect, rng)
+    td = float(rng.uniform(-0.1, 0.1))
+    row: dict = {"index": index, "seed": seed, "effect": effect or kind, "td_true_s": td}
+    t0 = time.perf_counter()
+    tmp = tempfile.mkdtemp(prefix="plsgraph-study-", dir=keep_dir)
+    path = Path(tmp) / f"run{index:03d}.mcap"
+    try:
+        rec = simulate_recording("rich", duration, seed, td, BOARD, realism=realism)
+        row["nuisances"] = rec.truth.get("realism", {})
+        row["truth"] = {k: rec.truth.get(k) for k in ("wheel_radius_true", "wheel_radius_nominal",
+                                                        "track_width_effective", "track_width_nominal",
+                                                        "board_scale", "td", "board_distance_m",
+                                                        "board_in_view_fraction")}
+        row["events"] = len(rec.events)
+        write_recording(path, rec.events, rec.joints, None, rec.sim.camera, truth=None, event_format="evt3",
+                        overwrite=True)
+        truth_file = write_truth(path, rec.truth)
+        row["seconds_simulate"] = round(time.perf_counter() - t0, 2)
+        t1 = time.perf_counter()
+        # The library's calibrate, step by step, so that a run refused late still shows its front end.
+        opts = CalibrationOptions.build(board=BOARD, wheel_radius=rec.truth["wheel_radius_nominal"],
+                                        track_width=rec.truth["track_width_nominal"], truth=truth_file)
+        run = Run(path, opts)
+        run.truth = load_truth(opts.truth)
+        try:
+            build_tracks(run)
+            solve(run, refine=True)
+            result = calibration_result(run)
+            row["outcome"] = "ok" if result.ok else "flagged"
+            row["flagged"] = not result.ok
+            row["problems"] = list(result.problems)
+            row["warnings"] = list(result.warnings)
+        except (DegenerateMotionError, InsufficientDataError) as exc:
+            row.update(outcome="diagnosis", flagged=True, problems=[str(exc)])
+        row["seconds_calibrate"] = round(time.perf_counter() - t1, 2)
+        row.update(_frontend_metrics(rec, run))
+        if run.closed_form is not None:
+            row.update(_errors(run, rec.truth))
+    except Exception as exc:  # a crash is a finding of the study, recorded, not fatal
+        row.update(outcome=f"error: {type(exc).__name__}: {exc}", flagged=True,
+                   traceback=traceback.format_exc()[-2000:])
+    finally:
+        if keep_dir is None:
+            for f in Path(tmp).glob("*"):
+                f.unlink()
+            os.rmdir(tmp)
+    row["seconds"] = round(time.perf_counter() - t0, 2)
+    return row
+
+
+def _pct(values: list[float], q: float) -> float | None:
+    v = [x for x in values if x is not None and math.isfinite(x)]
+    return float(np.percentile(v, q)) if v else None
+
+
+def summarize(runs: list[dict]) -> dict:
+    def col(path: str) -> list:
+        out = []
+        for r in runs:
+            v = r
+            for k in path.split("."):
+                v = v.get(k) if isinstance(v, dict) else None
+            out.append(v)
+        return out
+
+    refined_ok = [r for r in runs if (r.get("refined") or {}).get("z")]
+    z = np.array([[r["refined"]["z"][a] for a in AXES] for r in refined_ok]) if refined_ok else np.zeros((0, 6))
+    nees = [r["refined"].get("nees_rot") for r in refined_ok]
+    pairs = [(r["closed_form"]["rot_err_deg"], r["refined"]["rot_err_deg"]) for r in runs
+             if r.get("closed_form") and r.get("refined")]
+    det_frac = [x for x in col("detected_fraction") if x is not None]
+    dets = sum(x or 0 for x in col("detections"))
+    wrong = sum(x or 0 for x in col("wrong_detections"))
+    return {
+        "runs": len(runs),
+        "outcomes": {o: sum(1 for r in runs if str(r.get("outcome", "")).split(":")[0] == o)
+                     for o in ("ok", "flagged", "diagnosis", "error")},
+        "visible_fraction_median": _pct(col("visible_fraction"), 50),
+        "detected_fraction_median": _pct(det_frac, 50),
+        "detected_fraction_p10": _pct(det_frac, 10),
+        "wrong_detection_rate": wrong / dets if dets else None,
+        "centre_err_px_median": _pct(col("centre_err_px_median"), 50),
+        "closed_form_rot_err_deg_median": _pct(col("closed_form.rot_err_deg"), 50),
+        "closed_form_rot_err_deg_p95": _pct(col("closed_form.rot_err_deg"), 95),
+        "closed_form_abs_td_err_ms_median": _pct([abs(x) for x in col("closed_form.td_err_ms") if x is not None], 50),
+        "closed_form_txy_err_m_median": _pct(col("closed_form.txy_err_m"), 50),
+        "refined_rot_err_deg_median": _pct(col("refined.rot_err_deg"), 50),
+        "refined_rot_err_deg_p95": _pct(col("refined.rot_err_deg"), 95),
+        "refined_abs_td_err_ms_median": _pct([abs(x) for x in col("refined.td_err_ms") if x is not None], 50),
+        "refined_txy_err_m_median": _pct(col("refined.txy_err_m"), 50),
+        "refined_not_worse_fraction": (sum(1 for c, f in pairs if f <= c) / len(pairs)) if pairs else None,
+        "z_within_3_fraction": float(np.mean(np.abs(z) <= 3)) if z.size else None,
+        "z_within_3_fraction_per_axis": {a: float(np.mean(np.abs(z[:, i]) <= 3)) for i, a in enumerate(AXES)}
+        if z.size else {},
+        "nees_rot_mean": float(np.mean([x for x in nees if x is not None])) if any(x is not None for x in nees)
+        else None,
+        "flagged": sum(1 for r in runs if r.get("flagged")),
+    }
+
+
+def _f(v, fmt: str = ".3f") -> str:
+    return "-" if v is None else format(v, fmt)
+
+
+def _mm(v) -> str:
+    return "-" if v is None else f"{1e3 * v:.1f}"
+
+
+def markdown(runs: list[dict], summary: dict, command: str, wall_s: float) -> str:
+    lines = [f"# plsgraph validation study\n\n`{command}` — {len(runs)} runs, {wall_s / 60:.1f} min wall time\n",
+             "## Summary\n", "| quantity | value |", "|---|---|"]
+    for k, v in summary.items():
+        if isinstance(v, dict):
+            v = ", ".join(f"{a} {_f(x, '.2f') if isinstance(x, float) else x}" for a, x in v.items())
+        elif isinstance(v, float):
+            v = _f(v, ".4g")
+        lines.append(f"| {k} | {v} |")
+    lines += ["", "## Runs\n",
+              "| # | effect | outcome | visible | detected | wrong | centre px | cf rot ° | ref rot ° | cf td ms "
+              "| ref td ms | cf xy mm | ref xy mm | max abs z | s |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in sorted(runs, key=lambda r: r["index"]):
+        cf, ref = r.get("closed_form") or {}, r.get("refined") or {}
+        zmax = max((abs(x) for x in (ref.get("z") or {}).values()), default=None)
+        lines.append(
+            f"| {r['index']} | {r['effect']} | {str(r.get('outcome', ''))[:40]} "
+            f"| {_f(r.get('visible_fraction'), '.2f')} "
+            f"| {_f(r.get('detected_fraction'), '.2f')} | {r.get('wrong_detections', '-')} "
+            f"| {_f(r.get('centre_err_px_median'), '.2f')} | {_f(cf.get('rot_err_deg'))} "
+            f"| {_f(ref.get('rot_err_deg'))} "
+            f"| {_f(cf.get('td_err_ms'), '.2f')} | {_f(ref.get('td_err_ms'), '.2f')} "
+            f"| {_f(None if cf.get('txy_err_m') is None else 1e3 * cf['txy_err_m'], '.1f')} "
+            f"| {_f(None if ref.get('txy_err_m') is None else 1e3 * ref['txy_err_m'], '.1f')} "
+            f"| {_f(zmax, '.1f')} | {_f(r.get('seconds'), '.0f')} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--n", type=int, default=30, help="runs (per effect with --ablation)")
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--quick", action="store_true", help="3 short runs (CI)")
+    ap.add_argument("--only", help="switch one effect on over the ideal simulator (a name of realism.EFFECTS)")
+    ap.add_argument("--ablation", action="store_true", help="every effect alone (--n runs each) plus the ideal base")
+    ap.add_argument("--ideal", action="store_true", help="the ideal simulator only")
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--duration", type=float, default=20.0, help="seconds per recording (default 20)")
+    ap.add_argument("--keep", action="store_true", help="keep the recordings in OUT/recordings")
+    ap.add_argument("--force", action="store_true", help="overwrite OUT/study.json")
+    a = ap.parse_args(argv)
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+    from plsgraph.sim.realism import EFFECTS
+
+    if a.n < 1 or a.workers < 1 or not a.duration > 1:
+        ap.error("--n and --workers must be >= 1 and --duration > 1")
+    if a.only and a.only not in EFFECTS:
+        ap.error(f"unknown effect {a.only!r}; one of {', '.join(EFFECTS)}")
+    if a.quick:
+        a.n, a.duration = 3, 8.0
+    a.out.mkdir(parents=True, exist_ok=True)
+    if (a.out / "study.json").exists() and not a.force:
+        ap.error(f"{a.out / 'study.json'} exists; pass --force or choose another --out")
+    keep_dir = None
+    if a.keep:
+        keep_dir = str(a.out / "recordings")
+        Path(keep_dir).mkdir(exist_ok=True)
+    jobs = []
+    if a.ablation:
+        jobs += [(i, a.seed, "ideal", None, a.duration, keep_dir) for i in range(a.n)]
+        for j, eff in enumerate(EFFECTS):
+            jobs += [((j + 1) * 1000 + i, a.seed, "only", eff, a.duration, keep_dir) for i in range(a.n)]
+    else:
+        kind = "only" if a.only else "ideal" if a.ideal else "drawn"
+        jobs = [(i, a.seed, kind, a.only, a.duration, keep_dir) for i in range(a.n)]
+    t0 = time.perf_counter()
+    runs = []
+    with ProcessPoolExecutor(max_workers=a.workers) as pool:
+        futs = [pool.submit(run_one, j) for j in jobs]
+        for k, f in enumerate(as_completed(futs), 1):
+            r = f.result()
+            runs.append(r)
+            cf, ref = r.get("closed_form") or {}, r.get("refined") or {}
+            print(f"[{k}/{len(jobs)}] run {r['index']} {r['effect']}: {r.get('outcome')} detected "
+                  f"{_f(r.get('detected_fraction'), '.2f')} cf {_f(cf.get('rot_err_deg'))} deg ref "
+                  f"{_f(ref.get('rot_err_deg'))} deg ({r.get('seconds')} s)", file=sys.stderr, flush=True)
+    wall = time.perf_counter() - t0
+    runs.sort(key=lambda r: r["index"])
+    command = "scripts/study.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    out = {"command": command, "wall_s": wall, "runs": runs}
+    if a.ablation:
+        groups: dict[str, list] = {}
+        for r in runs:
+            groups.setdefault(r["effect"], []).append(r)
+        out["summary"] = {eff: summarize(rs) for eff, rs in groups.items()}
+        md = [f"# plsgraph ablation\n\n`{command}` — {len(runs)} runs, {wall / 60:.1f} min wall time\n",
+              "| effect | runs | outcomes | detected (median) | wrong | centre px | cf rot ° | ref rot ° | cf td ms "
+              "| ref td ms | cf xy mm | ref xy mm | |z|<=3 |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+        for eff, s in out["summary"].items():
+            oc = " ".join(f"{k}:{v}" for k, v in s["outcomes"].items() if v)
+            md.append(
+                f"| {eff} | {s['runs']} | {oc} | {_f(s['detected_fraction_median'], '.2f')} "
+                f"| {_f(s['wrong_detection_rate'], '.4f')} | {_f(s['centre_err_px_median'], '.2f')} "
+                f"| {_f(s['closed_form_rot_err_deg_median'])} | {_f(s['refined_rot_err_deg_median'])} "
+                f"| {_f(s['closed_form_abs_td_err_ms_median'], '.2f')} "
+                f"| {_f(s['refined_abs_td_err_ms_median'], '.2f')} "
+                f"| {_mm(s['closed_form_txy_err_m_median'])} | {_mm(s['refined_txy_err_m_median'])} "
+                f"| {_f(s['z_within_3_fraction'], '.2f')} |")
+        text = "\n".join(md) + "\n"
+    else:
+        out["summary"] = summarize(runs)
+        text = markdown(runs, out["summary"], command, wall)
+    (a.out / "study.json").write_text(json.dumps(out, indent=1, default=float))
+    (a.out / "study.md").write_text(text)
+    print(text)
+    print(f"written: {a.out / 'study.json'}, {a.out / 'study.md'}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
