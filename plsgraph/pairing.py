@@ -35,6 +35,20 @@ log = logging.getLogger(__name__)
 MIN_SPAN_OVERLAP = 0.5
 
 
+def read_events_file(path: Path, topics: dict[str, str] | None) -> Any:
+    """The first file's robot topics when it has any; an events-only file (AEDAT4, .raw) gives an empty record."""
+    from .io.messages import CAMERA_INFO_TYPE, IMU_TYPE, JOINT_STATE_TYPE, ODOMETRY_TYPE
+    from .io.recording import Recording, read_recording
+    from .io.source import open_source
+
+    src = open_source(path)
+    all_topics = src.topics()
+    robot = (JOINT_STATE_TYPE, ODOMETRY_TYPE, IMU_TYPE, CAMERA_INFO_TYPE)
+    if not topics and not any(i.msgtype in robot for i in all_topics.values()):
+        return Recording(Path(path), all_topics)
+    return read_recording(src, topics=topics, with_events=False)
+
+
 def merge_odometry_file(run: Any, rec: Any) -> Any:
     """The recording with joints, odometry and IMU from ``--odometry`` (and its CameraInfo if ``rec`` has none)."""
     from .io.recording import read_recording

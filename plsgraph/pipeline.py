@@ -93,11 +93,12 @@ def read_inputs(run: Run) -> Any:
         raise InputError(f"recording {run.log_path} does not exist")
     topics = {k: v for k, v in opts.inputs.topics.items() if k != "events"} or None
     with _Timer(run, "read"):
-        rec = read_recording(run.log_path, topics=topics, with_events=False)
-        if opts.inputs.odometry_file is not None:  # events from the first file, the robot from the second
-            from .pairing import merge_odometry_file
+        if opts.inputs.odometry_file is None:
+            rec = read_recording(run.log_path, topics=topics, with_events=False)
+        else:  # events from the first file, the robot from the second
+            from .pairing import merge_odometry_file, read_events_file
 
-            rec = merge_odometry_file(run, rec)
+            rec = merge_odometry_file(run, read_events_file(run.log_path, None))
     run.warn(*rec.warnings)
     if rec.lost:
         run.discarded["lost_while_reading"] = dict(rec.lost)
