@@ -6,6 +6,7 @@
 Writes into OUT:
   events.mcap        the events and CameraInfo, stamps unchanged (camera clock)
   odometry.mcap      the wheel joint states (and odometry) with every stamp + clock difference, and CameraInfo
+                     (--wheels swapped / left_reversed / right_reversed writes the wheels mis-wired)
   sensor.raw         with --raw: the events as a Prophesee EVT 3.0 file, on a sensor clock that starts at the
                      first event (µs), as a Metavision camera writes it
   *.truth.yaml       beside each events file, when the recording has a truth file: T_base_cam and the total
@@ -33,6 +34,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clock-difference", type=float, default=3725.4,
                     help="seconds added to the odometry stamps (default: %(default)s)")
     ap.add_argument("--raw", action="store_true", help="also write sensor.raw (EVT 3.0, sensor clock)")
+    ap.add_argument("--wheels", default="as_given", choices=["as_given", "swapped", "left_reversed", "right_reversed"],
+                    help="write the wheel joints mis-wired this way (default: as recorded)")
     args = ap.parse_args(argv)
     rec = read_recording(args.recording)
     if rec.events is None or rec.camera is None or (rec.joints is None and rec.odometry is None):
@@ -45,7 +48,14 @@ def main(argv: list[str] | None = None) -> int:
     joints = odo = None
     if rec.joints is not None:
         j = rec.joints
-        joints = JointStates(j.t + shift_ns, j.names, j.position, j.velocity)
+        lc, rc = j.wheel_columns()
+        pos, vel = j.position.copy(), j.velocity.copy()
+        if args.wheels == "swapped":
+            pos[:, lc + rc], vel[:, lc + rc] = j.position[:, rc + lc], j.velocity[:, rc + lc]
+        elif args.wheels != "as_given":
+            cols = lc if args.wheels == "left_reversed" else rc
+            pos[:, cols], vel[:, cols] = -pos[:, cols], -vel[:, cols]
+        joints = JointStates(j.t + shift_ns, j.names, pos, vel)
     if rec.odometry is not None:
         o = rec.odometry
         odo = OdometryMsgs(o.t + shift_ns, o.position, o.orientation, o.linear, o.angular, o.frame_id,

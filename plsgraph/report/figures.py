@@ -99,7 +99,8 @@ def _fig_time_offset(run: Any, out: Path) -> str | None:
     if run.refinement is not None:
         ax.axvline(1e3 * run.refinement.td, color="#2e7d32", lw=1, ls="--",
                    label=f"refined {1e3 * run.refinement.td:.1f} ms")
-    ax.set_xlabel("time offset td (ms)")
+    shift = getattr(run, "clock_offset_s", 0.0)
+    ax.set_xlabel("time offset td (ms)" if not shift else f"td (ms) after the coarse clock shift of {shift:.3f} s")
     ax.set_ylabel(f"score ({to.method})")
     ax.set_title("time-offset search")
     ax.legend(fontsize=7)
