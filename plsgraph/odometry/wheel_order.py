@@ -201,8 +201,12 @@ def check_wheel_order(
                f"turn-rate scale {k:.2f}, camera {mount})")
     else:
         msg = (f"the wheel joints do not match the camera's motion as named: {DESCRIPTION[chosen]} fits it "
-               f"(correlation {scores[chosen]:.2f} against {scores['as_given']:.2f} as named; with the {mount} camera "
-               f"the turns have the right sign only so)")
+               f"(turn-rate/speed correlation {scores[chosen]:.2f}, as named {scores['as_given']:.2f}")
+        if chosen == "swapped":
+            other = "upright" if upside_down_camera else "upside down (--upside-down-camera)"
+            msg += (f"; as named, the robot turns the other way than an {mount} camera sees it turn. If the camera "
+                    f"is in fact mounted {other}, the wheels as named are right: calibrate again with that")
+        msg += ")"
     return WheelOrderCheck(chosen, True, scores, margin, up_y, k, corr, msg, align, tracks[chosen])
 
 
