@@ -199,9 +199,12 @@ def simulate(
     overwrite: bool = False,
     board: str = "acircles_4x11_a2",
     contrast: float = 0.25,
+    realism: Any = "realistic",
     progress: ProgressFactory = no_progress,
 ) -> list[Path]:
-    """Simulate a recording (events, wheel joint states, camera info) and write it as ROS 2 MCAP + truth."""
+    """Simulate a recording (events, wheel joint states, camera info) and write it as ROS 2 MCAP + truth.
+
+    ``realism``: "realistic", "ideal" or a :class:`plsgraph.sim.realism.Realism` (see docs/simulation.md)."""
     from .core.board import load_board
     from .core.events import EventStream
     from .io.recording import JointStates
@@ -215,7 +218,8 @@ def simulate(
     if not overwrite and (out.exists() or truth_path(out).exists()):
         raise InputError(f"{out} (or its truth file) exists; choose another path or pass --force")
     out.parent.mkdir(parents=True, exist_ok=True)
-    sim = simulate_robot(motion=motion, duration=duration, seed=seed, td=td, board=load_board(board))
+    sim = simulate_robot(motion=motion, duration=duration, seed=seed, td=td, board=load_board(board),
+                         realism=realism)
     with progress("simulating events") as bar:
         params = EventSimParams(contrast_on=contrast, contrast_off=contrast)
         events = sim.events(seed=seed, params=params, progress=bar)
@@ -244,6 +248,7 @@ def simulate(
         "events": len(events),
         "contrast_threshold": contrast,
     }
+    truth.update(sim.truth_dict())  # nominal vs true odometry intrinsics, board scale, effects, visibility
     write_recording(out, events, joints, None, sim.camera, truth=None, event_format=event_format,
                     overwrite=overwrite)
     tp = write_truth(out, truth)

@@ -82,7 +82,7 @@ def _ingest_worker(log: Path) -> None:
 def _simulate(duration: float, folder: Path, seed: int) -> tuple[Path, Path, float]:
     log = folder / f"rich_{duration:g}s.mcap"
     cmd = [sys.executable, "-c", "import sys; from plsgraph.cli.main import main; sys.exit(main())", "simulate",
-           "--motion", "rich", "--duration", f"{duration:g}", "--seed", str(seed), "--contrast", "0.45",
+           "--ideal", "--motion", "rich", "--duration", f"{duration:g}", "--seed", str(seed), "--contrast", "0.45",
            "--event-format", "evt3", "--board", BOARD, "--out", str(log), "--force"]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True)

@@ -45,7 +45,7 @@ def main() -> None:
     print(f"{'duration':>8} {'frames':>6} {'knots':>5} {'iters':>5} {'wall s':>7} {'cpu s':>6} {'optimize s':>10} "
           f"{'marginals s':>11} {'rot err deg':>11}")
     for dur in args.durations:
-        rec = simulate_robot("rich", duration=dur, seed=args.seed)
+        rec = simulate_robot("rich", duration=dur, seed=args.seed, realism="ideal")
         base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius, rec.track_width)
         track = camera_track_from_detections(rec.detections(0.3), rec.camera)
         seed_T = make_T(so3_exp(np.radians([1.0, -1.5, 2.0])) @ rec.T_base_cam[:3, :3], np.zeros(3))

@@ -6,5 +6,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
 mkdir -p data/sample
-.venv/bin/plsgraph simulate --motion rich --duration 10 --seed 1 --td 0.03 --contrast 0.7 \
+.venv/bin/plsgraph simulate --ideal --motion rich --duration 10 --seed 1 --td 0.03 --contrast 0.7 \
     --board acircles_4x11_a2 --event-format evt3 --out data/sample/rich_sample.mcap --force

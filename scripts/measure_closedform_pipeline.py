@@ -93,7 +93,9 @@ def scale_errors(seeds: int, duration: float, td: float) -> None:
     true_b, true_r = 0.44, 0.101
     est_b, est_r, err_fix, err_raw, rot = [], [], [], [], []
     for seed in range(seeds):
-        rec = simulate_robot("rich", seed=seed, td=td, duration=duration, track_width=true_b, wheel_radius=true_r)
+        rec = simulate_robot(
+            "rich", seed=seed, td=td, duration=duration, track_width=true_b, wheel_radius=true_r, realism="ideal"
+        )
         base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, 0.098, 0.37)
         cam = rec.camera_track(noise_rot_deg=0.1, noise_trans_m=0.002, seed=seed + 100)
         fixed = calibrate_closed_form(cam, base, compare=False)
@@ -113,7 +115,7 @@ def slip_bursts(seeds: int, duration: float, td: float) -> None:
     """Six 0.4 s bursts of one wheel spinning 0.5 rad extra: plain least squares vs Huber reweighting."""
     out: dict[str, list[tuple[float, float, float]]] = defaultdict(list)
     for seed in range(seeds):
-        rec = simulate_robot("rich", seed=seed, td=td, duration=duration)
+        rec = simulate_robot("rich", seed=seed, td=td, duration=duration, realism="ideal")
         right = rec.wheel_right.copy()
         for c in np.random.default_rng(seed).uniform(2, duration - 2, 6):
             right += np.clip((rec.wheel_t - c) / 0.4, 0, 1) * 0.5
@@ -165,7 +167,9 @@ def main() -> None:
             visible, ranges, margins = [], [], []
             for seed in range(args.seeds):
                 board = BIG_BOARD if front == "pnp_5cm" else None
-                rec = simulate_robot(motion, seed=seed, td=args.td, duration=args.duration, board=board)
+                rec = simulate_robot(
+                    motion, seed=seed, td=args.td, duration=args.duration, board=board, realism="ideal"
+                )
                 base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right)
                 cam = camera_track_for(rec, front, seed)
                 visible.append(rec.info["visible_fraction"])

@@ -33,7 +33,7 @@ def trial(spec: tuple[str, float, int, float], seed: int) -> dict:
     from plsgraph.sim.robot import simulate_robot
 
     motion, duration, sim_seed, slip = spec
-    rec = simulate_robot(motion, duration=duration, seed=sim_seed, slip=slip)
+    rec = simulate_robot(motion, duration=duration, seed=sim_seed, slip=slip, realism="ideal")
     base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius, rec.track_width)
     track = camera_track_from_detections(rec.detections(0.3, seed=seed % 1000), rec.camera)
     R_true, t_true = rec.T_base_cam[:3, :3], rec.T_base_cam[:3, 3]

@@ -29,7 +29,7 @@ class Case:
 
 @lru_cache(maxsize=8)
 def sim_case(motion: str, duration: float = 10.0, seed: int = 3, noise_px: float = 0.3) -> Case:
-    rec = simulate_robot(motion, duration=duration, seed=seed)
+    rec = simulate_robot(motion, duration=duration, seed=seed, realism="ideal")
     base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius, rec.track_width)
     track = camera_track_from_detections(rec.detections(noise_px, seed=seed + 10), rec.camera)
     seed_R = so3_exp(np.radians(SEED_ROT_DEG)) @ rec.T_base_cam[:3, :3]

@@ -10,7 +10,7 @@ from plsgraph.sim.robot import simulate_robot
 
 
 def setup(motion="rich", td=0.037, seed=0, duration=20.0, **kw):
-    rec = simulate_robot(motion, seed=seed, td=td, duration=duration)
+    rec = simulate_robot(motion, seed=seed, td=td, duration=duration, realism="ideal")
     base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius, rec.track_width)
     return rec, base, rec.camera_track(**kw)
 

@@ -21,7 +21,7 @@ from plsgraph.sim.robot import simulate_robot
 
 @pytest.fixture(scope="module")
 def sim_run():
-    sim = simulate_robot("rich", duration=12.0, seed=3, td=0.04, slip=0.0)
+    sim = simulate_robot("rich", duration=12.0, seed=3, td=0.04, slip=0.0, realism="ideal")
     cam_track = camera_track_from_detections(sim.detections(noise_px=0.1, seed=4), sim.camera)
     base = base_track_from_wheels(sim.wheel_t, sim.wheel_left, sim.wheel_right, sim.wheel_radius, sim.track_width)
     truth = {"T_base_cam": sim.T_base_cam.tolist(), "td": sim.td}

@@ -20,7 +20,7 @@ TD_TOL_S = 0.008
 def recording(tmp_path_factory):
     d = tmp_path_factory.mktemp("rec")
     log = d / "rich.mcap"
-    code = main(["simulate", "--motion", "rich", "--duration", "8", "--seed", "1", "--contrast", "0.45",
+    code = main(["simulate", "--ideal", "--motion", "rich", "--duration", "8", "--seed", "1", "--contrast", "0.45",
                  "--event-format", "evt3", "--out", str(log)])
     assert code == 0
     return log
@@ -111,7 +111,7 @@ def test_compare_prints_every_solver_against_truth(recording, capsys):
 
 def test_spinning_in_place_gives_a_diagnosis_not_a_number(tmp_path, capsys):
     log = tmp_path / "spin.mcap"
-    assert main(["simulate", "--motion", "spin", "--duration", "6", "--seed", "2", "--contrast", "0.45",
+    assert main(["simulate", "--ideal", "--motion", "spin", "--duration", "6", "--seed", "2", "--contrast", "0.45",
                  "--event-format", "evt3", "--out", str(log)]) == 0
     out = tmp_path / "calib"
     code = main(["calibrate", str(log), "--board", "acircles_4x11_a2", "--out", str(out)])
@@ -177,8 +177,8 @@ def test_a_board_of_the_wrong_size_is_flagged_not_trusted(recording, tmp_path, c
 
 def test_too_short_a_recording_gets_a_diagnosis(tmp_path, capsys):
     log = tmp_path / "short.mcap"
-    assert main(["simulate", "--motion", "rich", "--duration", "2.5", "--contrast", "0.45", "--event-format", "evt3",
-                 "--out", str(log)]) == 0
+    assert main(["simulate", "--ideal", "--motion", "rich", "--duration", "2.5", "--contrast", "0.45",
+                 "--event-format", "evt3", "--out", str(log)]) == 0
     out = tmp_path / "c"
     code = main(["calibrate", str(log), "--board", "acircles_4x11_a2", "--out", str(out)])
     assert code == 1 and "NO CALIBRATION" in capsys.readouterr().out

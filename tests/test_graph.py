@@ -196,7 +196,7 @@ def test_frames_near_the_odometry_ends_do_not_bias_td(seed):
     from plsgraph.odometry.wheels import base_track_from_wheels
     from plsgraph.sim.robot import simulate_robot
 
-    rec = simulate_robot("rich", duration=4.0, seed=seed, slip=0.0, encoder_ticks_per_rev=0)
+    rec = simulate_robot("rich", duration=4.0, seed=seed, slip=0.0, encoder_ticks_per_rev=0, realism="ideal")
     base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius, rec.track_width)
     track = camera_track_from_detections(rec.detections(0.0, seed=seed), rec.camera)
     margin = 0.5 * RefinementOptions().odometry_smoothing_s

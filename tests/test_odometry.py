@@ -51,7 +51,7 @@ def test_diff_drive_equations():
 
 
 def test_integration_matches_simulated_truth():
-    rec = simulate_robot("rich", duration=20.0, seed=2, slip=0.0, encoder_ticks_per_rev=0)
+    rec = simulate_robot("rich", duration=20.0, seed=2, slip=0.0, encoder_ticks_per_rev=0, realism="ideal")
     track = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius, rec.track_width)
     T_true = rec.truth_base.poses_at(rec.wheel_t)
     assert np.max(np.linalg.norm(track.T_world_base[:, :3, 3] - T_true[:, :3, 3], axis=1)) < 2e-3
@@ -62,7 +62,7 @@ def test_integration_matches_simulated_truth():
 
 
 def test_velocity_input_matches_position_input():
-    rec = simulate_robot("rich", duration=10.0, seed=1, slip=0.0, encoder_ticks_per_rev=0)
+    rec = simulate_robot("rich", duration=10.0, seed=1, slip=0.0, encoder_ticks_per_rev=0, realism="ideal")
     t = rec.wheel_t
     rates = [np.gradient(a, t) for a in (rec.wheel_left, rec.wheel_right)]
     by_rate = base_track_from_wheels(t, *rates, R, B, kind="velocity")
@@ -71,7 +71,7 @@ def test_velocity_input_matches_position_input():
 
 
 def test_gyro_heading_beats_slipping_wheels():
-    rec = simulate_robot("rich", duration=20.0, seed=4, slip=0.03)
+    rec = simulate_robot("rich", duration=20.0, seed=4, slip=0.03, realism="ideal")
     wheels = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, R, B)
     gyro = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, R, B, gyro=rec.gyro(noise_rad_s=0.002))
     T_true = rec.truth_base.poses_at(rec.wheel_t)
@@ -110,7 +110,7 @@ def test_gaps_and_jumps_are_reported():
 
 
 def test_odometry_messages_round_trip_and_jump():
-    rec = simulate_robot("rich", duration=10.0, seed=5)
+    rec = simulate_robot("rich", duration=10.0, seed=5, realism="ideal")
     t = rec.wheel_t
     T = rec.truth_base.poses_at(t)
     q = Rotation.from_matrix(T[:, :3, :3]).as_quat()
@@ -192,7 +192,7 @@ def test_real_jackal_odometry_is_consistent(jackal_odometry):
 
 
 def test_rescale_planar_track_corrects_track_width_and_radius():
-    rec = simulate_robot("rich", duration=10.0, seed=9, slip=0.0, encoder_ticks_per_rev=0)
+    rec = simulate_robot("rich", duration=10.0, seed=9, slip=0.0, encoder_ticks_per_rev=0, realism="ideal")
     t, left, right = rec.wheel_t, rec.wheel_left, rec.wheel_right
     true = base_track_from_wheels(t, left, right, 0.10, 0.42)
     nominal = base_track_from_wheels(t, left, right, 0.098, 0.37)

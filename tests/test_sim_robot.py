@@ -7,13 +7,15 @@ from plsgraph.errors import InputError
 from plsgraph.sim.robot import MOTIONS, default_T_base_cam, simulate_robot
 
 
-@pytest.fixture(scope="module", params=MOTIONS)
+@pytest.fixture(scope="module", params=[(m, "ideal") for m in MOTIONS] + [("rich", "realistic")])
 def rec(request):
-    return simulate_robot(request.param, duration=30.0, seed=7)
+    motion, realism = request.param
+    return simulate_robot(motion, duration=30.0, seed=7, realism=realism)
 
 
 def test_board_in_view_and_in_range(rec):
-    assert rec.info["visible_fraction"] >= 0.95
+    # The ideal motions keep the board in view; a joystick driver lets it leave the image at times.
+    assert rec.info["visible_fraction"] >= (0.95 if rec.realism.name == "ideal" else 0.6)
     lo, hi = rec.info["range_m"]
     assert 0.6 <= lo and hi <= 2.5
 
@@ -40,18 +42,18 @@ def test_truth_velocities_match_pose_derivatives(rec):
 
 
 def test_motion_profiles_have_their_character():
-    straight = simulate_robot("straight", duration=10.0, seed=1)
-    spin = simulate_robot("spin", duration=10.0, seed=1)
+    straight = simulate_robot("straight", duration=10.0, seed=1, realism="ideal")
+    spin = simulate_robot("spin", duration=10.0, seed=1, realism="ideal")
     assert np.allclose(straight.truth_base.omega, 0.0) and np.ptp(straight.truth_base.v[:, 0]) > 0.3
     assert np.allclose(spin.truth_base.v, 0.0) and np.ptp(spin.truth_base.omega[:, 2]) > 0.3
     assert np.allclose(spin.truth_base.T_world_base[:, :3, 3], 0.0)
-    rich = simulate_robot("rich", duration=10.0, seed=1)
+    rich = simulate_robot("rich", duration=10.0, seed=1, realism="ideal")
     assert np.any(rich.truth_base.v[:, 0] > 0.1) and np.any(rich.truth_base.v[:, 0] < -0.1)
     assert np.ptp(rich.truth_base.omega[:, 2]) > 0.3
 
 
 def test_wheel_angles_are_differential_drive_without_slip():
-    rec = simulate_robot("rich", duration=10.0, seed=3, slip=0.0, encoder_ticks_per_rev=0)
+    rec = simulate_robot("rich", duration=10.0, seed=3, slip=0.0, encoder_ticks_per_rev=0, realism="ideal")
     r, b = rec.wheel_radius, rec.track_width
     s = r * (rec.wheel_right + rec.wheel_left) / 2
     yaw = r * (rec.wheel_right - rec.wheel_left) / b
@@ -63,18 +65,18 @@ def test_wheel_angles_are_differential_drive_without_slip():
 
 
 def test_quantization_and_slip_are_bounded():
-    clean = simulate_robot("rich", duration=10.0, seed=3, slip=0.0, encoder_ticks_per_rev=0)
-    q = simulate_robot("rich", duration=10.0, seed=3, slip=0.0, encoder_ticks_per_rev=1024)
+    clean = simulate_robot("rich", duration=10.0, seed=3, slip=0.0, encoder_ticks_per_rev=0, realism="ideal")
+    q = simulate_robot("rich", duration=10.0, seed=3, slip=0.0, encoder_ticks_per_rev=1024, realism="ideal")
     step = 2 * np.pi / 1024
     assert np.max(np.abs(q.wheel_left - clean.wheel_left)) <= step / 2 + 1e-12
     assert np.allclose(np.round(q.wheel_left / step) * step, q.wheel_left)
-    slipping = simulate_robot("rich", duration=10.0, seed=3, slip=0.01, encoder_ticks_per_rev=0)
+    slipping = simulate_robot("rich", duration=10.0, seed=3, slip=0.01, encoder_ticks_per_rev=0, realism="ideal")
     rel = np.abs(np.diff(slipping.wheel_left) - np.diff(clean.wheel_left)) / (np.abs(np.diff(clean.wheel_left)) + 1e-9)
     assert 0.0 < np.median(rel) < 0.05
 
 
 def test_detections_project_and_pnp_recovers_pose():
-    rec = simulate_robot("rich", duration=5.0, seed=4)
+    rec = simulate_robot("rich", duration=5.0, seed=4, realism="ideal")
     det = rec.detections(noise_px=0.0)
     assert det.uv.shape == (rec.cam_t.size, rec.board.n_points, 2)
     k = det.t.size // 2
@@ -90,7 +92,7 @@ def test_detections_project_and_pnp_recovers_pose():
 
 
 def test_camera_track_noise_level():
-    rec = simulate_robot("rich", duration=10.0, seed=5)
+    rec = simulate_robot("rich", duration=10.0, seed=5, realism="ideal")
     track = rec.camera_track(noise_rot_deg=0.2, noise_trans_m=0.003, seed=1)
     assert len(track) == int(round(rec.info["visible_fraction"] * rec.cam_t.size))
     idx = np.searchsorted(rec.cam_t, track.t)
@@ -116,11 +118,18 @@ def test_bad_arguments_raise():
         simulate_robot(T_base_cam=np.eye(3))
 
 
-def test_events_follow_the_board_in_the_camera_clock():
-    rec = simulate_robot("rich", duration=1.2, seed=2)
+@pytest.mark.parametrize("realism", ["ideal", "realistic"])
+def test_events_follow_the_board_in_the_camera_clock(realism):
+    rec = simulate_robot("rich", duration=1.2, seed=2, realism=realism)
     ev = rec.events(seed=1)
     t = ev.t * 1e-9
     assert len(ev) > 1000 and t.min() >= rec.cam_t[0] - 1e-6 and t.max() <= rec.cam_t[-1] + 1e-6
+    if realism == "realistic":
+        # A joystick driver starts from rest: mostly sensor noise so far, stamped in whole microseconds.
+        assert np.all(ev.t % 1000 == 0)
+        counts = np.bincount(ev.y.astype(np.int64) * rec.camera.width + ev.x)
+        assert np.sum(counts > 20) >= 5  # hot pixels
+        return
     # Around a mid stamp the events crowd on the projected board (the textured wall around it fires less).
     tm = rec.cam_t[len(rec.cam_t) // 2]
     sel = np.abs(t - tm) < 0.01

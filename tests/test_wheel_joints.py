@@ -13,7 +13,7 @@ def _wrap(a):
 
 
 def _reference_and_run():
-    sim = simulate_robot("rich", duration=6.0, seed=4, slip=0.0, encoder_ticks_per_rev=0)
+    sim = simulate_robot("rich", duration=6.0, seed=4, slip=0.0, encoder_ticks_per_rev=0, realism="ideal")
     ref = base_track_from_wheels(sim.wheel_t, sim.wheel_left, sim.wheel_right, sim.wheel_radius, sim.track_width)
     return sim, ref, (sim.wheel_radius, sim.track_width)
 

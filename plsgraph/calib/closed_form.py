@@ -29,7 +29,7 @@ from the full velocity residual once the model is known. See docs/odometry_and_t
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -391,25 +391,9 @@ def covariance_weights(camera_track: CameraTrack, t: np.ndarray, clip: float = 1
     return np.concatenate(out)
 
 
-def calibrate_closed_form(
-    camera_track: CameraTrack,
-    base_track: BaseTrack,
-    method: str = "pls",
-    td_range: tuple[float, float] = (-0.5, 0.5),
-    td: float | None = None,
-    time_offset_method: str = "correlation",
-    window_s: float = DEFAULT_WINDOW_S,
-    iterations: int = 3,
-    hand_eye_interval_s: float = 1.0,
-    hand_eye_methods: tuple[str, ...] = closedform.HAND_EYE_METHODS,
-    compare: bool = True,
-    raise_on_degenerate: bool = False,
-    use_covariance: bool = True,
-    estimate_odometry_scale: bool = True,
-    refine_td: bool = True,
-    robust_iterations: int = 3,
-) -> ClosedFormResult:
-    """Closed-form T_base_cam (rotation, floor-plane translation) and td from a camera and a base track.
+@dataclass(frozen=True)
+class ClosedFormOptions:
+    """Settings of :func:`calibrate_closed_form`.
 
     ``method`` picks the rotation solver of the headline result: "pls" (default), "pls_paper" (the paper's
     Eqs. 11-21 verbatim), "cca", "procrustes". ``td`` skips the time-offset search when the offset is known;
@@ -423,12 +407,50 @@ def calibrate_closed_form(
     the rotation is known; ``time_offset`` keeps the correlation search, ``td`` is the refined value.
     ``robust_iterations`` Huber reweightings of the velocity samples the model does not explain (0 = plain
     least squares); the count of downweighted samples is in ``discarded["velocity_samples_downweighted"]``.
+    """
+
+    method: str = "pls"
+    td_range: tuple[float, float] = (-0.5, 0.5)
+    td: float | None = None
+    time_offset_method: str = "correlation"
+    window_s: float = DEFAULT_WINDOW_S
+    iterations: int = 3
+    hand_eye_interval_s: float = 1.0
+    hand_eye_methods: tuple[str, ...] = closedform.HAND_EYE_METHODS
+    compare: bool = True
+    raise_on_degenerate: bool = False
+    use_covariance: bool = True
+    estimate_odometry_scale: bool = True
+    refine_td: bool = True
+    robust_iterations: int = 3
+
+    def __post_init__(self) -> None:
+        if self.method not in ROTATION_METHODS:
+            raise InputError(f"unknown method {self.method!r}; use one of {', '.join(ROTATION_METHODS)}")
+
+
+ROTATION_METHODS = ("pls", "pls_paper", "cca", "procrustes")
+
+
+def calibrate_closed_form(
+    camera_track: CameraTrack,
+    base_track: BaseTrack,
+    options: ClosedFormOptions | None = None,
+    **settings,
+) -> ClosedFormResult:
+    """Closed-form T_base_cam (rotation, floor-plane translation) and td from a camera and a base track.
+
+    ``options`` (:class:`ClosedFormOptions`), with any of its fields overridden by keyword (``method="cca"``).
     Input problems raise (InputError, InsufficientDataError); motion that leaves something undetermined gives
     a result with ``degenerate`` set, or raises DegenerateMotionError with ``raise_on_degenerate``.
     """
-    rot_methods = ("pls", "pls_paper", "cca", "procrustes")
-    if method not in rot_methods:
-        raise InputError(f"unknown method {method!r}; use one of {', '.join(rot_methods)}")
+    try:
+        o = replace(options or ClosedFormOptions(), **settings)
+    except TypeError as exc:
+        raise InputError(f"calibrate_closed_form: {exc}") from exc
+    method, td_range, td, window_s = o.method, tuple(o.td_range), o.td, o.window_s
+    iterations, robust_iterations, use_covariance = o.iterations, o.robust_iterations, o.use_covariance
+    estimate_odometry_scale, compare = o.estimate_odometry_scale, o.compare
     if not isinstance(camera_track, CameraTrack) or not isinstance(base_track, BaseTrack):
         raise InputError("calibrate_closed_form needs a CameraTrack and a BaseTrack")
     warnings: list[str] = list(base_track.info.get("warnings", []))
@@ -443,7 +465,7 @@ def calibrate_closed_form(
     # 1. Time offset.
     to_res: TimeOffsetResult | None = None
     if td is None:
-        to_res = estimate_time_offset(cv, base_track, td_range=td_range, method=time_offset_method)
+        to_res = estimate_time_offset(cv, base_track, td_range=td_range, method=o.time_offset_method)
         td_est = to_res.td
         warnings += to_res.warnings
         if to_res.at_range_edge:
@@ -535,7 +557,7 @@ def calibrate_closed_form(
                 return R, t_xy, s_v, s_w, int(np.count_nonzero((rob[0] < 1) | (rob[1] < 1)))
 
             R, t_xy, s_v, s_w, downweighted = solve_model(pairs, max(1, iterations), t_xy, s_v, s_w)
-            if refine_td and td is None:
+            if o.refine_td and td is None:
                 # Two rounds: the first may move td far enough that the model is worth re-solving before the second.
                 for half_range in (0.1, 0.02):
                     td_ref, _, costs = refine_time_offset(
@@ -564,7 +586,7 @@ def calibrate_closed_form(
         if estimate_odometry_scale and (abs(s_v - 1) > 1e-3 or abs(s_w - 1) > 1e-3):
             # The relative base motions for the hand-eye come from the odometry corrected by the scales.
             he_base = rescale_planar_track(base_track, s_v, s_w)
-        Tb, Tc, n_cross = _motion_pairs(camera_track, he_base, pairs.t, td_est, hand_eye_interval_s, 400)
+        Tb, Tc, n_cross = _motion_pairs(camera_track, he_base, pairs.t, td_est, o.hand_eye_interval_s, 400)
         discarded["motion_pairs_across_gaps"] = n_cross
         try:
             t_final, he_diag = planar_hand_eye_translation(Tb, Tc, R)
@@ -580,7 +602,7 @@ def calibrate_closed_form(
     X, Y, _k = _stack_rows(pairs, t_xy, s_v, s_w) if R is not None else _stack_rows(pairs, np.zeros(2))
     caveat = [] if full_rotation else ["the motion does not determine the full rotation: this answer is arbitrary"]
     row_weights = covariance_weights(camera_track, pairs.t) if use_covariance else None
-    for name in rot_methods if compare else (method,):
+    for name in ROTATION_METHODS if compare else (method,):
         try:
             rr = _solve_rotation(X, Y, name, row_weights)
             methods[name] = MethodResult(rr.R_base_cam, None, None, list(rr.warnings) + caveat, dict(rr.diagnostics))
@@ -588,11 +610,11 @@ def calibrate_closed_form(
             methods[name] = MethodResult(None, error=str(exc))
     if compare:
         if Tb is None:
-            Tb, Tc, _ = _motion_pairs(camera_track, base_track, pairs.t, td_est, hand_eye_interval_s, 400)
+            Tb, Tc, _ = _motion_pairs(camera_track, base_track, pairs.t, td_est, o.hand_eye_interval_s, 400)
         # A pose sequence along the track; OpenCV forms the relative motions itself.
         seq_b = np.concatenate([Tb[:1, 0], Tb[:, 1]])
         seq_c = np.concatenate([Tc[:1, 0], Tc[:, 1]])
-        for he in hand_eye_methods:
+        for he in o.hand_eye_methods:
             try:
                 rr = closedform.hand_eye(seq_b, seq_c, he)
                 methods[f"hand_eye_{he}"] = MethodResult(rr.R_base_cam, rr.t_base_cam, None, list(rr.warnings) + caveat)
@@ -613,7 +635,7 @@ def calibrate_closed_form(
     if degenerate:
         msg = "; ".join(reasons)
         log.warning("closed-form calibration degenerate: %s", msg)
-        if raise_on_degenerate:
+        if o.raise_on_degenerate:
             raise DegenerateMotionError(msg)
     n = pairs.t.size  # the refinement may have re-paired at another td
     discarded.update(pairs.discarded)

@@ -25,7 +25,7 @@ typical session:
   plsgraph calibrate run.mcap --board acircles_4x11 --out calib/
   plsgraph compare run.mcap --board acircles_4x11 --truth run.truth.yaml
 
-BOARD is a YAML file or the name of a bundled board in data/boards/ (e.g. acircles_4x11).
+BOARD is a YAML file or the name of a bundled board (acircles_4x11, acircles_4x11_a2, aprilgrid_6x6, ...).
 Conventions: T_base_cam maps camera points into the robot base frame; t_odom = t_cam + time_offset_s.
 """
 
@@ -142,6 +142,8 @@ def _build_parser() -> argparse.ArgumentParser:
     s.add_argument("--board", default="acircles_4x11_a2", help="board YAML or bundled name (default: %(default)s)")
     s.add_argument("--contrast", type=float, default=0.25,
                    help="event contrast threshold in log intensity (default: %(default)s; larger, fewer events)")
+    s.add_argument("--ideal", action="store_true",
+                   help="the clean simulator (default: realistic sensor, robot, scene and driving, docs/simulation.md)")
     s.add_argument("--out", type=Path, required=True, help="output .mcap path")
     s.add_argument("--force", action="store_true", help="overwrite an existing file")
     s.set_defaults(func=_cmd_simulate)
@@ -224,7 +226,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
     paths = simulate(args.out, motion=args.motion, duration=args.duration, seed=args.seed, td=args.td,
                      event_format=args.event_format, overwrite=args.force, board=args.board,
-                     contrast=args.contrast, progress=ProgressBar)
+                     contrast=args.contrast, realism="ideal" if args.ideal else "realistic", progress=ProgressBar)
     for p in paths:
         print(f"written: {p}")
     return 0

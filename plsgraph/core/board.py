@@ -1,4 +1,4 @@
-"""Calibration target definitions (YAML in data/boards/) and their 3-D point layouts.
+"""Calibration target definitions (YAML files; bundled ones in plsgraph/data/boards/) and their 3-D point layouts.
 
 Asymmetric circle grid, OpenCV convention: ``cols`` circles per row (patternSize width), ``rows``
 rows; circle (row i, col j) sits at ((2 j + i mod 2) s, i s, 0) with s = ``square_size``. Points are

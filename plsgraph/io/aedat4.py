@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RecordingError
-from .source import DecodedEvents, RawMessage, ReadLog, TopicInfo
+from .base import DecodedEvents, RawMessage, ReadLog, TopicInfo
 
 log = logging.getLogger(__name__)
 

@@ -17,8 +17,8 @@ from mcap.records import Channel, Chunk, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
 from ..errors import RecordingError
+from .base import RawMessage, ReadLog, TopicInfo
 from .messages import normalize_type
-from .source import RawMessage, ReadLog, TopicInfo
 
 log = logging.getLogger(__name__)
 

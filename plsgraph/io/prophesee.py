@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RecordingError
+from .base import DecodedEvents, RawMessage, ReadLog, TopicInfo
 from .event_codecs import Evt2Decoder, Evt3Decoder
-from .source import DecodedEvents, RawMessage, ReadLog, TopicInfo
 
 log = logging.getLogger(__name__)
 

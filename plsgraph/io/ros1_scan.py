@@ -17,8 +17,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ..errors import RecordingError
+from .base import RawMessage, ReadLog, TopicInfo
 from .messages import normalize_type
-from .source import RawMessage, ReadLog, TopicInfo
 
 log = logging.getLogger(__name__)
 

@@ -8,8 +8,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ..errors import RecordingError
+from .base import RawMessage, ReadLog, TopicInfo
 from .messages import normalize_type, typestore
-from .source import RawMessage, ReadLog, TopicInfo
 
 log = logging.getLogger(__name__)
 

@@ -12,6 +12,23 @@ Model (per pixel, between two consecutive renders at t_a and t_b the log intensi
 * background-activity noise: Poisson events at ``noise_rate_hz`` per pixel, uniform in time and space, ON
   with probability ``noise_on_fraction``; they do not disturb the pixel's reference.
 
+Real-sensor effects, all off by default (plsgraph.sim.realism switches them on; docs/simulation.md):
+
+* photoreceptor bandwidth (``latency_s`` > 0): the pixel compares a first-order low-pass of its log
+  intensity, whose time constant is ``latency_s / I`` (I the irradiance, 1 = white paper in a lit room),
+  capped at ``latency_max_s``. A ramp comes out late by the time constant, so dim pixels fire later, and
+  fast modulation (flicker) is attenuated in dim pixels. For input that is linear over a step the filter is
+  integrated exactly; the time constant is taken from the intensity at the step's start;
+* mains flicker (``flicker_depth`` m > 0): the lighting multiplies by 1 + m sin(2 pi ``flicker_hz`` t + phase);
+  each render interval is split into sub-steps of at most 1 / (``flicker_steps_per_period`` f), the scene's
+  intensity being interpolated linearly in between (no extra renders);
+* hot pixels (``hot_pixels``): that many pixels fire Poisson events at rates drawn log-uniformly in
+  [``hot_rate_min_hz``, ``hot_rate_max_hz``], each with its own ON share; they bypass the refractory period;
+* timestamp quantization (``timestamp_resolution_s`` > 0): stamps are floored to multiples of it (1e-6 for a
+  sensor's microsecond counter), in the absolute clock.
+These effects draw their random numbers from a second generator, so with them off a seed gives exactly the
+events it gave before they existed.
+
 Render times are adaptive: the camera path is probed at ``probe_rate_hz``; on each probe interval the
 wanted render rate is the image motion of the scene plane (measured on a grid of pixels, plus |rotation| f
 for rays that miss the plane) divided by ``max_px_per_step``, clipped to [``min_rate_hz``, ``max_rate_hz``];
@@ -56,6 +73,15 @@ class EventSimParams:
     fixed_rate_hz: float | None = None
     chunk_steps: int = 256
     render: RenderParams = field(default_factory=RenderParams)
+    latency_s: float = 0.0  # photoreceptor time constant at irradiance 1; 0: no low-pass
+    latency_max_s: float = 0.02
+    hot_pixels: int = 0
+    hot_rate_min_hz: float = 10.0
+    hot_rate_max_hz: float = 1000.0
+    flicker_depth: float = 0.0
+    flicker_hz: float = 100.0
+    flicker_steps_per_period: int = 12
+    timestamp_resolution_s: float = 0.0  # 0: nanoseconds
 
     def __post_init__(self) -> None:
         positive = ("contrast_on", "contrast_off", "contrast_min", "max_px_per_step", "probe_rate_hz")
@@ -63,7 +89,8 @@ class EventSimParams:
             v = getattr(self, name)
             if not np.isfinite(v) or v <= 0:
                 raise InputError(f"EventSimParams: {name} must be positive, got {v}")
-        for name in ("contrast_sigma", "refractory_s", "noise_rate_hz"):
+        for name in ("contrast_sigma", "refractory_s", "noise_rate_hz", "latency_s", "flicker_depth",
+                     "timestamp_resolution_s"):
             v = getattr(self, name)
             if not np.isfinite(v) or v < 0:
                 raise InputError(f"EventSimParams: {name} must be >= 0, got {v}")
@@ -75,6 +102,21 @@ class EventSimParams:
             raise InputError(f"EventSimParams: fixed_rate_hz must be positive, got {self.fixed_rate_hz}")
         if self.chunk_steps < 1:
             raise InputError(f"EventSimParams: chunk_steps must be >= 1, got {self.chunk_steps}")
+        if not self.flicker_depth < 1.0:
+            raise InputError(f"EventSimParams: flicker_depth must be < 1, got {self.flicker_depth}")
+        for name in ("latency_max_s", "hot_rate_min_hz", "flicker_hz"):
+            v = getattr(self, name)
+            if not np.isfinite(v) or v <= 0:
+                raise InputError(f"EventSimParams: {name} must be positive, got {v}")
+        if self.hot_rate_max_hz < self.hot_rate_min_hz:
+            raise InputError("EventSimParams: hot_rate_max_hz must not be below hot_rate_min_hz")
+        if self.hot_pixels < 0 or self.flicker_steps_per_period < 4:
+            raise InputError("EventSimParams: hot_pixels must be >= 0 and flicker_steps_per_period >= 4")
+
+    @property
+    def photoreceptor(self) -> bool:
+        """True if the pixel front end needs the intensity (latency or flicker), not just log intensity."""
+        return self.latency_s > 0 or self.flicker_depth > 0
 
 
 @dataclass(frozen=True)
@@ -225,6 +267,77 @@ def _noise(
     return _Chunk(t, pix, p)
 
 
+class _Photoreceptor:
+    """Pixel front end with photoreceptor bandwidth and flickering light (see the module docstring).
+
+    ``y`` is the low-passed log intensity the change detector compares; ``advance`` moves it over one render
+    interval and returns the (y0, y1, ta, tb) sub-steps to feed to the change detector.
+    """
+
+    def __init__(self, I0: np.ndarray, params: EventSimParams, rng: np.random.Generator):
+        self.p = params
+        self.eps = np.float32(params.render.log_eps)
+        self.phase = float(rng.uniform(0.0, 2 * np.pi)) if params.flicker_depth > 0 else 0.0
+        self.I = I0.astype(np.float32)
+        self.L = self._log(self.I, 0.0)  # unfiltered input at the last sub-step
+        self.y = self.L.copy()  # the filter starts in steady state
+
+    def _log(self, I: np.ndarray, t: float) -> np.ndarray:
+        p = self.p
+        if p.flicker_depth > 0:
+            g = 1.0 + p.flicker_depth * np.sin(2 * np.pi * p.flicker_hz * t + self.phase)
+            return np.log(I * np.float32(g) + self.eps)
+        return np.log(I + self.eps)
+
+    def advance(self, I1: np.ndarray, ta: float, tb: float) -> list[tuple[np.ndarray, np.ndarray, float, float]]:
+        p = self.p
+        n = 1
+        if p.flicker_depth > 0:
+            n = max(1, int(np.ceil((tb - ta) * p.flicker_hz * p.flicker_steps_per_period - 1e-9)))
+        h = (tb - ta) / n
+        if p.latency_s > 0:
+            # Time constant from the irradiance at the interval's start; the exact response of a first-order
+            # low-pass to input that is linear over h: y1 = L1 + (y0 - L0) a - (L1 - L0) (tau / h) (1 - a).
+            tau = np.float32(p.latency_s) / np.maximum(self.I, np.float32(1e-6))
+            np.minimum(tau, np.float32(p.latency_max_s), out=tau)
+            x = np.float32(-h) / tau
+            a = np.exp(x)
+            c = -np.expm1(x) * tau / np.float32(h)
+        I0 = self.I
+        out = []
+        t_prev = ta
+        for j in range(1, n + 1):
+            t = ta + j * h if j < n else tb
+            I = I1 if j == n else I0 + (I1 - I0) * np.float32(j / n)
+            L = self._log(I, t)
+            if p.latency_s > 0:
+                y = L + (self.y - self.L) * a - (L - self.L) * c
+            else:
+                y = L
+            out.append((self.y, y, t_prev, t))
+            self.y, self.L, t_prev = y, L, t
+        self.I = I1.astype(np.float32, copy=False)
+        return out
+
+
+class _HotPixels:
+    """Pixels that fire Poisson events at their own high rate, whatever they see."""
+
+    def __init__(self, params: EventSimParams, n_pix: int, rng: np.random.Generator):
+        k = min(int(params.hot_pixels), n_pix)
+        self.pix = rng.choice(n_pix, k, replace=False)
+        lo, hi = np.log(params.hot_rate_min_hz), np.log(params.hot_rate_max_hz)
+        self.rate = np.exp(rng.uniform(lo, hi, k))
+        self.on_share = rng.uniform(0.0, 1.0, k)
+
+    def events(self, ta: float, tb: float, rng: np.random.Generator) -> _Chunk:
+        counts = rng.poisson(self.rate * (tb - ta))
+        pix = np.repeat(self.pix, counts)
+        t = rng.uniform(ta, tb, pix.size)
+        on = rng.random(pix.size) < np.repeat(self.on_share, counts)
+        return _Chunk(t, pix, np.where(on, 1, -1).astype(np.int8))
+
+
 def simulate_events(
     t_cam: np.ndarray,
     T_board_cam: np.ndarray,
@@ -253,27 +366,39 @@ def simulate_events(
     log.info("simulating events: %d renders over %.3f s (%.0f Hz mean)", times.size, rel[-1], n_steps / rel[-1])
     if not _board_ever_visible(T, camera, board):
         log.warning("simulate_events: the board is never in view along this trajectory; only the wall gives events")
-    L_prev = renderer.log_intensity(T[0]).ravel()
+    # Real-sensor effects draw from their own generator: with them off, ``rng`` gives what it always gave.
+    rng_fx = np.random.default_rng([seed, 1])
+    front = _Photoreceptor(renderer.intensity(T[0]).ravel(), params, rng_fx) if params.photoreceptor else None
+    L_prev = front.y if front is not None else renderer.log_intensity(T[0]).ravel()
     ref = L_prev.copy()
     last_t = np.full(n_pix, -np.inf)
+    hot = _HotPixels(params, n_pix, rng_fx) if params.hot_pixels > 0 else None
     chunks: list[EventStream] = []
     for c0 in range(0, n_steps, params.chunk_steps):
         c1 = min(n_steps, c0 + params.chunk_steps)
         poses = interpolate_poses(times[c0 + 1 : c1 + 1], t, T)
         parts: list[_Chunk] = []
         for k in range(c1 - c0):
-            L = renderer.log_intensity(poses[k]).ravel()
-            ev = _step_events(
-                L_prev, L, rel[c0 + k], rel[c0 + k + 1], ref, last_t, c_on, c_off, params.refractory_s
-            )
-            if ev is not None:
-                parts.append(ev)
-            L_prev = L
+            ta, tb = rel[c0 + k], rel[c0 + k + 1]
+            if front is None:
+                L = renderer.log_intensity(poses[k]).ravel()
+                sub = [(L_prev, L, ta, tb)]
+                L_prev = L
+            else:
+                sub = front.advance(renderer.intensity(poses[k]).ravel(), ta, tb)
+            for y0, y1, sa, sb in sub:
+                ev = _step_events(y0, y1, sa, sb, ref, last_t, c_on, c_off, params.refractory_s)
+                if ev is not None:
+                    parts.append(ev)
         noise = _noise(rel[c0], rel[c1], n_pix, params, rng)
         if noise is not None:
             parts.append(noise)
+        if hot is not None:
+            hot_ev = hot.events(rel[c0], rel[c1], rng_fx)
+            if hot_ev.t.size:
+                parts.append(hot_ev)
         if parts:
-            chunks.append(_to_stream(parts, t_origin_ns, camera))
+            chunks.append(_to_stream(parts, t_origin_ns, camera, params.timestamp_resolution_s))
         if progress is not None:
             progress(c1, n_steps)
     if not chunks:
@@ -294,11 +419,15 @@ def _board_ever_visible(T_board_cam: np.ndarray, camera: CameraModel, board: Boa
     return bool(np.any((uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)))
 
 
-def _to_stream(parts: list[_Chunk], t_origin_ns: int, camera: CameraModel) -> EventStream:
+def _to_stream(parts: list[_Chunk], t_origin_ns: int, camera: CameraModel, resolution_s: float = 0.0) -> EventStream:
     t = np.concatenate([c.t for c in parts])
     pix = np.concatenate([c.pix for c in parts])
     p = np.concatenate([c.p for c in parts])
     t_ns = np.rint(t * 1e9).astype(np.int64) + t_origin_ns
+    if resolution_s > 0:
+        # A sensor's counter ticks in whole units of the absolute clock: floor, which keeps the order.
+        q = max(1, int(round(resolution_s * 1e9)))
+        t_ns = (t_ns // q) * q
     order = np.argsort(t_ns, kind="stable")
     y, x = np.divmod(pix[order], camera.width)
     return EventStream.from_arrays(t_ns[order], x, y, p[order], camera.width, camera.height, validate=False)

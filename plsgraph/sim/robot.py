@@ -13,10 +13,19 @@ its z axis pointing away from the robot (as OpenCV's calibrateCamera places targ
 
 Clocks: every truth quantity is kept in the odometry clock except the camera samples, which carry
 camera stamps; a camera stamp t_cam belongs to odometry time t_cam + td.
+
+Realism (plsgraph.sim.realism, docs/simulation.md): ``realism="realistic"`` (the default) adds a skid-steer
+robot whose effective track and wheel radius differ from the nominal ones, correlated wheel slip, odometry
+timestamp jitter and latency, a board at a chosen distance, turned and printed slightly off size, a lens with
+chosen distortion, and a person driving with a joystick. ``realism="ideal"`` reproduces the original
+recording exactly. With odometry latency lambda the odometry stamps are lambda later than the motion they
+measure; the truth is kept in the stamps' clock, so ``td`` is the camera-to-motion offset plus lambda, the
+offset an estimator sees.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 
@@ -27,6 +36,7 @@ from ..core.camera import CameraModel, davis346_default
 from ..core.geometry import inv_T, make_T, rot_z, se3_exp
 from ..core.tracks import BaseTrack, CameraTrack, Detections
 from ..errors import InputError
+from .realism import MotionStyle, Realism, resolve
 
 log = logging.getLogger(__name__)
 
@@ -111,7 +121,13 @@ class SimRecording:
     Measurements: ``wheel_t`` (odometry clock), ``wheel_left`` / ``wheel_right`` joint positions (rad)
     with encoder quantization and slip. Fast paths: ``detections()``, ``camera_track()``, ``gyro()``.
     ``info`` holds the design (motion, seed, noise) and ``visible_fraction``, the share of camera
-    frames in which every board point projects inside the image.
+    frames in which every board point projects inside the image (``board_in_view`` per frame).
+
+    ``wheel_radius`` and ``track_width`` are the true effective values (what explains the wheel angles);
+    ``wheel_radius_nominal`` and ``track_width_nominal`` what the user believes (the nominal radius and the
+    geometric track). ``board`` is the nominal board (its YAML); the printed board is ``board_scale`` times
+    larger (``board_true``), and the truth projections use it. ``td`` includes the odometry latency
+    ``odom_latency``. ``realism`` holds the effects the recording was made with (None: ideal).
     """
 
     T_base_cam: np.ndarray
@@ -128,15 +144,62 @@ class SimRecording:
     camera: CameraModel
     board: Board
     info: dict = field(default_factory=dict)
+    wheel_radius_nominal: float | None = None
+    track_width_nominal: float | None = None
+    board_scale: float = 1.0
+    odom_latency: float = 0.0
+    realism: Realism | None = None
 
     @property
     def R_base_cam(self) -> np.ndarray:
         return self.T_base_cam[:3, :3]
 
+    @property
+    def board_true(self) -> Board:
+        """The board as printed: the nominal board scaled by ``board_scale``."""
+        return _scaled_board(self.board, self.board_scale)
+
+    @property
+    def board_in_view(self) -> np.ndarray:
+        """(m,) bool per camera frame: every board point projects inside the image."""
+        return self.project_truth()[1].all(axis=1)
+
+    def truth_dict(self) -> dict:
+        """Truth for the recording's truth YAML beyond T_base_cam and td: nominal vs true odometry intrinsics,
+        board scale, timing, lens, visibility and every drawn effect."""
+        r_nom = self.wheel_radius if self.wheel_radius_nominal is None else self.wheel_radius_nominal
+        b_nom = self.track_width if self.track_width_nominal is None else self.track_width_nominal
+        vis = self.board_in_view
+        # Spans of camera frames without the whole board, in camera-clock seconds of the simulation.
+        edges = np.flatnonzero(np.diff(np.r_[0, (~vis).astype(np.int8), 0]))
+        spans = [[float(self.cam_t[a]), float(self.cam_t[b - 1])] for a, b in zip(edges[::2], edges[1::2], strict=True)]
+        fx = self.realism
+        return {
+            "td": float(self.td),
+            "td_clock_s": float(self.td - self.odom_latency),
+            "odometry_latency_s": float(self.odom_latency),
+            "wheel_radius": float(self.wheel_radius),
+            "track_width": float(self.track_width),
+            "wheel_radius_true": float(self.wheel_radius),
+            "wheel_radius_nominal": float(r_nom),
+            "track_width_effective": float(self.track_width),
+            "track_width_nominal": float(b_nom),
+            "track_ratio": float(self.track_width / b_nom),
+            "board_scale": float(self.board_scale),
+            "board_distance_m": self.info.get("board_distance_m"),
+            "board_yaw_deg": self.info.get("board_yaw_deg"),
+            "odometry_rate_hz": self.info.get("odom_rate"),
+            "encoder_ticks_per_rev": self.info.get("ticks"),
+            "camera_distortion": self.camera.dist.tolist(),
+            "board_in_view_fraction": float(np.mean(vis)) if vis.size else 0.0,
+            "board_out_of_view_s": spans,
+            "realism": fx.to_dict() if fx is not None else {"name": "ideal"},
+        }
+
     def project_truth(self) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free pixels (m, N, 2) of the board points and a mask (m, N) of those inside the image."""
         T_cam_board = inv_T(self.T_board_cam)
-        pts = self.board.points
+        pts = self.board.points if self.board_scale == 1.0 else self.board_true.points
         p_cam = np.einsum("mij,nj->mni", T_cam_board[:, :3, :3], pts) + T_cam_board[:, None, :3, 3]
         m, n = p_cam.shape[:2]
         in_front = p_cam[..., 2] > 1e-3
@@ -223,6 +286,8 @@ class SimRecording:
     def events(self, trajectory_rate: float = 500.0, **options):
         """Event stream (camera clock) of the board seen along the true camera trajectory.
 
+        The printed (scaled) board is rendered, with the recording's sensor and scene effects applied to
+        ``params`` (default EventSimParams()).
         Calls ``plsgraph.sim.events.simulate_events`` with the true camera poses sampled at
         ``trajectory_rate`` Hz over the camera stamps (the simulator interpolates between them linearly, so a
         dense trajectory keeps the motion's curvature); ``options`` (params, seed, progress) are passed on.
@@ -239,7 +304,132 @@ class SimRecording:
         t0, t1 = float(self.cam_t[0]), float(self.cam_t[-1])
         t = np.r_[np.arange(t0, t1, 1.0 / trajectory_rate), t1]
         t = t[np.r_[np.diff(t) > 1e-9, True]]
-        return simulate_events(t, self.camera_poses_at(t), self.camera, self.board, **options)
+        if self.realism is not None:
+            options["params"] = self.realism.event_params(options.get("params"))
+        return simulate_events(t, self.camera_poses_at(t), self.camera, self.board_true, **options)
+
+
+def _scaled_board(board: Board, scale: float) -> Board:
+    """``board`` printed ``scale`` times its nominal size (points scale about the board origin)."""
+    if scale == 1.0:
+        return board
+    return dataclasses.replace(
+        board,
+        square_size=board.square_size * scale,
+        circle_diameter=board.circle_diameter * scale,
+        tag_size=board.tag_size * scale,
+    )
+
+
+def _board_pose(points: np.ndarray, centre_xy: np.ndarray, height: float, heading: float, yaw_deg: float) -> np.ndarray:
+    """T_world_board of a vertical board centred at (centre_xy, height), facing back along ``heading``, then
+    turned by ``yaw_deg`` about its vertical axis."""
+    fwd = np.array([np.cos(heading), np.sin(heading), 0.0])
+    left = np.array([-np.sin(heading), np.cos(heading), 0.0])
+    R_world_board = np.stack([-left, np.array([0.0, 0.0, -1.0]), fwd], axis=1)  # x right, y down, z away
+    if yaw_deg != 0.0:
+        R_world_board = rot_z(np.radians(yaw_deg)) @ R_world_board
+    half = 0.5 * np.ptp(points, axis=0)
+    origin = np.r_[centre_xy, height] - R_world_board @ (points.min(axis=0) + half)
+    return make_T(R_world_board, origin)
+
+
+def _wrap(a: float) -> float:
+    return float((a + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _joystick_drive(
+    motion: str,
+    style: MotionStyle,
+    t: np.ndarray,
+    T_base_cam: np.ndarray,
+    board_xy: np.ndarray,
+    distance: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """v, omega, theta, x, y on the truth grid ``t`` of a person driving with a joystick in front of the board.
+
+    Segment by segment the driver looks at where the board is and picks a command: turn back to the board if it
+    is off-centre (or out of view), drive towards or away from it if too far or too near, else a random
+    forward, reverse, turn, arc or stop. A turn sometimes swings the board out of the image
+    (``look_away_prob``). The robot follows each command with a first-order lag (``smoothing_s``), so speeds
+    and turn rates are continuous; within a segment everything is in closed form, so only segments loop.
+    "straight" never turns and "spin" never drives.
+    """
+    n = t.size
+    dt = float(t[1] - t[0])
+    v, w, th, x, y = (np.zeros(n) for _ in range(5))
+    tau = style.smoothing_s
+    vm, wm = style.v_max_mps, style.omega_max_rad_s
+    can_turn, can_drive = motion != "straight", motion != "spin"
+    p_cam = T_base_cam[:2, 3]
+    z_cam = T_base_cam[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    psi_cam = float(np.arctan2(z_cam[1], z_cam[0]))
+    near, far = max(0.5, distance - 0.35), distance + 0.35
+    k0 = 0
+    while k0 < n - 1:
+        c, s_ = np.cos(th[k0]), np.sin(th[k0])
+        cam = np.array([x[k0], y[k0]]) + np.array([[c, -s_], [s_, c]]) @ p_cam
+        delta = board_xy - cam
+        d = float(np.hypot(*delta))
+        beta = _wrap(float(np.arctan2(delta[1], delta[0])) - th[k0] - psi_cam)
+        dur = style.segment_s * rng.uniform(0.5, 1.5)
+        vc = wc = 0.0
+        if can_turn and abs(beta) > np.radians(12.0):
+            wc = float(np.clip(1.3 * beta / dur, -wm, wm))
+            if can_drive and rng.random() < 0.5:
+                vc = (1.0 if d > distance else -1.0) * rng.uniform(0.0, 0.3) * vm
+        elif can_drive and (d > far or d < near):
+            vc = (1.0 if d > far else -1.0) * rng.uniform(0.5, 1.0) * vm
+            wc = float(np.clip(beta / dur, -wm, wm)) if can_turn else 0.0
+        else:
+            acts = (["forward", "reverse", "stop"] if can_drive else ["stop"]) + (["turn", "turn"] if can_turn else [])
+            if can_drive and can_turn:
+                acts.append("arc")
+            act = acts[int(rng.integers(0, len(acts)))]
+            sign = 1.0 if rng.random() < 0.5 else -1.0
+            if act in ("forward", "reverse"):
+                room = (d - near) if act == "forward" else (far - d)
+                speed = min(rng.uniform(0.4, 1.0) * vm, max(room, 0.05) / dur + 0.05)
+                vc = speed if act == "forward" else -speed
+            elif act == "turn":
+                if rng.random() < style.look_away_prob:
+                    angle = np.radians(rng.uniform(45.0, 70.0))
+                    dur = max(dur, angle / (0.9 * wm))
+                else:
+                    angle = np.radians(rng.uniform(8.0, 25.0))
+                wc = float(np.clip(sign * angle / dur, -wm, wm))
+            elif act == "arc":
+                vc = sign * rng.uniform(0.3, 0.8) * vm
+                wc = (1.0 if rng.random() < 0.5 else -1.0) * rng.uniform(0.3, 0.8) * wm
+                dur *= 0.6
+            else:
+                dur *= 0.6
+        k1 = min(n - 1, k0 + max(2, int(round(dur / dt))))
+        dtk = t[k0 : k1 + 1] - t[k0]
+        e = np.exp(-dtk / tau)
+        v[k0 : k1 + 1] = vc + (v[k0] - vc) * e
+        w[k0 : k1 + 1] = wc + (w[k0] - wc) * e
+        th[k0 : k1 + 1] = th[k0] + wc * dtk + (w[k0] - wc) * tau * (1.0 - e)
+        vx, vy = v[k0 : k1 + 1] * np.cos(th[k0 : k1 + 1]), v[k0 : k1 + 1] * np.sin(th[k0 : k1 + 1])
+        x[k0 + 1 : k1 + 1] = x[k0] + np.cumsum(0.5 * (vx[1:] + vx[:-1]) * dt)
+        y[k0 + 1 : k1 + 1] = y[k0] + np.cumsum(0.5 * (vy[1:] + vy[:-1]) * dt)
+        k0 = k1
+    return v, w, th, x, y
+
+
+def _ou_gains(
+    t: np.ndarray, omega: np.ndarray, sigma: float, tau: float, turn_gain: float, rng: np.random.Generator
+) -> np.ndarray:
+    """(2, n) multiplicative gains 1 + e(t) of the two wheels' increments: e is an Ornstein-Uhlenbeck process
+    (correlation time ``tau``) whose std ``sigma (1 + turn_gain |omega|)`` grows when the robot turns."""
+    from scipy.signal import lfilter
+
+    dt = np.diff(t, prepend=t[0] - (t[1] - t[0]))
+    a = np.exp(-np.median(dt) / tau)
+    z0 = rng.standard_normal((2, 1))
+    z, _ = lfilter([np.sqrt(1.0 - a * a)], [1.0, -a], rng.standard_normal((2, t.size)), axis=1, zi=a * z0)
+    return 1.0 + sigma * (1.0 + turn_gain * np.abs(omega))[None, :] * z
 
 
 def simulate_robot(
@@ -258,8 +448,9 @@ def simulate_robot(
     slip: float = 0.005,
     truth_rate: float = 1000.0,
     board_height: float | None = None,
+    realism: Realism | str = "realistic",
 ) -> SimRecording:
-    """Simulate a differential-drive recording in front of a board.
+    """Simulate a differential-drive (skid-steer) recording in front of a board.
 
     ``motion``: "rich" (forwards/backwards while turning), "straight" (forwards/backwards only) or
     "spin" (turning in place). ``slip`` is the standard deviation of a slowly varying relative error
@@ -267,64 +458,96 @@ def simulate_robot(
     (0 disables it). The board is placed ~1.5 m ahead of the mean robot position, facing it, with its
     centre at ``board_height`` (default: the camera height). ``truth_rate`` is the rate of the exact
     base truth.
+
+    ``realism``: "realistic" (default, every effect of plsgraph.sim.realism at its typical value), "ideal"
+    (the original clean recording, exactly) or a :class:`~plsgraph.sim.realism.Realism` (e.g. from
+    ``draw_realism`` or ``only``). ``wheel_radius`` and ``track_width`` are then the nominal (geometric)
+    values a user would pass; the robot's true effective ones follow from the realism's robot effects. With
+    a joystick motion style the robot starts at the origin facing the board at the scene's board distance;
+    otherwise the board is placed as above at that distance.
     """
+    fx = resolve(realism)
+    rob, scene = fx.robot, fx.scene
     if duration <= 1.0 or odom_rate <= 0 or cam_rate <= 0 or truth_rate < odom_rate:
         raise InputError("simulate_robot: need duration > 1 s, positive rates and truth_rate >= odom_rate")
     if wheel_radius <= 0 or track_width <= 0 or slip < 0:
         raise InputError("simulate_robot: wheel_radius and track_width must be positive and slip >= 0")
+    if motion not in MOTIONS:
+        raise InputError(f"unknown motion {motion!r}; use one of {', '.join(MOTIONS)}")
     rng = np.random.default_rng(seed)
+    # Realism draws from its own generator, so that the ideal recording of a seed stays what it was.
+    rng_fx = np.random.default_rng([seed, 2])
     board = board if board is not None else load_board("acircles_4x11")
-    camera = camera if camera is not None else davis346_default()
+    camera = fx.sensor.camera(camera if camera is not None else davis346_default())
     T_base_cam = default_T_base_cam() if T_base_cam is None else np.asarray(T_base_cam, dtype=float)
     if T_base_cam.shape != (4, 4):
         raise InputError(f"T_base_cam must be 4x4, got {T_base_cam.shape}")
-    speed, heading = _motion_design(motion, rng)
+    if rob.odom_rate_hz is not None:
+        odom_rate = float(rob.odom_rate_hz)
+    ticks = encoder_ticks_per_rev if rob.encoder_ticks_per_rev is None else int(rob.encoder_ticks_per_rev)
+    r_true = wheel_radius * (1.0 + rob.wheel_radius_error)
+    b_eff = track_width * rob.track_ratio
+    board_true = _scaled_board(board, scene.board_scale)
+    height = float(T_base_cam[2, 3]) if board_height is None else float(board_height)
 
-    # Exact truth on a fine grid in the odometry clock.
     t = np.arange(int(round(duration * truth_rate)) + 1) / truth_rate
-    v = speed.value(t)
-    theta = heading.value(t) - heading.value(np.zeros(1))[0]  # the world is the odometry origin
-    omega = heading.derivative(t)
-    dt = np.diff(t)
-    # Trapezoidal integration of the planar velocity; the error is O(dt^2) ~ 1e-7 m over a recording.
-    vx, vy = v * np.cos(theta), v * np.sin(theta)
-    x = np.r_[0.0, np.cumsum(0.5 * (vx[1:] + vx[:-1]) * dt)]
-    y = np.r_[0.0, np.cumsum(0.5 * (vy[1:] + vy[:-1]) * dt)]
+    wheel_t = np.arange(int(np.floor(duration * odom_rate)) + 1) / odom_rate  # sample times (motion clock)
+    if fx.motion.joystick:
+        # The robot starts at the origin, the board ahead of the camera along its optical axis.
+        z_cam = T_base_cam[:3, :3] @ np.array([0.0, 0.0, 1.0])
+        psi = float(np.arctan2(z_cam[1], z_cam[0]))
+        centre_xy = T_base_cam[:2, 3] + scene.board_distance_m * np.array([np.cos(psi), np.sin(psi)])
+        v, omega, theta, x, y = _joystick_drive(motion, fx.motion, t, T_base_cam, centre_xy, scene.board_distance_m,
+                                                rng_fx)
+        T_world_board = _board_pose(board_true.points, centre_xy, height, psi, scene.board_yaw_deg)
+        s_truth = np.r_[0.0, np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))]
+        s = np.interp(wheel_t, t, s_truth)
+        th_w = np.interp(wheel_t, t, theta)
+    else:
+        speed, heading = _motion_design(motion, rng)
+        # Exact truth on a fine grid in the odometry clock.
+        v = speed.value(t)
+        theta = heading.value(t) - heading.value(np.zeros(1))[0]  # the world is the odometry origin
+        omega = heading.derivative(t)
+        dt = np.diff(t)
+        # Trapezoidal integration of the planar velocity; the error is O(dt^2) ~ 1e-7 m over a recording.
+        vx, vy = v * np.cos(theta), v * np.sin(theta)
+        x = np.r_[0.0, np.cumsum(0.5 * (vx[1:] + vx[:-1]) * dt)]
+        y = np.r_[0.0, np.cumsum(0.5 * (vy[1:] + vy[:-1]) * dt)]
+        s = speed.integral(wheel_t)
+        th_w = heading.value(wheel_t) - heading.value(np.zeros(1))[0]
     T_world_base = make_T(rot_z(theta), np.stack([x, y, np.zeros_like(x)], axis=1))
     zeros = np.zeros_like(t)
+    # With odometry latency the truth moves into the clock of the odometry stamps (lambda later).
+    lam = float(rob.odom_latency_s)
     truth_base = BaseTrack(
-        t,
+        t + lam if lam else t,
         T_world_base,
         np.stack([v, zeros, zeros], axis=1),
         np.stack([zeros, zeros, omega], axis=1),
         info={"source": "sim-truth"},
     )
+    td_total = float(td) + lam
 
-    # Board: ahead of the mean camera position along the mean heading, facing back at the robot.
-    mean_heading = float(np.arctan2(np.mean(np.sin(theta)), np.mean(np.cos(theta))))
-    cam_pos = (T_world_base @ T_base_cam)[:, :3, 3]
-    centre_xy = cam_pos[:, :2].mean(axis=0) + _NOMINAL_RANGE * np.array([np.cos(mean_heading), np.sin(mean_heading)])
-    height = float(T_base_cam[2, 3]) if board_height is None else float(board_height)
-    fwd = np.array([np.cos(mean_heading), np.sin(mean_heading), 0.0])
-    left = np.array([-np.sin(mean_heading), np.cos(mean_heading), 0.0])
-    R_world_board = np.stack([-left, np.array([0.0, 0.0, -1.0]), fwd], axis=1)  # x right, y down, z away
-    half = 0.5 * np.ptp(board.points, axis=0)
-    origin = np.r_[centre_xy, height] - R_world_board @ (board.points.min(axis=0) + half)
-    T_world_board = make_T(R_world_board, origin)
+    if not fx.motion.joystick:
+        # Board: ahead of the mean camera position along the mean heading, facing back at the robot.
+        mean_heading = float(np.arctan2(np.mean(np.sin(theta)), np.mean(np.cos(theta))))
+        cam_pos = (T_world_base @ T_base_cam)[:, :3, 3]
+        centre_xy = cam_pos[:, :2].mean(axis=0) + scene.board_distance_m * np.array(
+            [np.cos(mean_heading), np.sin(mean_heading)]
+        )
+        T_world_board = _board_pose(board_true.points, centre_xy, height, mean_heading, scene.board_yaw_deg)
 
     # Camera stamps: a regular camera clock, kept where the odometry time t_cam + td lies in the truth.
     phase = rng.uniform(0.0, 1.0 / cam_rate)
     cam_t = np.arange(phase - td, duration - td, 1.0 / cam_rate)
     # Stamps stay non-negative in both clocks: recordings store unsigned nanoseconds.
     cam_t = cam_t[(cam_t + td >= t[0]) & (cam_t + td <= t[-1]) & (cam_t >= 0.0)]
-    T_board_cam = inv_T(T_world_board) @ truth_base.poses_at(cam_t + td) @ T_base_cam
+    T_board_cam = inv_T(T_world_board) @ truth_base.poses_at(cam_t + td_total) @ T_base_cam
 
-    # Wheels: exact angles from arc length and heading, then slip and quantization.
-    wheel_t = np.arange(int(np.floor(duration * odom_rate)) + 1) / odom_rate
-    s = speed.integral(wheel_t)
-    th_w = heading.value(wheel_t) - heading.value(np.zeros(1))[0]
-    phi_r = (s + 0.5 * track_width * th_w) / wheel_radius
-    phi_l = (s - 0.5 * track_width * th_w) / wheel_radius
+    # Wheels: a skid-steer robot turns by the effective track, its wheels roll with the true radius.
+    phi_r = (s + 0.5 * b_eff * th_w) / r_true
+    phi_l = (s - 0.5 * b_eff * th_w) / r_true
     if slip > 0:
         # A slowly varying relative error of each wheel's increments (a 1 s moving average of white noise).
         k = max(1, int(round(odom_rate)))
@@ -332,17 +555,25 @@ def simulate_robot(
         gains = [1.0 + slip * np.convolve(rng.normal(size=wheel_t.size + k - 1), kernel, "valid") for _ in range(2)]
         phi_r = phi_r[0] + np.r_[0.0, np.cumsum(np.diff(phi_r) * gains[0][1:])]
         phi_l = phi_l[0] + np.r_[0.0, np.cumsum(np.diff(phi_l) * gains[1][1:])]
-    if encoder_ticks_per_rev:
-        q = 2 * np.pi / encoder_ticks_per_rev
+    if rob.slip_sigma > 0:
+        g = _ou_gains(wheel_t, np.interp(wheel_t, t, omega), rob.slip_sigma, rob.slip_tau_s, rob.slip_turn_gain,
+                      rng_fx)
+        phi_r = phi_r[0] + np.r_[0.0, np.cumsum(np.diff(phi_r) * g[0, 1:])]
+        phi_l = phi_l[0] + np.r_[0.0, np.cumsum(np.diff(phi_l) * g[1, 1:])]
+    if ticks:
+        q = 2 * np.pi / ticks
         phi_r = np.round(phi_r / q) * q
         phi_l = np.round(phi_l / q) * q
+    if lam or rob.odom_jitter_s > 0:
+        jitter = np.clip(rng_fx.normal(0.0, rob.odom_jitter_s, wheel_t.size), -0.4 / odom_rate, 0.4 / odom_rate)
+        wheel_t = np.maximum(wheel_t + lam + jitter, 0.0)  # stamps are unsigned
 
     rec = SimRecording(
         T_base_cam=T_base_cam,
-        td=float(td),
+        td=td_total,
         T_world_board=T_world_board,
-        wheel_radius=float(wheel_radius),
-        track_width=float(track_width),
+        wheel_radius=float(r_true),
+        track_width=float(b_eff),
         truth_base=truth_base,
         cam_t=cam_t,
         T_board_cam=T_board_cam,
@@ -351,10 +582,18 @@ def simulate_robot(
         wheel_right=phi_r,
         camera=camera,
         board=board,
-        info={"motion": motion, "seed": seed, "duration": duration, "slip": slip, "ticks": encoder_ticks_per_rev},
+        info={"motion": motion, "seed": seed, "duration": duration, "slip": slip, "ticks": ticks,
+              "odom_rate": odom_rate, "realism": fx.name, "board_distance_m": scene.board_distance_m,
+              "board_yaw_deg": scene.board_yaw_deg},
+        wheel_radius_nominal=float(wheel_radius),
+        track_width_nominal=float(track_width),
+        board_scale=float(scene.board_scale),
+        odom_latency=lam,
+        realism=fx,
     )
     inside = rec.project_truth()[1]
-    centre_board = board.points.min(axis=0) + half
+    pts = board_true.points
+    centre_board = pts.min(axis=0) + 0.5 * np.ptp(pts, axis=0)
     rng_cam = np.linalg.norm(T_board_cam[:, :3, 3] - centre_board, axis=1)
     rec.info["visible_fraction"] = float(np.mean(inside.all(axis=1)))
     rec.info["range_m"] = (float(rng_cam.min()), float(rng_cam.max()))

@@ -1,3 +1,5 @@
+"""The closed-form calibration (plsgraph.calib.closed_form) on simulated tracks: rotation, translation, td, verdicts."""
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,7 @@ from plsgraph.sim.robot import default_T_base_cam, simulate_robot
 
 
 def tracks(motion="rich", seed=0, td=0.037, duration=20.0, T_base_cam=None, **cam_noise):
-    rec = simulate_robot(motion, seed=seed, td=td, duration=duration, T_base_cam=T_base_cam)
+    rec = simulate_robot(motion, seed=seed, td=td, duration=duration, T_base_cam=T_base_cam, realism="ideal")
     base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius, rec.track_width)
     return rec, base, rec.camera_track(**cam_noise)
 
@@ -110,7 +112,7 @@ def test_detections_and_pnp_path():
     # tilt is several degrees noisy per frame and the closed form degrades to ~1-3 deg (see
     # docs/odometry_and_time_offset.md).
     board = Board("asymmetric_circles", cols=4, rows=11, square_size=0.05, circle_diameter=0.04)
-    rec = simulate_robot("rich", seed=6, td=0.02, duration=15.0, board=board)
+    rec = simulate_robot("rich", seed=6, td=0.02, duration=15.0, board=board, realism="ideal")
     base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right)
     cam = camera_track_from_detections(rec.detections(noise_px=0.3, seed=1, only_complete=True), rec.camera)
     res = calibrate_closed_form(cam, base, compare=False)
@@ -152,7 +154,7 @@ def test_odometry_jump_is_discarded_and_reported():
 
 def test_odometry_scale_errors_are_estimated_and_corrected():
     # The robot's effective track width and wheel radius differ from the nominal ones the odometry uses.
-    rec = simulate_robot("rich", seed=9, td=0.037, track_width=0.44, wheel_radius=0.101)
+    rec = simulate_robot("rich", seed=9, td=0.037, track_width=0.44, wheel_radius=0.101, realism="ideal")
     base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, 0.098, 0.37)
     res = calibrate_closed_form(rec.camera_track(), base, compare=False)
     assert res.odometry_scale["track_width_m"] == pytest.approx(0.44, rel=0.01)
@@ -178,7 +180,7 @@ def test_planar_hand_eye_is_robust_to_spoiled_pairs():
     from plsgraph.calib.closed_form import planar_hand_eye_translation
     from plsgraph.core.geometry import inv_T, make_T, rot_z
 
-    rec = simulate_robot("rich", seed=11, td=0.0, duration=20.0)
+    rec = simulate_robot("rich", seed=11, td=0.0, duration=20.0, realism="ideal")
     t0 = np.arange(0.5, 18.5, 0.1)
     Tb = np.stack([rec.truth_base.poses_at(t0), rec.truth_base.poses_at(t0 + 1.0)], axis=1)
     Tc = inv_T(rec.T_world_board) @ Tb @ rec.T_base_cam  # exact camera poses at the same instants
