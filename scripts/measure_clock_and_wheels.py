@@ -29,6 +29,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--durations", type=float, nargs="+", default=[10.0, 30.0, 60.0])
+    ap.add_argument("--realism", default="realistic", choices=["realistic", "ideal"],
+                    help="simulator effects (default: %(default)s, skid steer, slip, joystick driving, latency)")
     args = ap.parse_args()
     board = load_board("acircles_4x11_a2")
     rng = np.random.default_rng(0)
@@ -38,7 +40,7 @@ def main() -> None:
     for dur in args.durations:
         errs, scores, ratios, right, undecided, wrong, secs, refused = [], [], [], 0, 0, 0, [], 0
         for seed in range(args.seeds):
-            sim = simulate_robot(motion="rich", duration=dur, seed=seed, td=0.03, board=board)
+            sim = simulate_robot(motion="rich", duration=dur, seed=seed, td=0.03, board=board, realism=args.realism)
             c = sim.camera_track(seed=seed)
             cam = CameraTrack(c.t + EPOCH, c.T_board_cam, cov=c.cov)
             diff = float(rng.uniform(1.0, 86400.0))
