@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from .core.camera import CameraModel
+from .core.geometry import make_T
 from .core.progress import ProgressFactory, no_progress
 from .core.tracks import BaseTrack, CameraTrack
 from .errors import ConvergenceError, DegenerateMotionError, InputError, InsufficientDataError
@@ -119,11 +120,23 @@ def diagnose(
             run_refinement(run, progress)
         except (ConvergenceError, DegenerateMotionError, InsufficientDataError) as exc:
             verdicts.append(f"refinement failed: {exc}")
-    problems = problems_of(run.closed_form, run.refinement) + verdicts
+    problems = problems_of(run.closed_form, run.refinement) + verdicts + _mount_problems(run)
     obs = observability_rows(run)
     good = not problems and not any(o["status"] == "unobservable" and o["name"] not in ("z",) for o in obs)
     return Diagnosis(str(recording), good, tuple(problems), tuple(motion_advice(cf, obs)), dict(cf.excitation),
                      dict(cf.observable), tuple(obs), tuple(cf.degenerate_reasons), **counts)
+
+
+def _mount_problems(run: Run) -> list[str]:
+    """Wheels flagged as wrong, or a camera the other way up than the user said (see result.run_problems)."""
+    from .result import run_problems
+
+    ref = run.refinement
+    if ref is not None and ref.converged:
+        return run_problems(run, ref.T_base_cam)
+    if run.closed_form is not None and run.closed_form.R_base_cam is not None:
+        return run_problems(run, make_T(run.closed_form.R_base_cam, np.zeros(3)))
+    return list(run.input_problems)
 
 
 def compare(
@@ -141,7 +154,8 @@ def compare(
     run = run_recording(recording, opts, refine=True, progress=progress)
     sols = {name: m for name, m in run.closed_form.methods.items() if m.R_base_cam is not None}
     truth_T = None if run.truth is None else np.asarray(run.truth["T_base_cam"], dtype=float)
-    truth_td = None if run.truth is None else float(run.truth.get("td", float("nan")))
+    # The solvers see the camera track shifted onto the odometry clock; compare their td with the truth's likewise.
+    truth_td = None if run.truth is None else float(run.truth.get("td", float("nan"))) - run.clock_offset_s
     table = compare_solutions(sols, run.refinement, camera_track=run.camera_track, base_track=run.base_track,
                               camera=run.camera, truth_T_base_cam=truth_T, truth_td=truth_td)
     failed = {n: m.error for n, m in run.closed_form.methods.items() if m.R_base_cam is None}

@@ -25,3 +25,7 @@ class RecordingError(PlsgraphError):
 
 class ConvergenceError(PlsgraphError):
     """An optimisation did not converge; its result must not be trusted."""
+
+
+class ClockAlignmentError(InputError):
+    """The camera's and the odometry's clocks cannot be aligned without doubt (the command exits 2)."""

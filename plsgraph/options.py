@@ -16,6 +16,8 @@ from .errors import InputError
 
 SURFACES = ("count", "polarity", "classic", "leaky")
 CLOSED_FORM_METHODS = ("pls", "cca", "procrustes")
+CLOCK_ALIGN = ("auto", "always", "never")
+WHEEL_ORDER = ("fix", "flag", "off")
 
 
 def _positive(owner: str, name: str, v: Any) -> None:
@@ -30,14 +32,32 @@ def _finite_or_none(owner: str, name: str, v: Any) -> None:
 
 @dataclass(frozen=True)
 class InputOptions:
-    """Where the data is: topics (by role: events, joints, odometry) and an intrinsics file."""
+    """Where the data is: topics (by role: events, joints, odometry), an intrinsics file, a second file with the
+    odometry (another clock), and how the two clocks are aligned.
+
+    ``clock_align``: ``auto`` aligns coarsely when ``odometry_file`` is given or the camera and odometry spans
+    overlap by less than half the camera's; ``always`` / ``never`` force it. ``clock_offset`` (s, t_odom = t_cam +
+    clock_offset) skips the coarse search: the fine search then looks ±td_range around it.
+    """
 
     topics: dict[str, str] = field(default_factory=dict)
     camera_info: Path | None = None
+    odometry_file: Path | None = None
+    clock_align: str = "auto"
+    clock_offset: float | None = None
 
     def __post_init__(self) -> None:
         if self.camera_info is not None and not isinstance(self.camera_info, Path):
             object.__setattr__(self, "camera_info", Path(self.camera_info))
+        if self.odometry_file is not None and not isinstance(self.odometry_file, Path):
+            object.__setattr__(self, "odometry_file", Path(self.odometry_file))
+        if self.clock_align not in CLOCK_ALIGN:
+            raise InputError(f"clock_align must be one of {', '.join(CLOCK_ALIGN)}, got {self.clock_align!r}")
+        if self.clock_offset is not None and (isinstance(self.clock_offset, bool)
+                                              or not isinstance(self.clock_offset, int | float)
+                                              or not math.isfinite(self.clock_offset)):
+            raise InputError(f"clock_offset (--clock-offset) must be a finite number of seconds, got "
+                             f"{self.clock_offset!r}")
         bad = set(self.topics) - {"events", "joints", "odometry"}
         if bad:
             raise InputError(f"topics: unknown role(s) {sorted(bad)}; use events, joints, odometry")
@@ -45,16 +65,21 @@ class InputOptions:
 
 @dataclass(frozen=True)
 class OdometryOptions:
-    """The robot's nominal wheel geometry and which joints are its wheels."""
+    """The robot's nominal wheel geometry, which joints are its wheels, and what to do when the data say the
+    wheels are swapped or one is reversed (``wheel_order``: ``fix`` corrects and says so, ``flag`` keeps them and
+    flags the result, ``off`` does not check)."""
 
     wheel_radius: float = 0.098
     track_width: float = 0.37
     left_joint: str | None = None
     right_joint: str | None = None
+    wheel_order: str = "fix"
 
     def __post_init__(self) -> None:
         _positive("--wheel-radius", "wheel_radius", self.wheel_radius)
         _positive("--track-width", "track_width", self.track_width)
+        if self.wheel_order not in WHEEL_ORDER:
+            raise InputError(f"wheel_order must be one of {', '.join(WHEEL_ORDER)}, got {self.wheel_order!r}")
 
 
 @dataclass(frozen=True)
@@ -99,6 +124,22 @@ class RefineSettings:
 
 
 @dataclass(frozen=True)
+class MountOptions:
+    """How the camera is mounted, as far as the user knows, and the frame names written into the robot files."""
+
+    upside_down_camera: bool = False
+    parent_frame: str = "base_link"
+    child_frame: str = "event_camera"
+
+    def __post_init__(self) -> None:
+        for name in ("parent_frame", "child_frame"):
+            v = getattr(self, name)
+            if not isinstance(v, str) or not v or any(c.isspace() or c in "<>&\"'" for c in v):
+                raise InputError(f"{name} (--{name.replace('_', '-')}) must be a non-empty frame name without spaces "
+                                 f"or quotes, got {v!r}")
+
+
+@dataclass(frozen=True)
 class CalibrationOptions:
     """Everything about one calibration run."""
 
@@ -108,9 +149,10 @@ class CalibrationOptions:
     frontend: FrontendOptions = field(default_factory=FrontendOptions)
     closed_form: ClosedFormSettings = field(default_factory=ClosedFormSettings)
     refine: RefineSettings = field(default_factory=RefineSettings)
+    mount: MountOptions = field(default_factory=MountOptions)
     truth: Path | None = None
 
-    SECTIONS = ("inputs", "odometry", "frontend", "closed_form", "refine")
+    SECTIONS = ("inputs", "odometry", "frontend", "closed_form", "refine", "mount")
 
     @classmethod
     def build(cls, base: CalibrationOptions | None = None, **kwargs: Any) -> CalibrationOptions:

@@ -45,6 +45,9 @@ class Run:
     discarded: dict[str, Any] = field(default_factory=dict)
     timing_s: dict[str, float] = field(default_factory=dict)
     recording_info: dict[str, Any] = field(default_factory=dict)
+    wheels: Any = None  # the cleaned wheel signals (odometry.wheel_order.WheelSignals), when joints were used
+    clock_offset_s: float = 0.0  # camera track shifted by this onto the odometry clock (pairing.pair_tracks)
+    input_problems: list[str] = field(default_factory=list)  # found before solving, e.g. wheels flagged as wrong
 
     def warn(self, *messages: str) -> None:
         """Add warnings once each (a message repeated by several steps is kept once)."""
@@ -90,11 +93,16 @@ def read_inputs(run: Run) -> Any:
         raise InputError(f"recording {run.log_path} does not exist")
     topics = {k: v for k, v in opts.inputs.topics.items() if k != "events"} or None
     with _Timer(run, "read"):
-        rec = read_recording(run.log_path, topics=topics, with_events=False)
+        if opts.inputs.odometry_file is None:
+            rec = read_recording(run.log_path, topics=topics, with_events=False)
+        else:  # events from the first file, the robot from the second
+            from .pairing import merge_odometry_file, read_events_file
+
+            rec = merge_odometry_file(run, read_events_file(run.log_path, None))
     run.warn(*rec.warnings)
     if rec.lost:
         run.discarded["lost_while_reading"] = dict(rec.lost)
-    run.recording_info = {"used_topics": dict(rec.used_topics)}
+    run.recording_info.update({"used_topics": dict(rec.used_topics)})
     if opts.inputs.camera_info is not None:
         from .io.camera_files import read_camera_file
 
@@ -140,6 +148,7 @@ def build_base_track(run: Run, rec: Any) -> BaseTrack:
         run.recording_info["base_source"] = f"wheel joint states ({cleaning.kind})"
         run.discarded.update(cleaning.discarded)
         run.warn(*cleaning.warnings)
+        run.wheels = cleaning.signals
     elif have_odom:
         o = rec.odometry
         track = base_track_from_odometry(
@@ -261,6 +270,10 @@ def build_tracks(run: Run, progress: ProgressFactory = no_progress) -> Run:
     del rec
     with _Timer(run, "frontend"):
         run.camera_track = build_camera_track(run, progress)
+    from .pairing import pair_tracks
+
+    with _Timer(run, "pairing"):
+        pair_tracks(run)  # wheel order, and the clocks when they differ
     return run
 
 

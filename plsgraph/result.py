@@ -140,13 +140,51 @@ def truth_errors(run: Run) -> dict | None:
                 out[f"closed_form.{name}.rot_err_deg"] = float(rotation_error_deg(m.R_base_cam, T_gt[:3, :3]))
         if cf.t_xy is not None:
             out["closed_form.t_xy_err_m"] = float(np.linalg.norm(np.asarray(cf.t_xy) - T_gt[:2, 3]))
-        out["closed_form.td_err_ms"] = 1e3 * (cf.td - td_gt)
+        out["closed_form.td_err_ms"] = 1e3 * (cf.td + run.clock_offset_s - td_gt)
     ref = run.refinement
     if ref is not None:
         out["refined.rot_err_deg"] = float(rotation_error_deg(ref.R_base_cam, T_gt[:3, :3]))
         out["refined.t_xy_err_m"] = float(np.linalg.norm(ref.T_base_cam[:2, 3] - T_gt[:2, 3]))
         out["refined.t_z_err_m"] = float(ref.T_base_cam[2, 3] - T_gt[2, 3])
-        out["refined.td_err_ms"] = 1e3 * (ref.td - td_gt)
+        out["refined.td_err_ms"] = 1e3 * (ref.td + run.clock_offset_s - td_gt)
+    return out
+
+
+def run_problems(run: Run, T_base_cam: np.ndarray) -> list[str]:
+    """Problems found outside the solvers: wheels flagged as wrong, a camera the other way up than the user said."""
+    from .odometry.wheel_order import orientation_problem
+
+    out = list(run.input_problems)
+    p = orientation_problem(np.asarray(T_base_cam)[:3, :3], run.options.mount.upside_down_camera)
+    if p is not None:
+        out.append(p)
+    return out
+
+
+def robot_sections(run: Run) -> dict[str, Any]:
+    """calibration.yaml's ``odometry`` section (the wheel geometry the data support), ``wheel_order`` and ``clock``."""
+    odo = run.options.odometry
+    scale = dict(getattr(run.closed_form, "odometry_scale", None) or {})
+    sec: dict[str, Any] = {
+        "nominal_wheel_radius_m": odo.wheel_radius,
+        "nominal_track_width_m": odo.track_width,
+        "effective_wheel_radius_m": scale.get("wheel_radius_m"),
+        "effective_track_width_m": scale.get("track_width_m"),
+        "speed_scale": scale.get("speed"),
+        "turn_rate_scale": scale.get("turn_rate"),
+        "source": ("closed form (odometry speed and turn-rate scales against the camera); the refinement keeps the "
+                   "nominal geometry, without uncertainty") if scale else "nominal (not estimated)",
+        "base_source": run.recording_info.get("base_source"),
+    }
+    out: dict[str, Any] = {"odometry": sec}
+    wo = run.recording_info.get("wheel_order")
+    if wo is not None:
+        out["wheel_order"] = {k: wo[k] for k in ("hypothesis", "description", "decided", "corrected", "message")
+                              if k in wo}
+    clock = run.recording_info.get("clock")
+    if clock is not None:
+        out["clock_alignment"] = {k: clock[k] for k in ("coarse", "rule", "offset_s", "score", "second_peak_ratio",
+                                                        "separation") if k in clock}
     return out
 
 
@@ -174,17 +212,14 @@ def calibration_result(run: Run) -> CalibrationResult:
     from . import __version__
 
     T, td, cov, source = final_estimate(run)
-    if T[2, 1] > 0.5:  # the camera's "down" axis (optical y) points up in the base frame
-        run.warn(
-            "the camera comes out upside down (its image 'down' axis points up in the base frame); if it is not "
-            "mounted that way, the wheels are probably swapped (check --left-joint/--right-joint), which mirrors "
-            "the whole solution"
-        )
-    problems = problems_of(run.closed_form, run.refinement)
+    td = td + run.clock_offset_s  # the camera track was shifted onto the odometry clock by that much
+    problems = problems_of(run.closed_form, run.refinement) + run_problems(run, T)
     ok = not problems
     height = HEIGHT_FROM_USER if run.options.refine.camera_height is not None else HEIGHT_UNMEASURED
     obs = observability_rows(run)
-    calib = calibration_dict(T, td, cov, obs, extra={"source": source, "translation_z_source": height})
+    mount = run.options.mount
+    calib = calibration_dict(T, td, cov, obs, parent_frame=mount.parent_frame, child_frame=mount.child_frame,
+                             extra={"source": source, "translation_z_source": height, **robot_sections(run)})
     cf = run.closed_form
     methods = method_rows(run)
     errs = truth_errors(run)
@@ -200,7 +235,7 @@ def calibration_result(run: Run) -> CalibrationResult:
             "method": cf.method,
             "R_base_cam": None if cf.R_base_cam is None else np.asarray(cf.R_base_cam).tolist(),
             "t_xy": None if cf.t_xy is None else np.asarray(cf.t_xy).tolist(),
-            "td": cf.td,
+            "td": cf.td + run.clock_offset_s,
             "observable": dict(cf.observable),
             "excitation": dict(cf.excitation),
             "n_pairs": cf.n_pairs,
@@ -210,7 +245,8 @@ def calibration_result(run: Run) -> CalibrationResult:
         "time_offset": None
         if cf.time_offset is None
         else {
-            "td_s": cf.time_offset.td,
+            "td_s": cf.time_offset.td + run.clock_offset_s,
+            "clock_shift_s": run.clock_offset_s,
             "score": cf.time_offset.score,
             "sharpness": cf.time_offset.sharpness,
             "second_peak_ratio": cf.time_offset.second_peak_ratio,

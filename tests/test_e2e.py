@@ -151,12 +151,19 @@ def test_closed_form_only_result_has_no_nan_and_says_the_height_is_not_measured(
     assert stat.S_IMODE((out / "calibration.yaml").stat().st_mode) & 0o044  # readable by group/others
 
 
-def test_swapped_wheels_are_flagged(recording, tmp_path):
+def test_swapped_wheels_are_corrected_or_flagged(recording, tmp_path):
+    swap = ["--left-joint", "front_right_wheel_joint", "--right-joint", "front_left_wheel_joint"]
     out = tmp_path / "swapped"
-    main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--no-refine",
-          "--left-joint", "front_right_wheel_joint", "--right-joint", "front_left_wheel_joint"])
+    code = main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--no-refine", *swap])
     rep = json.loads((out / "report.json").read_text())
-    assert any("upside down" in w for w in rep["warnings"])
+    assert code == 0 and rep["calibration"]["wheel_order"]["corrected"]  # fixed, and said so
+    assert any("swapped" in w for w in rep["warnings"])
+    assert np.asarray(rep["calibration"]["T_base_cam"])[2, 1] < -0.5  # the camera is upright again
+    out = tmp_path / "unchecked"
+    code = main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--no-refine", *swap,
+                 "--wheel-order", "off"])
+    rep = json.loads((out / "report.json").read_text())
+    assert code == 1 and any("upside down" in p for p in rep["problems"])  # never exit 0 with the mirror
 
 
 def test_a_board_of_the_wrong_size_is_flagged_not_trusted(recording, tmp_path, capsys):

@@ -40,7 +40,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
-    p.add_argument("log", type=Path, help="recording: .mcap, ROS 2 .db3 folder/file or ROS 1 .bag")
+    p.add_argument("log", type=Path, help="recording: .mcap, ROS 2 .db3 folder/file, ROS 1 .bag, or an events-only "
+                   ".aedat4 / Prophesee .raw (then with --odometry)")
     p.add_argument(
         "--board", required=True,
         help="the target: a board YAML or a bundled name (acircles_4x11, acircles_4x11_a2, aprilgrid_6x6); its "
@@ -86,9 +87,31 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
     p.add_argument("--board-height", type=float,
                    help="height of the board's origin above the floor in m, if measured: makes the camera height "
                    "observable through the board")
+    _add_ecosystem_options(p)
     if need_out:
         p.add_argument("--out", type=Path, required=True, help="output folder (must not exist unless --force)")
         p.add_argument("--force", action="store_true", help="write into an existing output folder")
+
+
+def _add_ecosystem_options(p: argparse.ArgumentParser) -> None:
+    """Two files on two clocks, wheel order, camera mount, frame names (docs/cli.md, 'Two files, two clocks')."""
+    p.add_argument("--odometry", type=Path, metavar="ODOM_FILE",
+                   help="the wheel joints / odometry (and CameraInfo, if the events file has none) from this file "
+                   "(any supported format); its clock may differ from the camera's by seconds to hours")
+    p.add_argument("--clock-align", choices=["auto", "always", "never"], default="auto",
+                   help="coarse clock alignment before the fine time-offset search: auto (default) when --odometry is "
+                   "given or the camera and odometry time spans hardly overlap")
+    p.add_argument("--clock-offset", type=float, metavar="SECONDS",
+                   help="approximate clock difference (t_odom = t_cam + SECONDS) instead of the coarse search")
+    p.add_argument("--wheel-order", choices=["fix", "flag", "off"], default="fix",
+                   help="when the data show swapped wheels or a reversed wheel: fix (default: correct and say so), "
+                   "flag (keep them, flag the result), off (do not check)")
+    p.add_argument("--upside-down-camera", action="store_true",
+                   help="the camera is mounted upside down on purpose (else an upside-down result is a problem)")
+    p.add_argument("--parent-frame", default="base_link",
+                   help="robot frame in the URDF/launch/TF (default: %(default)s)")
+    p.add_argument("--child-frame", default="event_camera",
+                   help="camera frame in the URDF/launch/TF (default: %(default)s)")
 
 
 def _build_parser() -> argparse.ArgumentParser:
@@ -223,7 +246,10 @@ def _options(args: argparse.Namespace):
     if hasattr(args, "surface"):  # calibrate, diagnose, compare (batch takes the defaults)
         settings.update(topics=topics, left_joint=args.left_joint, right_joint=args.right_joint,
                         surface=args.surface, rate_hz=args.rate, td_range=args.td_range, method=args.method,
-                        truth=args.truth, camera_height=args.camera_height, board_height=args.board_height)
+                        truth=args.truth, camera_height=args.camera_height, board_height=args.board_height,
+                        odometry_file=args.odometry, clock_align=args.clock_align, clock_offset=args.clock_offset,
+                        wheel_order=args.wheel_order, upside_down_camera=args.upside_down_camera,
+                        parent_frame=args.parent_frame, child_frame=args.child_frame)
     return CalibrationOptions.build(**settings)
 
 

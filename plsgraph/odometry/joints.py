@@ -22,6 +22,8 @@ class JointCleaning:
     kind: str  # "position" or "velocity"
     discarded: dict[str, int] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    #: The cleaned wheel values the track was integrated from (for re-integration under another wheel order).
+    signals: Any = None
 
 
 def fill_unwrapped(t: np.ndarray, x: np.ndarray, unwrap: bool) -> np.ndarray:
@@ -83,4 +85,7 @@ def wheel_track_from_joints(
             f"{n_jumps} of {ok.sum() - 1} wheel steps are implausibly large: the joint positions do not look like "
             "wheel angles in radians (encoder ticks?); convert them or check --wheel-radius"
         )
-    return track, JointCleaning(names, kind, discarded, warnings)
+    from .wheel_order import WheelSignals
+
+    signals = WheelSignals(t[ok], a[ok], b[ok], kind, wheel_radius, track_width)
+    return track, JointCleaning(names, kind, discarded, warnings, signals)

@@ -99,7 +99,8 @@ def _fig_time_offset(run: Any, out: Path) -> str | None:
     if run.refinement is not None:
         ax.axvline(1e3 * run.refinement.td, color="#2e7d32", lw=1, ls="--",
                    label=f"refined {1e3 * run.refinement.td:.1f} ms")
-    ax.set_xlabel("time offset td (ms)")
+    shift = getattr(run, "clock_offset_s", 0.0)
+    ax.set_xlabel("time offset td (ms)" if not shift else f"td (ms) after the coarse clock shift of {shift:.3f} s")
     ax.set_ylabel(f"score ({to.method})")
     ax.set_title("time-offset search")
     ax.legend(fontsize=7)
@@ -170,29 +171,52 @@ def write_html_report(out: Path, run: Any, report: dict) -> Path:
         if f:
             images.append((caption, f))
     c = report["calibration"]
-    sections = []
-    status = "OK" if report["ok"] else "FLAGGED: " + "; ".join(report["problems"])
+    sections = []  # what a person needs first: the result with its sigmas, then what is wrong, then the pictures
+    status = "OK" if report["ok"] else "FLAGGED: do not use this calibration"
     sections.append(("Result", f"<p><b>{html.escape(status)}</b> (from {html.escape(c['source'])})</p>"
-                     + "<pre>" + html.escape(_result_block(c)) + "</pre>"))
+                     + _summary_table(c) + "<pre>" + html.escape(_result_block(c)) + "</pre>"))
+    if report["problems"]:
+        sections.append(("Problems", "<ul>" + "".join(f"<li class='warn'><b>{html.escape(p)}</b></li>"
+                                                      for p in report["problems"]) + "</ul>"))
+    if report["warnings"]:
+        sections.append(("Warnings", "<ul>" + "".join(f"<li class='warn'>{html.escape(w)}</li>"
+                                                      for w in report["warnings"]) + "</ul>"))
+    tail = []
     if c["observability"]:
-        sections.append(("Observability", html_table(c["observability"], ["direction", "status", "sigma", "unit",
-                                                                            "note"])))
+        tail.append(("Observability", html_table(c["observability"], ["direction", "status", "sigma", "unit",
+                                                                       "note"])))
     rows = []
     for name, m in report["closed_form"].items():
         rows.append({"method": name, "status": "error" if m["error"] else "ok", "detail": m["error"] or "",
                      "warnings": "; ".join(m["warnings"])})
-    sections.append(("Closed-form solvers", html_table(rows, ["method", "status", "detail", "warnings"])))
+    tail.append(("Closed-form solvers", html_table(rows, ["method", "status", "detail", "warnings"])))
     if "truth_errors" in report:
-        sections.append(("Errors against truth", html_table(
+        tail.append(("Errors against truth", html_table(
             [{"quantity": k, "value": v} for k, v in report["truth_errors"].items()], ["quantity", "value"])))
     if report["discarded"]:
-        sections.append(("Discarded", "<pre>" + html.escape(_pretty(report["discarded"])) + "</pre>"))
-    if report["warnings"]:
-        sections.append(("Warnings", "<ul>" + "".join(f"<li class='warn'>{html.escape(w)}</li>"
-                                                      for w in report["warnings"]) + "</ul>"))
-    page = html_report(f"plsgraph calibration of {Path(report['recording']).name}", sections, images)
+        tail.append(("Discarded", "<pre>" + html.escape(_pretty(report["discarded"])) + "</pre>"))
+    page = html_report(f"plsgraph calibration of {Path(report['recording']).name}", sections, images, tail)
     write_text(out / "report.html", page)
     return out / "report.html"
+
+
+def _summary_table(c: dict) -> str:
+    """rpy, translation and time offset with their one-sigma (from the covariance, when there is one)."""
+    m = (c.get("covariance") or {}).get("matrix")
+    sig = np.sqrt(np.clip(np.diag(np.asarray(m, dtype=float)), 0, None)) if m is not None else None
+    rows = []
+    for i, name in enumerate(("roll", "pitch", "yaw")):
+        s = "-" if sig is None else f"± {np.degrees(sig[i]):.3f}"
+        rows.append({"parameter": f"{name} (deg)", "value": f"{c['rpy_deg'][i]:.3f}", "sigma": s})
+    for i, name in enumerate(("x", "y", "z")):
+        s = "-" if sig is None else f"± {sig[3 + i]:.4f}"
+        rows.append({"parameter": f"{name} (m)", "value": f"{c['translation_m'][i]:.4f}", "sigma": s})
+    td = c["time_offset_s"]
+    s = "-" if sig is None else f"± {1e3 * sig[6]:.2f} ms"
+    rows.append({"parameter": "time offset (s)", "value": f"{td:.6f}", "sigma": s})
+    note = ("<p>sigma: one standard deviation from the refinement's covariance (rotations as small angles about the "
+            "base axes); '-' when there is none (closed form only). A sigma of 1 m on z means: not observable.</p>")
+    return html_table(rows, ["parameter", "value", "sigma"]) + note
 
 
 def _result_block(c: dict) -> str:

@@ -158,8 +158,10 @@ def markdown_table(rows: list[dict], columns: list[str], floatfmt: str = "{:.3f}
 _STATUS_COLOUR = {"observable": "#2e7d32", "weak": "#f9a825", "unobservable": "#c62828"}
 
 
-def html_report(title: str, sections: list[tuple[str, str]], images: list[tuple[str, str]]) -> str:
-    """A self-contained page: ``sections`` are (heading, pre-escaped HTML) pairs, ``images`` (caption, file)."""
+def html_report(title: str, sections: list[tuple[str, str]], images: list[tuple[str, str]],
+                tail_sections: list[tuple[str, str]] | None = None) -> str:
+    """A self-contained page: ``sections`` are (heading, pre-escaped HTML) pairs, ``images`` (caption, file) follow
+    them, and ``tail_sections`` (details) come after the figures."""
     parts = [
         "<!doctype html><html><head><meta charset='utf-8'>",
         f"<title>{html.escape(title)}</title>",
@@ -178,6 +180,8 @@ def html_report(title: str, sections: list[tuple[str, str]], images: list[tuple[
                 f"<figure><img src='{html.escape(fname)}' alt='{html.escape(cap)}'>"
                 f"<figcaption>{html.escape(cap)}</figcaption></figure>"
             )
+    for head, body in tail_sections or []:
+        parts.append(f"<h2>{html.escape(head)}</h2>{body}")
     parts.append("</body></html>")
     return "\n".join(parts)
 

@@ -17,7 +17,10 @@ def write_calibration(out: Path, result: Any) -> list[Path]:
     write_html_report(out, result.run, report)  # first: a figure that fails adds its warning to the report
     write_yaml(out / "calibration.yaml", report["calibration"])
     write_json(out / "report.json", report)
-    return [out / "calibration.yaml", out / "report.json", out / "report.html"]
+    from .robot_files import write_robot_files
+
+    robot = write_robot_files(out, result)  # a flagged result gets comment-only files that say why
+    return [out / "calibration.yaml", out / "report.json", out / "report.html", *robot]
 
 
 DIAGNOSIS_ADVICE = (
@@ -34,7 +37,7 @@ def write_diagnosis_only(out: Path, log_path: str | Path, reason: str) -> dict:
     stale = out / "calibration.yaml"
     if stale.exists():  # with --force into an old folder: an old result must not pass for this recording's
         stale.rename(out / "calibration.previous.yaml")
-    for old in [out / "report.html", *out.glob("*.png")]:
+    for old in [out / "report.html", *out.glob("*.png"), out / "base_to_camera.urdf", out / "static_tf.launch.py"]:
         old.unlink(missing_ok=True)
     report = {
         "plsgraph_version": __version__,

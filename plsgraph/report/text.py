@@ -18,6 +18,13 @@ def _height_note(report: dict) -> str:
     return "   (z is only the seed: the height is not observable; give --camera-height)"
 
 
+def _offset_line(c: dict) -> str:
+    td = c["time_offset_s"]
+    if abs(td) < 1.0:
+        return f"time offset    {1e3 * td:.2f} ms (t_odom = t_cam + offset)"
+    return f"time offset    {td:.6f} s (t_odom = t_cam + offset; the clocks differ)"
+
+
 def calibration_text(report: dict) -> str:
     """The summary of a calibration's report dict."""
     c = report["calibration"]
@@ -27,8 +34,15 @@ def calibration_text(report: dict) -> str:
         "T_base_cam     " + "\n               ".join(" ".join(_num(v, 9, 5) for v in row) for row in c["T_base_cam"]),
         f"rpy (deg)      {' '.join(_num(v, 8, 3) for v in c['rpy_deg'])}",
         f"translation m  {' '.join(_num(v, 8, 4) for v in c['translation_m'])}" + _height_note(report),
-        f"time offset    {1e3 * c['time_offset_s']:.2f} ms (t_odom = t_cam + offset)",
+        _offset_line(c),
     ]
+    clock = c.get("clock_alignment") or {}
+    if clock.get("coarse"):
+        lines.append(f"clocks         coarse alignment {clock['offset_s']:.3f} s (correlation {clock['score']:.2f}, "
+                     f"second peak ratio {clock['second_peak_ratio']:.2f}); {clock['rule']}")
+    wo = c.get("wheel_order") or {}
+    if wo.get("corrected"):
+        lines.append(f"wheels         CORRECTED: {wo['description']} (see warnings)")
     ref = report.get("refinement")
     if ref:
         lines.append(

@@ -1,0 +1,161 @@
+"""Between reading and solving: make the camera track and the base track comparable.
+
+Three things can stand between the two tracks of a real set-up:
+
+* the odometry lives in another file (``--odometry``): an AEDAT4 or ``.raw`` event recording beside a ROS bag.
+  :func:`merge_odometry_file` takes joints / odometry (and CameraInfo, when the event file has none) from it;
+* the clocks differ by seconds to hours: :func:`pair_tracks` finds the difference coarsely
+  (:mod:`plsgraph.calib.clock`) and shifts the camera track onto the odometry clock, so the fine time-offset
+  search and the refinement see a small residual offset. The reported ``time_offset_s`` is the shift plus that
+  residual (``Run.clock_offset_s`` holds the shift);
+* the wheels are swapped or one is reversed (:mod:`plsgraph.odometry.wheel_order`): corrected (``fix``, the
+  default) or flagged.
+
+When the coarse step runs (``--clock-align auto``): whenever ``--odometry`` names a second file, or when the
+camera's time span overlaps the odometry's by less than half its length (one file, but a sensor on another
+clock). Otherwise the clocks are taken as the same, as before, and the fine search covers ±``td_range``.
+``--clock-offset S`` replaces the coarse search by the user's number.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .core.tracks import CameraTrack
+from .errors import ClockAlignmentError, InputError, RecordingError
+
+log = logging.getLogger(__name__)
+
+#: Below this share of the camera span inside the odometry span, one file's two streams are on different clocks.
+MIN_SPAN_OVERLAP = 0.5
+
+
+def read_events_file(path: Path, topics: dict[str, str] | None) -> Any:
+    """The first file's robot topics when it has any; an events-only file (AEDAT4, .raw) gives an empty record."""
+    from .io.messages import CAMERA_INFO_TYPE, IMU_TYPE, JOINT_STATE_TYPE, ODOMETRY_TYPE
+    from .io.recording import Recording, read_recording
+    from .io.source import open_source
+
+    src = open_source(path)
+    all_topics = src.topics()
+    robot = (JOINT_STATE_TYPE, ODOMETRY_TYPE, IMU_TYPE, CAMERA_INFO_TYPE)
+    if not topics and not any(i.msgtype in robot for i in all_topics.values()):
+        return Recording(Path(path), all_topics)
+    return read_recording(src, topics=topics, with_events=False)
+
+
+def merge_odometry_file(run: Any, rec: Any) -> Any:
+    """The recording with joints, odometry and IMU from ``--odometry`` (and its CameraInfo if ``rec`` has none)."""
+    from .io.recording import read_recording
+
+    opts = run.options.inputs
+    path = Path(opts.odometry_file)
+    if not path.exists():
+        raise InputError(f"odometry file {path} does not exist")
+    topics = {k: v for k, v in opts.topics.items() if k in ("joints", "odometry")} or None
+    odo = read_recording(path, topics=topics, with_events=False)
+    run.warn(*(f"{path.name}: {w}" for w in odo.warnings))
+    have = (odo.joints is not None and len(odo.joints) > 1) or (odo.odometry is not None and len(odo.odometry.t) > 1)
+    if not have:
+        listed = ", ".join(f"{t} ({i.msgtype})" for t, i in odo.topics.items()) or "nothing"
+        raise RecordingError(f"odometry file {path} holds neither sensor_msgs/JointState nor nav_msgs/Odometry "
+                             f"messages (it has {listed}); name the topic with --joints-topic/--odom-topic")
+    used = {k: v for k, v in rec.used_topics.items() if k not in ("joints", "odometry", "imu")}
+    used.update({k: f"{path.name}:{v}" for k, v in odo.used_topics.items() if k in ("joints", "odometry", "imu")})
+    camera = rec.camera
+    if camera is None and odo.camera is not None:
+        camera = odo.camera
+        used["camera_info"] = f"{path.name}:{odo.used_topics.get('camera_info', '?')}"
+    run.recording_info["odometry_file"] = str(path)
+    return dataclasses.replace(rec, joints=odo.joints, odometry=odo.odometry, imu=odo.imu, camera=camera,
+                               used_topics=used)
+
+
+def shift_camera_track(track: CameraTrack, shift_s: float) -> CameraTrack:
+    """The camera track with every time (poses and detections) moved by ``shift_s``."""
+    det = track.detections
+    if det is not None:
+        det = dataclasses.replace(det, t=det.t + shift_s)
+    return dataclasses.replace(track, t=track.t + shift_s, detections=det,
+                               info=dict(track.info, clock_shift_s=float(shift_s)))
+
+
+def span_overlap(camera_track: CameraTrack, base_t: np.ndarray) -> float:
+    """Share of the camera track's span that lies inside the odometry's span (same clock assumed)."""
+    a0, a1 = float(camera_track.t[0]), float(camera_track.t[-1])
+    b0, b1 = float(base_t[0]), float(base_t[-1])
+    return max(0.0, min(a1, b1) - max(a0, b0)) / max(a1 - a0, 1e-9)
+
+
+def coarse_rule(run: Any) -> tuple[bool, str]:
+    """Whether the coarse clock alignment runs, and why (see the module notes)."""
+    opts = run.options.inputs
+    if opts.clock_offset is not None:
+        return False, f"clock difference given: {opts.clock_offset} s (--clock-offset)"
+    if opts.clock_align == "never":
+        return False, "the clocks are taken as the same (--clock-align never)"
+    if opts.clock_align == "always":
+        return True, "--clock-align always"
+    if opts.odometry_file is not None:
+        return True, "the odometry comes from another file (--odometry), so from another clock"
+    share = span_overlap(run.camera_track, run.base_track.t)
+    if share < MIN_SPAN_OVERLAP:
+        return True, (f"only {100 * share:.0f} % of the camera's time span lies inside the odometry's: the two are on "
+                      "different clocks")
+    return False, "same clock (the camera's and the odometry's time spans overlap)"
+
+
+def pair_tracks(run: Any) -> None:
+    """Check the wheel order and align the clocks; updates ``run.base_track``, ``run.camera_track`` (shifted onto
+    the odometry clock), ``run.clock_offset_s`` and ``run.recording_info['clock' / 'wheel_order']``."""
+    from .calib.clock import align_clocks
+    from .odometry.wheel_order import check_wheel_order
+
+    opts = run.options
+    coarse, why = coarse_rule(run)
+    w = opts.closed_form.td_range
+    given = opts.inputs.clock_offset
+    centre = given if given is not None else 0.0
+    window = None if coarse else (centre - w, centre + w)
+    alignment = None
+    wheels = getattr(run, "wheels", None)
+    if wheels is not None and opts.odometry.wheel_order != "off":
+        chk = check_wheel_order(run.camera_track, wheels, window, upside_down_camera=opts.mount.upside_down_camera)
+        info = chk.to_dict()
+        if chk.wrong and opts.odometry.wheel_order == "fix":
+            run.base_track = chk.base_track
+            info["corrected"] = True
+            run.warn(chk.message + "; corrected: the base motion was integrated with that wheel order "
+                     "(--wheel-order flag keeps the wheels as named and flags the result)")
+            alignment = chk.alignment
+        elif chk.wrong:
+            info["corrected"] = False
+            run.input_problems.append(chk.message + "; not corrected (--wheel-order flag): fix the joint names "
+                                      "(--left-joint/--right-joint) or the joint directions")
+        else:
+            info["corrected"] = False
+            if not chk.decided:
+                run.warn(chk.message)
+            alignment = chk.alignment if chk.hypothesis == "as_given" else None
+        run.recording_info["wheel_order"] = info
+    clock: dict[str, Any] = {"coarse": coarse, "rule": why, "offset_s": 0.0 if given is None else float(given)}
+    if coarse:
+        if alignment is None or not alignment.ok:
+            # The wheel check ran without demanding confidence; the coarse step does (raises when ambiguous).
+            alignment = align_clocks(run.camera_track, run.base_track, window_s=None, strict=True)
+        clock.update(alignment.to_dict())
+        clock["rule"] = why
+        clock["coarse"] = True
+        if not alignment.ok:  # pragma: no cover - align_clocks(strict=True) raised already
+            raise ClockAlignmentError(alignment.reason)
+    shift = float(clock["offset_s"])
+    if shift != 0.0:
+        run.camera_track = shift_camera_track(run.camera_track, shift)
+        run.clock_offset_s = shift
+        log.info("camera track shifted by %.6f s onto the odometry clock", shift)
+    run.recording_info["clock"] = clock

@@ -1,0 +1,119 @@
+"""End to end: events in one file, wheel joints in another on a clock 3725.4 s ahead; the robot files and the
+HTML report that come out (one calibration of the bundled sample, ~10 s)."""
+
+from __future__ import annotations
+
+import ast
+import sys
+import xml.etree.ElementTree as ET
+from html.parser import HTMLParser
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from plsgraph.api import calibrate_to_dir
+from plsgraph.core.geometry import rotation_error_deg
+from plsgraph.options import CalibrationOptions
+from plsgraph.report.robot_files import launch_text, urdf_text
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "data" / "sample" / "rich_sample.mcap"
+DIFF = 3725.4
+
+
+class _Images(HTMLParser):
+    def __init__(self) -> None:
+        super().__init__()
+        self.images: list[str] = []
+        self.headings: list[str] = []
+        self._in_h2 = False
+
+    def handle_starttag(self, tag, attrs):
+        if tag == "img":
+            self.images.append(dict(attrs)["src"])
+        self._in_h2 = tag == "h2"
+
+    def handle_data(self, data):
+        if self._in_h2:
+            self.headings.append(data)
+            self._in_h2 = False
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory):
+    if not SAMPLE.exists():
+        pytest.skip("bundled sample missing")
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from make_two_clock_pair import main as split
+
+    out = tmp_path_factory.mktemp("pair")
+    assert split([str(SAMPLE), "--out", str(out), "--clock-difference", str(DIFF)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def calibrated(pair, tmp_path_factory):
+    out = tmp_path_factory.mktemp("cal") / "cal"
+    opts = CalibrationOptions.build(board="acircles_4x11_a2", odometry_file=pair / "odometry.mcap",
+                                    truth=pair / "events.truth.yaml", child_frame="dvxplorer")
+    summary = calibrate_to_dir(pair / "events.mcap", out, opts)
+    return out, summary
+
+
+def test_two_files_recover_the_clock_difference(pair, calibrated):
+    out, summary = calibrated
+    truth = yaml.safe_load((pair / "events.truth.yaml").read_text())
+    assert summary["ok"], summary["report"]["problems"]
+    c = yaml.safe_load((out / "calibration.yaml").read_text())
+    assert c["time_offset_s"] == pytest.approx(truth["td"], abs=0.003)  # 3725.43 s to within 3 ms
+    assert c["clock_alignment"]["coarse"] and c["clock_alignment"]["offset_s"] == pytest.approx(truth["td"], abs=0.03)
+    assert rotation_error_deg(np.asarray(c["T_base_cam"])[:3, :3], np.asarray(truth["T_base_cam"])[:3, :3]) < 0.5
+    assert c["wheel_order"]["hypothesis"] == "as_given"
+    assert c["child_frame"] == "dvxplorer" and "--child-frame-id dvxplorer" in c["ros_static_transform"]
+    assert "odometry.mcap" in summary["report"]["recording_info"]["odometry_file"]
+    assert "the clocks differ" in summary["text"]
+
+
+def test_robot_files_carry_the_result(calibrated):
+    out, _ = calibrated
+    c = yaml.safe_load((out / "calibration.yaml").read_text())
+    root = ET.parse(out / "base_to_camera.urdf").getroot()
+    joint = root.find("joint")
+    assert joint.find("parent").get("link") == "base_link" and joint.find("child").get("link") == "dvxplorer"
+    origin = joint.find("origin")
+    xyz = [float(v) for v in origin.get("xyz").split()]
+    rpy = [float(v) for v in origin.get("rpy").split()]
+    T = np.asarray(c["T_base_cam"])
+    np.testing.assert_allclose(xyz[:2], T[:2, 3], atol=1e-6)
+    assert xyz[2] == 0.0  # not measured: written as 0 ...
+    assert "NOT measured" in (out / "base_to_camera.urdf").read_text()  # ... with a comment saying so
+    np.testing.assert_allclose(Rotation.from_euler("xyz", rpy).as_matrix(), T[:3, :3], atol=1e-8)
+    launch = (out / "static_tf.launch.py").read_text()
+    tree = ast.parse(launch)
+    assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description" for n in tree.body)
+    for flag in ("--x", "--roll", "--frame-id", "--child-frame-id", "dvxplorer", "static_transform_publisher"):
+        assert flag in launch
+
+
+def test_flagged_result_gets_no_usable_robot_files():
+    T = np.eye(4)
+    urdf = urdf_text(T, "base_link", "cam", ok=False, problems=("the wheels -- swapped",))
+    root = ET.fromstring(urdf.split("\n", 1)[1])  # well-formed XML ...
+    assert root.find("joint") is None  # ... without a joint
+    assert "NO USABLE CALIBRATION" in urdf and "swapped" in urdf
+    launch = launch_text(T, "base_link", "cam", ok=False, problems=("the wheels are swapped",))
+    assert all(line.startswith("#") or not line.strip() for line in launch.splitlines())
+
+
+def test_report_html_puts_the_result_first_and_every_image_exists(calibrated):
+    out, _ = calibrated
+    p = _Images()
+    p.feed((out / "report.html").read_text())
+    assert p.images, "the report shows no figures"
+    for src in p.images:
+        assert (out / src).is_file(), f"report.html references a missing image {src}"
+    assert p.headings[0] == "Result" and p.headings.index("Figures") < p.headings.index("Observability")
+    assert "± " in (out / "report.html").read_text()
