@@ -102,13 +102,15 @@ def diagnose(
     **settings: Any,
 ) -> Diagnosis:
     """Excitation and observability only: is this recording good enough, and what motion is missing?"""
-    from .gate import problems_of
+    from .gaps import cut_at_gaps
+    from .gate import problems_of_run
 
     opts = _options(board, options, settings)
     run = Run(Path(recording), opts)
     build_tracks(run, progress)
     counts = {"camera_frames": len(run.camera_track), "odometry_samples": len(run.base_track)}
     try:
+        cut_at_gaps(run)  # the same data calibrate would use
         cf = run_closed_form(run)
     except (DegenerateMotionError, InsufficientDataError) as exc:
         return Diagnosis(str(recording), False, (str(exc),), (MOTION_ADVICE_DEFAULT,), **counts)
@@ -118,9 +120,9 @@ def diagnose(
             run_refinement(run, progress)
         except (ConvergenceError, DegenerateMotionError, InsufficientDataError) as exc:
             verdicts.append(f"refinement failed: {exc}")
-    problems = problems_of(run.closed_form, run.refinement) + verdicts
+    problems = problems_of_run(run) + verdicts  # the gate calibrate uses: both agree on one recording
     obs = observability_rows(run)
-    good = not problems and not any(o["status"] == "unobservable" and o["name"] not in ("z",) for o in obs)
+    good = not problems
     return Diagnosis(str(recording), good, tuple(problems), tuple(motion_advice(cf, obs)), dict(cf.excitation),
                      dict(cf.observable), tuple(obs), tuple(cf.degenerate_reasons), **counts)
 
@@ -144,7 +146,10 @@ def compare(
     table = compare_solutions(sols, run.refinement, camera_track=run.camera_track, base_track=run.base_track,
                               camera=run.camera, truth_T_base_cam=truth_T, truth_td=truth_td)
     failed = {n: m.error for n, m in run.closed_form.methods.items() if m.R_base_cam is None}
-    return Comparison(str(recording), tuple(table.rows), failed, table.markdown)
+    from .gate import problems_of_run
+
+    problems = tuple(problems_of_run(run))
+    return Comparison(str(recording), tuple(table.rows), failed, table.markdown, ok=not problems, problems=problems)
 
 
 def calibrate_to_dir(

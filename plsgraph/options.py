@@ -92,6 +92,7 @@ class RefineSettings:
 
     camera_height: float | None = None
     board_height: float | None = None
+    upside_down: bool = False  # the camera is mounted upside down on purpose: the gate must not flag it
 
     def __post_init__(self) -> None:
         _finite_or_none("--camera-height", "camera_height", self.camera_height)

@@ -167,8 +167,11 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
     topic = pick_topic(src, EVENT_TYPES, opts.inputs.topics.get("events"), "event")
     info = src.topics()[topic]
     counts = {"events": 0, "on": 0, "first": None, "last": None}
+    gaps: list[tuple[int, int]] = []
 
     def checked(chunks):
+        from .gaps import event_gaps
+
         for ch in chunks:
             if counts["first"] is None and (ch.width, ch.height) != (run.camera.width, run.camera.height):
                 raise InputError(
@@ -176,6 +179,7 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
                     f"{run.camera.width} x {run.camera.height}; pass the right --camera-info"
                 )
             if len(ch):
+                gaps.extend(event_gaps(ch.t, counts["last"]))
                 counts["events"] += len(ch)
                 counts["on"] += ch.n_on
                 counts["first"] = ch.t_first if counts["first"] is None else counts["first"]
@@ -198,6 +202,8 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
         "events_on": counts["on"],
         "duration_s": 0.0 if counts["first"] is None else (counts["last"] - counts["first"]) * 1e-9,
     })
+    if gaps:
+        run.recording_info["event_gaps_ns"] = gaps
     for k in ("windows", "detected", "skipped"):
         if k in track.info:
             run.discarded[f"frontend_{k}"] = to_jsonable(track.info[k])
@@ -242,6 +248,9 @@ def run_refinement(run: Run, progress: ProgressFactory) -> Any:
 
 def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress) -> Run:
     """Closed form, then (optionally) the refinement it seeds, on a run whose tracks are set."""
+    from .gaps import cut_at_gaps
+
+    cut_at_gaps(run)  # never across a gap the robot moved across: the longest stretch without one, or an error
     cf = run_closed_form(run)
     if cf.R_base_cam is None:
         raise DegenerateMotionError(

@@ -95,9 +95,12 @@ class Comparison:
     rows: tuple[dict, ...]
     failed: dict[str, str]
     markdown: str
+    ok: bool = True
+    problems: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
-        return to_jsonable({"recording": self.recording, "rows": list(self.rows), "failed": self.failed})
+        return to_jsonable({"recording": self.recording, "ok": self.ok, "problems": list(self.problems),
+                            "rows": list(self.rows), "failed": self.failed})
 
 
 # ------------------------------------------------------------------------------------------------ building
@@ -174,17 +177,14 @@ def calibration_result(run: Run) -> CalibrationResult:
     from . import __version__
 
     T, td, cov, source = final_estimate(run)
-    if T[2, 1] > 0.5:  # the camera's "down" axis (optical y) points up in the base frame
-        run.warn(
-            "the camera comes out upside down (its image 'down' axis points up in the base frame); if it is not "
-            "mounted that way, the wheels are probably swapped (check --left-joint/--right-joint), which mirrors "
-            "the whole solution"
-        )
-    problems = problems_of(run.closed_form, run.refinement)
+    problems = problems_of(run.closed_form, run.refinement, base_track=run.base_track,
+                           camera_track=run.camera_track, T_base_cam=T,
+                           allow_upside_down=run.options.refine.upside_down)
     ok = not problems
     height = HEIGHT_FROM_USER if run.options.refine.camera_height is not None else HEIGHT_UNMEASURED
     obs = observability_rows(run)
-    calib = calibration_dict(T, td, cov, obs, extra={"source": source, "translation_z_source": height})
+    calib = calibration_dict(T, td, cov, obs, extra={"source": source, "translation_z_source": height},
+                             ok=ok, problems=problems)
     cf = run.closed_form
     methods = method_rows(run)
     errs = truth_errors(run)

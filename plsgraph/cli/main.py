@@ -83,6 +83,9 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
     p.add_argument("--truth", type=Path, help="truth YAML (from 'plsgraph simulate') to report errors against")
     p.add_argument("--camera-height", type=float,
                    help="camera height above the base frame origin in m, if measured: planar motion cannot observe it")
+    p.add_argument("--upside-down", action="store_true",
+                   help="the camera is mounted upside down on purpose (otherwise an upside-down result is flagged: "
+                   "it usually means swapped wheels)")
     p.add_argument("--board-height", type=float,
                    help="height of the board's origin above the floor in m, if measured: makes the camera height "
                    "observable through the board")
@@ -221,7 +224,8 @@ def _options(args: argparse.Namespace):
     if hasattr(args, "surface"):  # calibrate, diagnose, compare (batch takes the defaults)
         settings.update(topics=topics, left_joint=args.left_joint, right_joint=args.right_joint,
                         surface=args.surface, rate_hz=args.rate, td_range=args.td_range, method=args.method,
-                        truth=args.truth, camera_height=args.camera_height, board_height=args.board_height)
+                        truth=args.truth, camera_height=args.camera_height, board_height=args.board_height,
+                        upside_down=args.upside_down)
     return CalibrationOptions.build(**settings)
 
 
@@ -254,7 +258,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     except DegenerateMotionError as exc:  # a result of the recording, not a user error
         print(f"plsgraph: no comparison: {exc}", file=sys.stderr)
         return 1
-    return _emit(args, json.dumps(res.to_dict(), indent=2) if args.json else comparison_text(res), 0)
+    return _emit(args, json.dumps(res.to_dict(), indent=2) if args.json else comparison_text(res), 0 if res.ok else 1)
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:

@@ -70,11 +70,20 @@ def calibration_dict(
     parent_frame: str = "base_link",
     child_frame: str = "event_camera",
     extra: Mapping[str, Any] | None = None,
+    ok: bool = True,
+    problems: list[str] | tuple[str, ...] = (),
 ) -> dict:
-    """The content of calibration.yaml (also embedded in report.json under ``calibration``)."""
+    """The content of calibration.yaml (also embedded in report.json under ``calibration``).
+
+    ``ok`` and ``problems`` come first, so whoever reads only this file sees a flagged result; a flagged one has
+    no ready-to-paste transform line, only a comment saying why not to use it."""
     T = np.asarray(T_base_cam, dtype=float)
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    tf = ros_static_transform(T, parent_frame, child_frame) if ok else (
+        "# NOT FOR USE: this result is flagged (see problems); fix the input and calibrate again")
     d: dict[str, Any] = {
+        "ok": bool(ok),
+        "problems": list(problems),
         "T_base_cam": T.tolist(),
         "quaternion_xyzw": q.tolist(),
         "translation_m": T[:3, 3].tolist(),
@@ -89,7 +98,7 @@ def calibration_dict(
             "matrix": None if covariance is None else np.asarray(covariance, dtype=float).tolist(),
         },
         "observability": list(observability or []),
-        "ros_static_transform": ros_static_transform(T, parent_frame, child_frame),
+        "ros_static_transform": tf,
     }
     if extra:
         d.update(extra)
