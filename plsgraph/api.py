@@ -163,18 +163,32 @@ def calibrate_to_dir(
     """Calibrate and write calibration.yaml, report.json, report.html (+ PNGs) into ``out_dir``; a recording
     that cannot determine the extrinsic gets a diagnosis (report.json only). Returns ``{ok, text, report}``."""
     from .report.files import prepare_output_dir
-    from .report.output import write_calibration, write_diagnosis_only
+    from .report.output import write_calibration, write_diagnosis_only, write_result_folder
     from .report.text import calibration_text
 
     out = prepare_output_dir(out_dir, force=force, create=False)  # refuse before hours of work, not after
-    try:
-        result = calibrate(recording, options=options, refine=refine, progress=progress)
-    except (DegenerateMotionError, InsufficientDataError) as exc:
-        # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
-        return write_diagnosis_only(out, recording, str(exc))
-    written = write_calibration(out, result)
-    text = calibration_text(result.report) + "\n\nwritten: " + ", ".join(map(str, written))
-    return {"ok": result.ok, "text": text, "report": result.report, "result": result}
+
+    def work(stage: Path) -> dict:
+        try:
+            result = calibrate(recording, options=options, refine=refine, progress=progress)
+        except (DegenerateMotionError, InsufficientDataError) as exc:
+            # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
+            return write_diagnosis_only(stage, recording, str(exc))
+        written = write_calibration(stage, result)
+        text = calibration_text(result.report) + "\n\nwritten: " + ", ".join(str(out / p.name) for p in written)
+        return {"ok": result.ok, "text": text, "report": result.report, "result": result}
+
+    # The whole folder is written at once: under a lock (a second run on it fails at once), into a staging folder
+    # that replaces it at the end (no file of an earlier run survives; an interrupt leaves the old one intact).
+    return write_result_folder(out, work)
+
+
+def failure_to_dir(recording: str | Path, out_dir: str | Path, error: str) -> None:
+    """Replace ``out_dir`` with a report.json saying the recording failed (batch --force: an older result there
+    must not pass for this recording's)."""
+    from .report.output import write_diagnosis_only, write_result_folder
+
+    write_result_folder(Path(out_dir), lambda stage: write_diagnosis_only(stage, recording, error, advice=""))
 
 
 SIM_EPOCH_NS = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z: simulated stamps look like a live ROS clock
