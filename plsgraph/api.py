@@ -191,6 +191,8 @@ def failure_to_dir(recording: str | Path, out_dir: str | Path, error: str) -> No
     write_result_folder(Path(out_dir), lambda stage: write_diagnosis_only(stage, recording, error, advice=""))
 
 
+MAX_SIM_DURATION_S = 3600.0  # an hour of simulated events already takes hours and tens of GB
+MAX_SIM_TD_S = 5.0  # a simulated clock offset beyond this is outside any td search range that makes sense
 SIM_EPOCH_NS = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z: simulated stamps look like a live ROS clock
 
 
@@ -207,6 +209,8 @@ def simulate(
     progress: ProgressFactory = no_progress,
 ) -> list[Path]:
     """Simulate a recording (events, wheel joint states, camera info) and write it as ROS 2 MCAP + truth."""
+    import math
+
     from .core.board import load_board
     from .core.events import EventStream
     from .io.recording import JointStates
@@ -214,6 +218,17 @@ def simulate(
     from .sim.events import EventSimParams
     from .sim.robot import simulate_robot
 
+    if isinstance(duration, bool) or not (isinstance(duration, int | float) and math.isfinite(duration)
+                                          and 1.0 < duration <= MAX_SIM_DURATION_S):
+        raise InputError(f"--duration must be a number of seconds above 1 and at most {MAX_SIM_DURATION_S:g}, "
+                         f"got {duration!r}")
+    if isinstance(td, bool) or not (isinstance(td, int | float) and math.isfinite(td) and abs(td) <= MAX_SIM_TD_S):
+        raise InputError(f"--td (the simulated clock offset) must be a number of seconds within +-{MAX_SIM_TD_S:g}, "
+                         f"got {td!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise InputError(f"--seed must be a whole number >= 0, got {seed!r}")
+    if not (isinstance(contrast, int | float) and math.isfinite(contrast) and contrast > 0):
+        raise InputError(f"--contrast must be a positive number (log intensity), got {contrast!r}")
     out = Path(out)
     if out.suffix != ".mcap":
         raise InputError(f"--out must end in .mcap, got {out}")

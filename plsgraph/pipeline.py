@@ -47,9 +47,15 @@ class Run:
     recording_info: dict[str, Any] = field(default_factory=dict)
 
     def warn(self, *messages: str) -> None:
-        """Add warnings once each (a message repeated by several steps is kept once)."""
+        """Add warnings once each: a message repeated by several steps (or by several read passes over a damaged
+        file, with other counts in it) is kept once, as first said."""
+        import re
+
+        seen = {re.sub(r"\d+", "#", w) for w in self.warnings}
         for m in messages:
-            if m not in self.warnings:
+            key = re.sub(r"\d+", "#", m)
+            if key not in seen:
+                seen.add(key)
                 self.warnings.append(m)
 
 
@@ -95,6 +101,7 @@ def read_inputs(run: Run) -> Any:
     if rec.lost:
         run.discarded["lost_while_reading"] = dict(rec.lost)
     run.recording_info = {"used_topics": dict(rec.used_topics)}
+    _require_streams(run, rec)
     if opts.inputs.camera_info is not None:
         from .io.camera_files import read_camera_file
 
@@ -109,6 +116,23 @@ def read_inputs(run: Run) -> Any:
             "(a plsgraph, ROS camera_calibration or OpenCV YAML, or a Kalibr camchain as FILE[:camN])"
         )
     return rec
+
+
+def _require_streams(run: Run, rec: Any) -> None:
+    """The two streams a calibration needs, named before anything else is asked for (e.g. intrinsics)."""
+    from .io.messages import EVENT_TYPES
+
+    has_events = bool(run.options.inputs.topics.get("events")) or any(
+        i.msgtype in EVENT_TYPES for i in rec.topics.values())
+    has_odometry = (rec.joints is not None and len(rec.joints) > 1) or (
+        rec.odometry is not None and len(rec.odometry.t) > 1)
+    missing = [w for w, ok in (("no events (an event camera topic)", has_events),
+                               ("no odometry (sensor_msgs/JointState or nav_msgs/Odometry)", has_odometry)) if not ok]
+    if missing:
+        raise RecordingError(
+            f"{run.log_path} has {' and '.join(missing)}; a calibration needs both, recorded together "
+            "(name a topic with --events-topic/--joints-topic/--odom-topic if plsgraph did not recognise it)"
+        )
 
 
 def _events_topic(rec: Any, opts: CalibrationOptions) -> str | None:
