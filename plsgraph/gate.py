@@ -152,12 +152,12 @@ def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
         if abs(s_v - 1) > PATH_SPEED_LIMIT:
             problems.append(
                 f"to fit the camera the refinement had to stretch the odometry's path by x{s_v:.3f} (limit "
-                f"{PATH_SPEED_LIMIT:.0%}): --wheel-radius (or the board's size) does not match the robot"
+                f"{PATH_SPEED_LIMIT:.0%}): the wheel radius (--wheel-radius) or the board's size does not match"
             )
         if abs(s_w - 1) > PATH_TURN_LIMIT:
             problems.append(
                 f"to fit the camera the refinement had to scale the odometry's turns by x{s_w:.3f} (limit "
-                f"{PATH_TURN_LIMIT:.0%}): --track-width does not match the robot's effective track width"
+                f"{PATH_TURN_LIMIT:.0%}): the track width (--track-width) does not match the robot's effective one"
             )
     return problems
 
