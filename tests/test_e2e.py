@@ -153,10 +153,12 @@ def test_closed_form_only_result_has_no_nan_and_says_the_height_is_not_measured(
 
 def test_swapped_wheels_are_flagged(recording, tmp_path):
     out = tmp_path / "swapped"
-    main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--no-refine",
-          "--left-joint", "front_right_wheel_joint", "--right-joint", "front_left_wheel_joint"])
+    code = main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--no-refine",
+                 "--left-joint", "front_right_wheel_joint", "--right-joint", "front_left_wheel_joint"])
     rep = json.loads((out / "report.json").read_text())
-    assert any("upside down" in w for w in rep["warnings"])
+    assert code == 1 and rep["ok"] is False  # a gate problem now, not a warning beside ok: true
+    assert any("upside down" in p or "wheels are swapped" in p for p in rep["problems"])
+    assert "ros2 run" not in (out / "calibration.yaml").read_text()
 
 
 def test_a_board_of_the_wrong_size_is_flagged_not_trusted(recording, tmp_path, capsys):

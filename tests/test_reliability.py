@@ -227,7 +227,7 @@ def test_an_unwritable_out_is_refused_before_the_work(tmp_path):
 @pytest.mark.parametrize("over, expect", [
     ({"cols": 1000000, "rows": 1000000}, "not a printable target"),
     ({"square_size": float("nan")}, "square_size must be a finite"),
-    ({"cols": 4.5}, "cols must be a whole number"),
+    ({"cols": 4.5}, "cols has the wrong type: it must be a whole number"),
     ({"pattern": "hexagons"}, "unknown pattern 'hexagons'"),
 ])
 def test_bad_board_definitions_are_named(over, expect):

@@ -42,7 +42,7 @@ class Board:
         for k in ("cols", "rows"):
             v = getattr(self, k)
             if isinstance(v, bool) or not isinstance(v, int | np.integer):
-                raise InputError(f"board: {k} must be a whole number, got {v!r}")
+                raise InputError(f"board: {k} has the wrong type: it must be a whole number, got {v!r}")
         if self.cols < 1 or self.rows < 1:
             raise InputError(f"board: cols and rows must be positive, got {self.cols} x {self.rows}")
         if self.cols > MAX_SIDE or self.rows > MAX_SIDE:
@@ -106,7 +106,7 @@ class Board:
             v = d.get(k)
             if v is not None and (isinstance(v, bool) or not (isinstance(v, int) or (isinstance(v, float)
                                                                                     and v.is_integer()))):
-                raise InputError(f"board: {k} must be a whole number, got {v!r}")
+                raise InputError(f"board: {k} has the wrong type: it must be a whole number, got {v!r}")
         if pattern == "aprilgrid":
             # Kalibr's keys (tagCols, tagRows, tagSize, tagSpacing) are accepted as they are.
             return cls(
