@@ -123,7 +123,8 @@ def _require_streams(run: Run, rec: Any) -> None:
     from .io.messages import EVENT_TYPES
 
     has_events = bool(run.options.inputs.topics.get("events")) or any(
-        i.msgtype in EVENT_TYPES for i in rec.topics.values())
+        i.msgtype in EVENT_TYPES and ((i.messages or 0) > 0 or (i.messages is None and i.t_first_ns is not None))
+        for i in rec.topics.values())
     has_odometry = (rec.joints is not None and len(rec.joints) > 1) or (
         rec.odometry is not None and len(rec.odometry.t) > 1)
     missing = [w for w, ok in (("no events (an event camera topic)", has_events),
@@ -275,7 +276,15 @@ def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress) -> Ru
     from .gaps import cut_at_gaps
 
     cut_at_gaps(run)  # never across a gap the robot moved across: the longest stretch without one, or an error
-    cf = run_closed_form(run)
+    try:
+        cf = run_closed_form(run)
+    except InsufficientDataError as exc:
+        if "kept_segment_s" not in run.discarded:
+            raise
+        a, b = run.discarded["kept_segment_s"]
+        raise InsufficientDataError(
+            f"after cutting the recording at odometry gaps the robot moved across (kept t={a:.2f}..{b:.2f} s): {exc}"
+        ) from exc
     if cf.R_base_cam is None:
         raise DegenerateMotionError(
             "the closed form could not determine the rotation (" + "; ".join(cf.degenerate_reasons)
