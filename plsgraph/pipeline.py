@@ -20,7 +20,7 @@ from .core.geometry import make_T
 from .core.progress import ProgressFactory, no_progress
 from .core.resources import read_yaml_mapping
 from .core.tracks import BaseTrack, CameraTrack
-from .errors import DegenerateMotionError, InputError, InsufficientDataError, RecordingError
+from .errors import DegenerateMotionError, InputError, InsufficientDataError, PlsgraphError, RecordingError
 from .options import CalibrationOptions
 
 log = logging.getLogger(__name__)
@@ -122,9 +122,12 @@ def _require_streams(run: Run, rec: Any) -> None:
     """The two streams a calibration needs, named before anything else is asked for (e.g. intrinsics)."""
     from .io.messages import EVENT_TYPES
 
-    has_events = bool(run.options.inputs.topics.get("events")) or any(
-        i.msgtype in EVENT_TYPES and ((i.messages or 0) > 0 or (i.messages is None and i.t_first_ns is not None))
-        for i in rec.topics.values())
+    cands = [t for t, i in rec.topics.items() if i.msgtype in EVENT_TYPES and i.messages != 0]
+    has_events = bool(run.options.inputs.topics.get("events")) or bool(cands)
+    if has_events and not run.options.inputs.topics.get("events") and rec.camera is None:
+        # Message counts are unknown in some files (no summary): with no CameraInfo either, look at the stream
+        # itself before asking for intrinsics the user may not need to find.
+        has_events = _any_event(run.log_path, cands)
     has_odometry = (rec.joints is not None and len(rec.joints) > 1) or (
         rec.odometry is not None and len(rec.odometry.t) > 1)
     missing = [w for w, ok in (("no events (an event camera topic)", has_events),
@@ -134,6 +137,17 @@ def _require_streams(run: Run, rec: Any) -> None:
             f"{run.log_path} has {' and '.join(missing)}; a calibration needs both, recorded together "
             "(name a topic with --events-topic/--joints-topic/--odom-topic if plsgraph did not recognise it)"
         )
+
+
+def _any_event(log_path: Path, topics: list[str]) -> bool:
+    from .io.events_reader import iter_event_chunks
+    from .io.source import open_source
+
+    try:
+        src = open_source(log_path)
+        return any(any(len(ch) for ch in iter_event_chunks(src, t)) for t in topics)
+    except PlsgraphError:
+        return True  # unreadable here: let the front end say what is wrong
 
 
 def _events_topic(rec: Any, opts: CalibrationOptions) -> str | None:
