@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 
 from .core.camera import CameraModel
-from .core.geometry import make_T
 from .core.progress import ProgressFactory, no_progress
 from .core.tracks import BaseTrack, CameraTrack
 from .errors import ConvergenceError, DegenerateMotionError, InputError, InsufficientDataError
@@ -104,13 +103,15 @@ def diagnose(
     **settings: Any,
 ) -> Diagnosis:
     """Excitation and observability only: is this recording good enough, and what motion is missing?"""
-    from .gate import problems_of
+    from .gaps import cut_at_gaps
+    from .gate import problems_of_run
 
     opts = _options(board, options, settings)
     run = Run(Path(recording), opts)
     build_tracks(run, progress)
     counts = {"camera_frames": len(run.camera_track), "odometry_samples": len(run.base_track)}
     try:
+        cut_at_gaps(run)  # the same data calibrate would use
         cf = run_closed_form(run)
     except (DegenerateMotionError, InsufficientDataError) as exc:
         return Diagnosis(str(recording), False, (str(exc),), (MOTION_ADVICE_DEFAULT,), **counts)
@@ -120,23 +121,11 @@ def diagnose(
             run_refinement(run, progress)
         except (ConvergenceError, DegenerateMotionError, InsufficientDataError) as exc:
             verdicts.append(f"refinement failed: {exc}")
-    problems = problems_of(run.closed_form, run.refinement) + verdicts + _mount_problems(run)
+    problems = problems_of_run(run) + verdicts  # the gate calibrate uses: both agree on one recording
     obs = observability_rows(run)
-    good = not problems and not any(o["status"] == "unobservable" and o["name"] not in ("z",) for o in obs)
+    good = not problems
     return Diagnosis(str(recording), good, tuple(problems), tuple(motion_advice(cf, obs)), dict(cf.excitation),
                      dict(cf.observable), tuple(obs), tuple(cf.degenerate_reasons), **counts)
-
-
-def _mount_problems(run: Run) -> list[str]:
-    """Wheels flagged as wrong, or a camera the other way up than the user said (see result.run_problems)."""
-    from .result import run_problems
-
-    ref = run.refinement
-    if ref is not None and ref.converged:
-        return run_problems(run, ref.T_base_cam)
-    if run.closed_form is not None and run.closed_form.R_base_cam is not None:
-        return run_problems(run, make_T(run.closed_form.R_base_cam, np.zeros(3)))
-    return list(run.input_problems)
 
 
 def compare(
@@ -159,7 +148,10 @@ def compare(
     table = compare_solutions(sols, run.refinement, camera_track=run.camera_track, base_track=run.base_track,
                               camera=run.camera, truth_T_base_cam=truth_T, truth_td=truth_td)
     failed = {n: m.error for n, m in run.closed_form.methods.items() if m.R_base_cam is None}
-    return Comparison(str(recording), tuple(table.rows), failed, table.markdown)
+    from .gate import problems_of_run
+
+    problems = tuple(problems_of_run(run))
+    return Comparison(str(recording), tuple(table.rows), failed, table.markdown, ok=not problems, problems=problems)
 
 
 def calibrate_to_dir(
@@ -173,20 +165,36 @@ def calibrate_to_dir(
     """Calibrate and write calibration.yaml, report.json, report.html (+ PNGs) into ``out_dir``; a recording
     that cannot determine the extrinsic gets a diagnosis (report.json only). Returns ``{ok, text, report}``."""
     from .report.files import prepare_output_dir
-    from .report.output import write_calibration, write_diagnosis_only
+    from .report.output import write_calibration, write_diagnosis_only, write_result_folder
     from .report.text import calibration_text
 
     out = prepare_output_dir(out_dir, force=force, create=False)  # refuse before hours of work, not after
-    try:
-        result = calibrate(recording, options=options, refine=refine, progress=progress)
-    except (DegenerateMotionError, InsufficientDataError) as exc:
-        # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
-        return write_diagnosis_only(out, recording, str(exc))
-    written = write_calibration(out, result)
-    text = calibration_text(result.report) + "\n\nwritten: " + ", ".join(map(str, written))
-    return {"ok": result.ok, "text": text, "report": result.report, "result": result}
+
+    def work(stage: Path) -> dict:
+        try:
+            result = calibrate(recording, options=options, refine=refine, progress=progress)
+        except (DegenerateMotionError, InsufficientDataError) as exc:
+            # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
+            return write_diagnosis_only(stage, recording, str(exc))
+        written = write_calibration(stage, result)
+        text = calibration_text(result.report) + "\n\nwritten: " + ", ".join(str(out / p.name) for p in written)
+        return {"ok": result.ok, "text": text, "report": result.report, "result": result}
+
+    # The whole folder is written at once: under a lock (a second run on it fails at once), into a staging folder
+    # that replaces it at the end (no file of an earlier run survives; an interrupt leaves the old one intact).
+    return write_result_folder(out, work)
 
 
+def failure_to_dir(recording: str | Path, out_dir: str | Path, error: str) -> None:
+    """Replace ``out_dir`` with a report.json saying the recording failed (batch --force: an older result there
+    must not pass for this recording's)."""
+    from .report.output import write_diagnosis_only, write_result_folder
+
+    write_result_folder(Path(out_dir), lambda stage: write_diagnosis_only(stage, recording, error, advice=""))
+
+
+MAX_SIM_DURATION_S = 3600.0  # an hour of simulated events already takes hours and tens of GB
+MAX_SIM_TD_S = 5.0  # a simulated clock offset beyond this is outside any td search range that makes sense
 SIM_EPOCH_NS = 1_767_225_600_000_000_000  # 2026-01-01T00:00:00Z: simulated stamps look like a live ROS clock
 
 
@@ -213,12 +221,25 @@ def simulate_recording(
     progress: ProgressFactory = no_progress,
 ) -> SimulatedRecording:
     """Simulate a recording in memory (see :func:`simulate`, which also writes it)."""
+    import math
+
     from .core.board import load_board
     from .core.events import EventStream
     from .io.recording import JointStates
     from .sim.events import EventSimParams
     from .sim.robot import simulate_robot
 
+    if isinstance(duration, bool) or not (isinstance(duration, int | float) and math.isfinite(duration)
+                                          and 1.0 < duration <= MAX_SIM_DURATION_S):
+        raise InputError(f"--duration must be a number of seconds above 1 and at most {MAX_SIM_DURATION_S:g}, "
+                         f"got {duration!r}")
+    if isinstance(td, bool) or not (isinstance(td, int | float) and math.isfinite(td) and abs(td) <= MAX_SIM_TD_S):
+        raise InputError(f"--td (the simulated clock offset) must be a number of seconds within +-{MAX_SIM_TD_S:g}, "
+                         f"got {td!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise InputError(f"--seed must be a whole number >= 0, got {seed!r}")
+    if not (isinstance(contrast, int | float) and math.isfinite(contrast) and contrast > 0):
+        raise InputError(f"--contrast must be a positive number (log intensity), got {contrast!r}")
     sim = simulate_robot(motion=motion, duration=duration, seed=seed, td=td, board=load_board(board),
                          realism=realism)
     with progress("simulating events") as bar:

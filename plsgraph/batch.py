@@ -56,11 +56,26 @@ def _batch_item(item: tuple[str, str, CalibrationOptions, bool], seed: int = 0) 
             row["truth_errors"] = rep["truth_errors"]
     except PlsgraphError as exc:
         row = {"recording": log_path, "status": "failed", "error": f"{type(exc).__name__}: {exc}"}
+        _replace_with_failure(log_path, out_dir, force, row["error"])
     except Exception as exc:  # a bug must not stop the other recordings; it is reported in the summary
         log.exception("unexpected failure on %s", log_path)
         row = {"recording": log_path, "status": "failed", "error": f"internal error {type(exc).__name__}: {exc}"}
+        _replace_with_failure(log_path, out_dir, force, row["error"])
     row["seconds"] = round(time.perf_counter() - t0, 2)
     return row
+
+
+def _replace_with_failure(log_path: str, out_dir: str, force: bool, error: str) -> None:
+    """With --force, a failed recording's folder is replaced by a report.json saying so (an older ok
+    calibration.yaml there must not pass for this run's); without --force an existing folder was refused."""
+    from .api import failure_to_dir
+
+    if not (force and Path(out_dir).exists()):
+        return
+    try:
+        failure_to_dir(log_path, out_dir, error)
+    except Exception:  # another run holds the folder, or it cannot be written: the summary row still says failed
+        log.exception("could not mark %s as failed", out_dir)
 
 
 def _as_row(result: Any, item: tuple) -> dict:
@@ -84,7 +99,7 @@ def run_batch(
     from dataclasses import replace
 
     from .refine.batch import default_executor, refine_many
-    from .report.files import markdown_table, prepare_output_dir, write_json
+    from .report.files import markdown_table, prepare_output_dir, write_json, write_text
 
     if jobs is not None and jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {jobs}")
@@ -111,6 +126,6 @@ def run_batch(
           else 1e3 * r["time_offset_s"], "error": r.get("error", "; ".join(r.get("problems", [])))} for r in rows],
         ["recording", "status", "roll", "pitch", "yaw", "td_ms", "seconds", "error"],
     )
-    (out / "summary.md").write_text(table + "\n")
+    write_text(out / "summary.md", table + "\n")
     ok = all(r["status"] == "ok" for r in rows)
     return {"ok": ok, "text": table + f"\n\nwritten: {out / 'summary.json'}, {out / 'summary.md'}", "rows": rows}

@@ -1,31 +1,224 @@
 """The one place that decides whether a result is fit to use (``ok``) and, when not, says why in plain words.
 
-calibrate, diagnose, compare and batch all ask this gate, so they agree on the same recording.
+calibrate, diagnose, compare and batch all ask this gate (through :func:`problems_of_run`), so they agree on the
+same recording. Each limit is a named constant below; docs/cli.md ("The gate") gives the reason for each value.
+They are deliberately strict (a flagged good result costs a rerun, a passed wrong one a robot); a validation
+study over many recordings is expected to tune them.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-SPEED_SCALE_LIMIT = 0.2  # |odometry speed scale - 1| beyond which the distances disagree too much to trust
+import numpy as np
+
+# --- odometry scale (closed form: velocity regression of camera against wheels) ---------------------------------
+SPEED_SCALE_LIMIT = 0.10  # |closed-form speed scale - 1|: its estimate scatters by ~5 % on correct simulated runs
+TURN_SCALE_LIMIT = 0.25  # |closed-form turn-rate scale - 1|: skid-steer robots legitimately reach x1.2
+# --- odometry scale seen by the refinement (the refined base path against the odometry it was tied to) ---------
+PATH_SPEED_LIMIT = 0.01  # |refined path length / odometry path length - 1|: 0.3 % on correct simulated runs
+PATH_TURN_LIMIT = 0.03  # |refined heading change / odometry heading change - 1|: 0.5 % on correct simulated runs
+# --- fit quality ---------------------------------------------------------------------------------------------
+RMS_LIMIT_PX = 2.5  # final reprojection RMS; the refinement assumes 0.5 px noise and warns at 5x that
+CHI2_LIMIT = 16.0  # reprojection chi^2 per degree of freedom: a fit 4x worse (in RMS) than the noise model
+REJECTED_FRACTION_LIMIT = 0.2  # share of frames the refinement rejected as outliers
+# --- refined against closed form (the closed form has no sigma: its typical error bounds it) --------------------
+ROT_DISAGREE_DEG = 5.0  # + 3 sigma of the refined rotation; the closed form is within ~4.5 deg on simulations
+XY_DISAGREE_M = 0.10  # + 3 sigma of the refined x/y; the closed form's lever arm is within ~8 cm
+TD_DISAGREE_S = 0.025  # + 3 sigma of the refined td; the closed form's offset is within ~10 ms without gaps
+# --- wheel order -----------------------------------------------------------------------------------------------
+UPSIDE_DOWN_LIMIT = 0.5  # base-z component of the camera's image 'down' axis above which the camera is upside down
+# --- gaps ------------------------------------------------------------------------------------------------------
+GAP_MOTION_M = 0.005  # a gap the base moved more than this across (or turned GAP_MOTION_DEG) cuts the motion
+GAP_MOTION_DEG = 0.5
+#: Directions the closed form calls observable that the refinement must then also observe.
+MOTION_DIRECTIONS = ("roll", "pitch", "yaw", "x", "y", "td")
 
 
-def problems_of(closed_form: Any, refinement: Any) -> list[str]:
-    """Reasons the result must not be used as it is (empty: fine)."""
-    problems: list[str] = []
-    cf = closed_form
-    if cf is not None and cf.degenerate:
-        problems += [f"closed form: {r}" for r in cf.degenerate_reasons]
-    speed = (getattr(cf, "odometry_scale", None) or {}).get("speed") if cf is not None else None
+def _closed_form_problems(cf: Any) -> list[str]:
+    problems = [f"closed form: {r}" for r in cf.degenerate_reasons] if cf.degenerate else []
+    scale = getattr(cf, "odometry_scale", None) or {}
+    speed, turn = scale.get("speed"), scale.get("turn_rate")
     if speed is not None and abs(speed - 1.0) > SPEED_SCALE_LIMIT:
-        # Rotations do not care about scale, distances do: a board printed at another size than its YAML says,
-        # or a wrong wheel radius, shows up as the camera and the wheels disagreeing on how far the robot went.
+        # Rotations do not care about scale, distances do: a board printed at another size than its YAML says, or
+        # a wrong wheel radius, shows up as the camera and the wheels disagreeing on how far the robot went.
+        r = scale.get("wheel_radius_m")
         problems.append(
-            f"the camera sees the robot travel {1 / speed:.2f} x as far as the wheel odometry says: the board "
-            "definition's size (square_size) or --wheel-radius is probably wrong, and the translation and time "
-            "offset cannot be trusted"
+            f"the camera sees the robot travel {speed:.2f} x as far as the wheel odometry says (more than "
+            f"{SPEED_SCALE_LIMIT:.0%} off): the wheel radius (--wheel-radius"
+            + (f"; the motion suggests {r:.4f} m" if r else "") + ") or the board's size (square_size) is wrong; "
+            "the result cannot be trusted"
         )
-    ref = refinement
-    if ref is not None and not ref.converged:
-        problems.append("refinement did not converge; the covariance is withheld and the closed form is reported")
+    if turn is not None and turn <= 0:
+        problems.append(
+            "the camera turns the other way than the odometry: the wheels are swapped or one is reversed; check "
+            "--left-joint/--right-joint"
+        )
+    elif turn is not None and abs(turn - 1.0) > TURN_SCALE_LIMIT:
+        b = scale.get("track_width_m")
+        problems.append(
+            f"the camera sees the robot turn {turn:.2f} x as fast as the wheel odometry says (more than "
+            f"{TURN_SCALE_LIMIT:.0%} off): the track width is wrong (--track-width"
+            + (f"; the motion suggests an effective {b:.3f} m" if b else "") + ", which on a skid-steer robot is "
+            "wider than the wheel spacing); the result cannot be trusted"
+        )
     return problems
+
+
+def _path_scales(ref: Any, base_track: Any) -> tuple[float, float] | None:
+    """(length, heading change) of the refined base path over the odometry's at the same knots."""
+    Tk = getattr(ref, "T_world_base", None)
+    kt = getattr(ref, "knot_t", None)
+    if Tk is None or kt is None or len(kt) < 3 or base_track is None:
+        return None
+    kt = np.asarray(kt, dtype=float)
+    inside = (kt >= base_track.t[0]) & (kt <= base_track.t[-1])
+    if inside.sum() < 3:
+        return None
+    Tk = np.asarray(Tk)[inside]
+    To = base_track.poses_at(kt[inside])
+    dk = np.linalg.norm(np.diff(Tk[:, :2, 3], axis=0), axis=1)
+    do = np.linalg.norm(np.diff(To[:, :2, 3], axis=0), axis=1)
+    hk = np.diff(np.unwrap(np.arctan2(Tk[:, 1, 0], Tk[:, 0, 0])))
+    ho = np.diff(np.unwrap(np.arctan2(To[:, 1, 0], To[:, 0, 0])))
+    if not (do.sum() > 0.5 and ho @ ho > np.radians(30) ** 2 / len(ho)):
+        return None  # too little driving or turning to measure a ratio
+    return float(dk.sum() / do.sum()), float(hk @ ho / (ho @ ho))
+
+
+def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    c = (np.trace(np.asarray(Ra).T @ np.asarray(Rb)) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
+    if ref is None:
+        return []
+    if not ref.converged:
+        return ["refinement did not converge; the covariance is withheld and the closed form is reported"]
+    problems: list[str] = []
+    obs = getattr(ref, "observability", None)
+    if obs is not None and cf is not None:
+        lost = [a.name for a in obs.axes
+                if a.name in MOTION_DIRECTIONS and cf.observable.get(a.name, False) and a.status == "unobservable"]
+        if lost:
+            problems.append(
+                f"the refinement leaves {', '.join(lost)} unobservable although the motion should determine "
+                f"{'it' if len(lost) == 1 else 'them'}: the data contradict each other (gaps, wrong odometry, "
+                "wrong time offset)"
+            )
+    rms, chi2 = float(ref.rms_px_final), float(ref.chi2_per_dof)
+    if rms > RMS_LIMIT_PX or chi2 > CHI2_LIMIT:
+        problems.append(
+            f"the refined model does not fit the detections: reprojection RMS {rms:.2f} px, chi^2 per degree of "
+            f"freedom {chi2:.1f} (limits {RMS_LIMIT_PX} px, {CHI2_LIMIT:g}); check the intrinsics, the board and "
+            "the odometry"
+        )
+    if any("did not settle" in w for w in ref.warnings):
+        problems.append("the refinement's outlier rejection did not settle: the frames it keeps disagree")
+    n_all = ref.n_frames + ref.n_frames_rejected
+    if n_all and ref.n_frames_rejected / n_all > REJECTED_FRACTION_LIMIT:
+        problems.append(
+            f"the refinement rejected {ref.n_frames_rejected} of {n_all} frames as outliers (more than "
+            f"{REJECTED_FRACTION_LIMIT:.0%})"
+        )
+    if cf is not None and cf.R_base_cam is not None:
+        cov = ref.cov_base_axes
+        sig = np.sqrt(np.clip(np.diag(cov), 0, None)) if cov is not None else np.zeros(7)
+        d_rot = _angle_deg(cf.R_base_cam, ref.R_base_cam)
+        lim = ROT_DISAGREE_DEG + 3 * float(np.degrees(np.linalg.norm(sig[:3])))
+        if d_rot > lim:
+            problems.append(
+                f"the refined rotation is {d_rot:.1f} deg from the closed form's (limit {lim:.1f} deg): the "
+                "refinement was pulled away by data the closed form did not see the same way"
+            )
+        if cf.t_xy is not None and np.all(np.isfinite(cf.t_xy)):
+            d_xy = float(np.linalg.norm(np.asarray(cf.t_xy) - ref.T_base_cam[:2, 3]))
+            lim = XY_DISAGREE_M + 3 * float(np.linalg.norm(sig[3:5]))
+            if d_xy > lim:
+                problems.append(
+                    f"the refined camera position x/y is {100 * d_xy:.1f} cm from the closed form's "
+                    f"(limit {100 * lim:.1f} cm)"
+                )
+        d_td = abs(float(cf.td) - float(ref.td))
+        lim = TD_DISAGREE_S + 3 * float(sig[6])
+        if d_td > lim:
+            problems.append(
+                f"the refined time offset is {1e3 * d_td:.1f} ms from the closed form's (limit {1e3 * lim:.1f} ms)"
+            )
+    scales = _path_scales(ref, base_track)
+    if scales is not None:
+        s_v, s_w = scales
+        if abs(s_v - 1) > PATH_SPEED_LIMIT:
+            problems.append(
+                f"to fit the camera the refinement had to stretch the odometry's path by x{s_v:.3f} (limit "
+                f"{PATH_SPEED_LIMIT:.0%}): the wheel radius (--wheel-radius) or the board's size does not match"
+            )
+        if abs(s_w - 1) > PATH_TURN_LIMIT:
+            problems.append(
+                f"to fit the camera the refinement had to scale the odometry's turns by x{s_w:.3f} (limit "
+                f"{PATH_TURN_LIMIT:.0%}): the track width (--track-width) does not match the robot's effective one"
+            )
+    return problems
+
+
+def gap_problems(base_track: Any, camera_track: Any) -> list[str]:
+    """Odometry gaps that the motion crossed inside the span the camera frames cover."""
+    if base_track is None or camera_track is None or len(camera_track) == 0:
+        return []
+    from .gaps import motion_gaps
+
+    gaps = motion_gaps(base_track)
+    lo, hi = camera_track.t[0] - 1.0, camera_track.t[-1] + 1.0  # td is within a second
+    cut = [(a, b) for a, b in gaps if b > lo and a < hi]
+    if not cut:
+        return []
+    a, b = max(cut, key=lambda g: g[1] - g[0])
+    return [
+        f"the odometry has {len(cut)} gap(s) the robot moved across (longest {b - a:.2f} s at t={a:.2f} s): "
+        "its path across them is unknown; calibrate a recording without gaps (or only its part without them)"
+    ]
+
+
+def upside_down_problems(T_base_cam: np.ndarray, allow: bool) -> list[str]:
+    if allow or T_base_cam is None or not np.asarray(T_base_cam)[2, 1] > UPSIDE_DOWN_LIMIT:
+        return []
+    return [
+        "the camera comes out upside down (its image 'down' axis points up in the base frame): the wheels are "
+        "probably swapped or reversed (check --left-joint/--right-joint), which mirrors the whole solution; if the "
+        "camera really is mounted upside down, pass --upside-down"
+    ]
+
+
+def problems_of(
+    closed_form: Any,
+    refinement: Any,
+    *,
+    base_track: Any = None,
+    camera_track: Any = None,
+    T_base_cam: np.ndarray | None = None,
+    allow_upside_down: bool = False,
+    input_problems: list[str] | tuple[str, ...] = (),
+) -> list[str]:
+    """Reasons the result must not be used as it is (empty: fine). ``input_problems`` are those found before
+    solving (e.g. wheels whose order the data contradicts, flagged rather than corrected)."""
+    problems: list[str] = list(input_problems)
+    if closed_form is not None:
+        problems += _closed_form_problems(closed_form)
+    problems += _refinement_problems(closed_form, refinement, base_track)
+    problems += gap_problems(base_track, camera_track)
+    if T_base_cam is None:
+        if refinement is not None and refinement.converged:
+            T_base_cam = refinement.T_base_cam
+        elif closed_form is not None and closed_form.R_base_cam is not None:
+            T_base_cam = np.eye(4)
+            T_base_cam[:3, :3] = closed_form.R_base_cam
+    problems += upside_down_problems(T_base_cam, allow_upside_down)
+    return list(dict.fromkeys(problems))
+
+
+def problems_of_run(run: Any, T_base_cam: np.ndarray | None = None) -> list[str]:
+    """:func:`problems_of` on a :class:`plsgraph.pipeline.Run` (what every command asks)."""
+    return problems_of(run.closed_form, run.refinement, base_track=run.base_track, camera_track=run.camera_track,
+                       T_base_cam=T_base_cam, allow_upside_down=run.options.mount.upside_down_camera,
+                       input_problems=run.input_problems)

@@ -20,7 +20,7 @@ from .core.geometry import make_T
 from .core.progress import ProgressFactory, no_progress
 from .core.resources import read_yaml_mapping
 from .core.tracks import BaseTrack, CameraTrack
-from .errors import DegenerateMotionError, InputError, InsufficientDataError, RecordingError
+from .errors import DegenerateMotionError, InputError, InsufficientDataError, PlsgraphError, RecordingError
 from .options import CalibrationOptions
 
 log = logging.getLogger(__name__)
@@ -50,9 +50,15 @@ class Run:
     input_problems: list[str] = field(default_factory=list)  # found before solving, e.g. wheels flagged as wrong
 
     def warn(self, *messages: str) -> None:
-        """Add warnings once each (a message repeated by several steps is kept once)."""
+        """Add warnings once each: a message repeated by several steps (or by several read passes over a damaged
+        file, with other counts in it) is kept once, as first said."""
+        import re
+
+        seen = {re.sub(r"\d+", "#", w) for w in self.warnings}
         for m in messages:
-            if m not in self.warnings:
+            key = re.sub(r"\d+", "#", m)
+            if key not in seen:
+                seen.add(key)
                 self.warnings.append(m)
 
 
@@ -103,6 +109,7 @@ def read_inputs(run: Run) -> Any:
     if rec.lost:
         run.discarded["lost_while_reading"] = dict(rec.lost)
     run.recording_info.update({"used_topics": dict(rec.used_topics)})
+    _require_streams(run, rec)
     if opts.inputs.camera_info is not None:
         from .io.camera_files import read_camera_file
 
@@ -117,6 +124,38 @@ def read_inputs(run: Run) -> Any:
             "(a plsgraph, ROS camera_calibration or OpenCV YAML, or a Kalibr camchain as FILE[:camN])"
         )
     return rec
+
+
+def _require_streams(run: Run, rec: Any) -> None:
+    """The two streams a calibration needs, named before anything else is asked for (e.g. intrinsics)."""
+    from .io.messages import EVENT_TYPES
+
+    cands = [t for t, i in rec.topics.items() if i.msgtype in EVENT_TYPES and i.messages != 0]
+    has_events = bool(run.options.inputs.topics.get("events")) or bool(cands)
+    if has_events and not run.options.inputs.topics.get("events") and rec.camera is None:
+        # Message counts are unknown in some files (no summary): with no CameraInfo either, look at the stream
+        # itself before asking for intrinsics the user may not need to find.
+        has_events = _any_event(run.log_path, cands)
+    has_odometry = (rec.joints is not None and len(rec.joints) > 1) or (
+        rec.odometry is not None and len(rec.odometry.t) > 1)
+    missing = [w for w, ok in (("no events (an event camera topic)", has_events),
+                               ("no odometry (sensor_msgs/JointState or nav_msgs/Odometry)", has_odometry)) if not ok]
+    if missing:
+        raise RecordingError(
+            f"{run.log_path} has {' and '.join(missing)}; a calibration needs both, recorded together "
+            "(name a topic with --events-topic/--joints-topic/--odom-topic if plsgraph did not recognise it)"
+        )
+
+
+def _any_event(log_path: Path, topics: list[str]) -> bool:
+    from .io.events_reader import iter_event_chunks
+    from .io.source import open_source
+
+    try:
+        src = open_source(log_path)
+        return any(any(len(ch) for ch in iter_event_chunks(src, t)) for t in topics)
+    except PlsgraphError:
+        return True  # unreadable here: let the front end say what is wrong
 
 
 def _events_topic(rec: Any, opts: CalibrationOptions) -> str | None:
@@ -176,8 +215,11 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
     topic = pick_topic(src, EVENT_TYPES, opts.inputs.topics.get("events"), "event")
     info = src.topics()[topic]
     counts = {"events": 0, "on": 0, "first": None, "last": None}
+    gaps: list[tuple[int, int]] = []
 
     def checked(chunks):
+        from .gaps import event_gaps
+
         for ch in chunks:
             if counts["first"] is None and (ch.width, ch.height) != (run.camera.width, run.camera.height):
                 raise InputError(
@@ -185,6 +227,7 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
                     f"{run.camera.width} x {run.camera.height}; pass the right --camera-info"
                 )
             if len(ch):
+                gaps.extend(event_gaps(ch.t, counts["last"]))
                 counts["events"] += len(ch)
                 counts["on"] += ch.n_on
                 counts["first"] = ch.t_first if counts["first"] is None else counts["first"]
@@ -207,6 +250,8 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
         "events_on": counts["on"],
         "duration_s": 0.0 if counts["first"] is None else (counts["last"] - counts["first"]) * 1e-9,
     })
+    if gaps:
+        run.recording_info["event_gaps_ns"] = gaps
     for k in ("windows", "detected", "skipped"):
         if k in track.info:
             run.discarded[f"frontend_{k}"] = to_jsonable(track.info[k])
@@ -251,7 +296,18 @@ def run_refinement(run: Run, progress: ProgressFactory) -> Any:
 
 def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress) -> Run:
     """Closed form, then (optionally) the refinement it seeds, on a run whose tracks are set."""
-    cf = run_closed_form(run)
+    from .gaps import cut_at_gaps
+
+    cut_at_gaps(run)  # never across a gap the robot moved across: the longest stretch without one, or an error
+    try:
+        cf = run_closed_form(run)
+    except InsufficientDataError as exc:
+        if "kept_segment_s" not in run.discarded:
+            raise
+        a, b = run.discarded["kept_segment_s"]
+        raise InsufficientDataError(
+            f"after cutting the recording at odometry gaps the robot moved across (kept t={a:.2f}..{b:.2f} s): {exc}"
+        ) from exc
     if cf.R_base_cam is None:
         raise DegenerateMotionError(
             "the closed form could not determine the rotation (" + "; ".join(cf.degenerate_reasons)

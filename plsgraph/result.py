@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from .core.geometry import make_T, rotation_error_deg
-from .gate import problems_of
+from .gate import problems_of_run
 from .pipeline import Run
 from .report.files import COVARIANCE_ORDER, calibration_dict, to_jsonable
 
@@ -95,9 +95,12 @@ class Comparison:
     rows: tuple[dict, ...]
     failed: dict[str, str]
     markdown: str
+    ok: bool = True
+    problems: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
-        return to_jsonable({"recording": self.recording, "rows": list(self.rows), "failed": self.failed})
+        return to_jsonable({"recording": self.recording, "ok": self.ok, "problems": list(self.problems),
+                            "rows": list(self.rows), "failed": self.failed})
 
 
 # ------------------------------------------------------------------------------------------------ building
@@ -147,17 +150,6 @@ def truth_errors(run: Run) -> dict | None:
         out["refined.t_xy_err_m"] = float(np.linalg.norm(ref.T_base_cam[:2, 3] - T_gt[:2, 3]))
         out["refined.t_z_err_m"] = float(ref.T_base_cam[2, 3] - T_gt[2, 3])
         out["refined.td_err_ms"] = 1e3 * (ref.td + run.clock_offset_s - td_gt)
-    return out
-
-
-def run_problems(run: Run, T_base_cam: np.ndarray) -> list[str]:
-    """Problems found outside the solvers: wheels flagged as wrong, a camera the other way up than the user said."""
-    from .odometry.wheel_order import orientation_problem
-
-    out = list(run.input_problems)
-    p = orientation_problem(np.asarray(T_base_cam)[:3, :3], run.options.mount.upside_down_camera)
-    if p is not None:
-        out.append(p)
     return out
 
 
@@ -213,13 +205,14 @@ def calibration_result(run: Run) -> CalibrationResult:
 
     T, td, cov, source = final_estimate(run)
     td = td + run.clock_offset_s  # the camera track was shifted onto the odometry clock by that much
-    problems = problems_of(run.closed_form, run.refinement) + run_problems(run, T)
+    problems = problems_of_run(run, T_base_cam=T)
     ok = not problems
     height = HEIGHT_FROM_USER if run.options.refine.camera_height is not None else HEIGHT_UNMEASURED
     obs = observability_rows(run)
     mount = run.options.mount
     calib = calibration_dict(T, td, cov, obs, parent_frame=mount.parent_frame, child_frame=mount.child_frame,
-                             extra={"source": source, "translation_z_source": height, **robot_sections(run)})
+                             extra={"source": source, "translation_z_source": height, **robot_sections(run)},
+                             ok=ok, problems=problems)
     cf = run.closed_form
     methods = method_rows(run)
     errs = truth_errors(run)

@@ -164,6 +164,7 @@ def test_swapped_wheels_are_corrected_or_flagged(recording, tmp_path):
                  "--wheel-order", "off"])
     rep = json.loads((out / "report.json").read_text())
     assert code == 1 and any("upside down" in p for p in rep["problems"])  # never exit 0 with the mirror
+    assert "ros2 run" not in (out / "calibration.yaml").read_text()  # a flagged result has no TF line to paste
 
 
 def test_a_board_of_the_wrong_size_is_flagged_not_trusted(recording, tmp_path, capsys):

@@ -184,6 +184,25 @@ def _build_parser() -> argparse.ArgumentParser:
     return p
 
 
+class _OncePerMessage(logging.Filter):
+    """Each warning once: several passes over one damaged file repeat theirs (with other counts in them)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.seen: set[str] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        import re
+
+        if record.levelno < logging.WARNING:
+            return True
+        key = re.sub(r"\d+", "#", record.getMessage())
+        if key in self.seen:
+            return False
+        self.seen.add(key)
+        return True
+
+
 def _emit(args: argparse.Namespace, text: str, code: int) -> int:
     """Print the command's output with its exit code decided first, so a reader that closes the pipe early
     (| head) does not change the code."""
@@ -282,7 +301,7 @@ def _cmd_compare(args: argparse.Namespace) -> int:
     except DegenerateMotionError as exc:  # a result of the recording, not a user error
         print(f"plsgraph: no comparison: {exc}", file=sys.stderr)
         return 1
-    return _emit(args, json.dumps(res.to_dict(), indent=2) if args.json else comparison_text(res), 0)
+    return _emit(args, json.dumps(res.to_dict(), indent=2) if args.json else comparison_text(res), 0 if res.ok else 1)
 
 
 def _cmd_batch(args: argparse.Namespace) -> int:
@@ -313,6 +332,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = _build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
+    for h in logging.getLogger().handlers:
+        h.addFilter(_OncePerMessage())
     try:
         return int(args.func(args) or 0)
     except PlsgraphError as exc:

@@ -18,6 +18,10 @@ from .resources import bundled_file, bundled_names, read_yaml_mapping
 PATTERNS = ("asymmetric_circles", "aprilgrid")
 
 
+#: More points per side than any printable target has (a typo such as 1000000 would exhaust the memory).
+MAX_SIDE = 100
+
+
 @dataclass(frozen=True)
 class Board:
     """A planar target. ``points`` (N, 3) are the measurable points in the board frame (z = 0)."""
@@ -35,8 +39,18 @@ class Board:
     def __post_init__(self) -> None:
         if self.pattern not in PATTERNS:
             raise InputError(f"board: unknown pattern {self.pattern!r}; use one of {', '.join(PATTERNS)}")
+        for k in ("cols", "rows"):
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer):
+                raise InputError(f"board: {k} has the wrong type: it must be a whole number, got {v!r}")
         if self.cols < 1 or self.rows < 1:
             raise InputError(f"board: cols and rows must be positive, got {self.cols} x {self.rows}")
+        if self.cols > MAX_SIDE or self.rows > MAX_SIDE:
+            raise InputError(f"board: {self.cols} x {self.rows} points is not a printable target (at most {MAX_SIDE} "
+                             "per side); check cols and rows in the board file")
+        for k in ("square_size", "circle_diameter", "tag_size", "tag_spacing"):
+            if not np.isfinite(getattr(self, k)):
+                raise InputError(f"board: {k} must be a finite number of metres, got {getattr(self, k)!r}")
         if self.pattern == "asymmetric_circles":
             if self.square_size <= 0 or self.circle_diameter <= 0:
                 raise InputError("board: asymmetric_circles needs positive square_size and circle_diameter")
@@ -86,6 +100,13 @@ class Board:
     @classmethod
     def _from_dict(cls, d: dict, name: str) -> Board:
         pattern = d["pattern"]
+        if pattern not in PATTERNS:  # before the fields: another pattern's fields are not ours to ask for
+            raise InputError(f"board: unknown pattern {pattern!r}; use one of {', '.join(PATTERNS)}")
+        for k in ("cols", "rows", "tagCols", "tagRows"):
+            v = d.get(k)
+            if v is not None and (isinstance(v, bool) or not (isinstance(v, int) or (isinstance(v, float)
+                                                                                    and v.is_integer()))):
+                raise InputError(f"board: {k} has the wrong type: it must be a whole number, got {v!r}")
         if pattern == "aprilgrid":
             # Kalibr's keys (tagCols, tagRows, tagSize, tagSpacing) are accepted as they are.
             return cls(

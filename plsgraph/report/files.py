@@ -70,11 +70,20 @@ def calibration_dict(
     parent_frame: str = "base_link",
     child_frame: str = "event_camera",
     extra: Mapping[str, Any] | None = None,
+    ok: bool = True,
+    problems: list[str] | tuple[str, ...] = (),
 ) -> dict:
-    """The content of calibration.yaml (also embedded in report.json under ``calibration``)."""
+    """The content of calibration.yaml (also embedded in report.json under ``calibration``).
+
+    ``ok`` and ``problems`` come first, so whoever reads only this file sees a flagged result; a flagged one has
+    no ready-to-paste transform line, only a comment saying why not to use it."""
     T = np.asarray(T_base_cam, dtype=float)
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    tf = ros_static_transform(T, parent_frame, child_frame) if ok else (
+        "# NOT FOR USE: this result is flagged (see problems); fix the input and calibrate again")
     d: dict[str, Any] = {
+        "ok": bool(ok),
+        "problems": list(problems),
         "T_base_cam": T.tolist(),
         "quaternion_xyzw": q.tolist(),
         "translation_m": T[:3, 3].tolist(),
@@ -89,7 +98,7 @@ def calibration_dict(
             "matrix": None if covariance is None else np.asarray(covariance, dtype=float).tolist(),
         },
         "observability": list(observability or []),
-        "ros_static_transform": ros_static_transform(T, parent_frame, child_frame),
+        "ros_static_transform": tf,
     }
     if extra:
         d.update(extra)
@@ -110,10 +119,23 @@ def _atomic_write(path: Path, data: bytes) -> None:
         raise
 
 
+def _writable_parent(out: Path) -> Path:
+    """The nearest existing folder above ``out``; InputError when it is not a folder we can write into."""
+    parent = out.absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(f"cannot create output folder {out}: {parent} is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write the output folder {out}: no write permission in {parent}; choose another "
+                         "--out or fix the folder's permissions")
+    return parent
+
+
 def prepare_output_dir(out_dir: str | Path, force: bool = False, create: bool = True) -> Path:
     """Check (and with ``create`` make) ``out_dir``; refuse (InputError) if it exists and is not empty unless
-    ``force``. Callers that may still fail before writing pass ``create=False`` and make it when they write,
-    so a refused run leaves no empty folder behind."""
+    ``force``, or if it cannot be written. Callers that may still fail before writing pass ``create=False`` and
+    write through :func:`staged_output`, so a refused run leaves no empty folder behind."""
     out = Path(out_dir)
     if out.exists():
         if not out.is_dir():
@@ -122,9 +144,96 @@ def prepare_output_dir(out_dir: str | Path, force: bool = False, create: bool = 
             raise InputError(f"output folder {out} already holds results; choose another --out or pass --force")
     elif any(p.exists() and not p.is_dir() for p in out.parents):
         raise InputError(f"cannot create output folder {out}: a parent is a file")
+    parent = _writable_parent(out)
+    if out.exists() and out.absolute().parent == parent and not os.access(out, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write into the output folder {out}: no write permission")
     if create:
         out.mkdir(parents=True, exist_ok=True)
     return out
+
+
+class OutputLock:
+    """An exclusive lock on one output folder (a lock file beside it, ``.NAME.plsgraph-lock``), held for the whole
+    run: a second run on the same --out fails at once with a clear message instead of mixing files. The lock is
+    released by the kernel when the process ends, however it ends."""
+
+    def __init__(self, out: str | Path):
+        self.out = Path(out)
+        self.path = self.out.absolute().parent / f".{self.out.name}.plsgraph-lock"
+        self.fd: int | None = None
+
+    def __enter__(self) -> OutputLock:
+        import fcntl
+
+        self.out.absolute().parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise InputError(f"another plsgraph run is writing the output folder {self.out} right now; wait for it "
+                             "to finish or choose another --out") from None
+        self.fd = fd
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.fd is not None:
+            os.close(self.fd)  # closing releases the flock
+            self.fd = None
+
+
+class staged_output:
+    """Write a result folder as a whole: the caller writes into ``stage`` (a fresh hidden folder beside ``out``);
+    on success it replaces ``out`` (every file of an earlier run goes); on any error or interrupt the stage is
+    removed and ``out`` keeps what it had. Use under an :class:`OutputLock`.
+
+        with staged_output(out) as stage:
+            write files into stage
+    """
+
+    def __init__(self, out: str | Path):
+        self.out = Path(out)
+        self.stage: Path | None = None
+
+    def __enter__(self) -> Path:
+        parent = self.out.absolute().parent
+        parent.mkdir(parents=True, exist_ok=True)
+        self.stage = Path(tempfile.mkdtemp(dir=parent, prefix=f".{self.out.name}.staging-"))
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(self.stage, 0o777 & ~umask)  # mkdtemp's 0700 would hide the results from the rest of the team
+        return self.stage
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        import shutil
+        import signal
+        import threading
+
+        stage, self.stage = self.stage, None
+        if exc_type is not None:
+            shutil.rmtree(stage, ignore_errors=True)
+            return
+        # Swap the finished stage in; an interrupt is held back for the two renames so that it cannot leave the
+        # target missing between them.
+        main = threading.current_thread() is threading.main_thread()
+        if main:
+            old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        old = None
+        try:
+            if self.out.exists():
+                old = Path(tempfile.mkdtemp(dir=stage.parent, prefix=f".{self.out.name}.old-"))
+                os.rename(self.out, old / "previous")
+            os.rename(stage, self.out)
+        except BaseException:
+            if old is not None and (old / "previous").exists() and not self.out.exists():
+                os.rename(old / "previous", self.out)
+            shutil.rmtree(stage, ignore_errors=True)
+            raise
+        finally:
+            if main:
+                signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
 
 
 def write_yaml(path: Path, data: Mapping) -> None:

@@ -1,11 +1,34 @@
-"""Result folders: calibration.yaml, report.json, report.html and its pictures, or a diagnosis only."""
+"""Result folders: calibration.yaml, report.json, report.html and its pictures, or a diagnosis only.
+
+:func:`write_result_folder` is how a run writes: under a lock on the folder, everything goes into a fresh staging
+folder beside it that replaces the folder as a whole at the end (see :mod:`plsgraph.report.files`), so a folder
+never holds files of two runs and an interrupted run leaves the previous result as it was.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .files import write_json, write_yaml
+import yaml
+
+from .files import OutputLock, _atomic_write, staged_output, to_jsonable, write_json
+
+
+def _flagged_header(problems: list[str]) -> str:
+    lines = ["# FLAGGED - DO NOT USE THIS CALIBRATION (ok: false). Problems:"]
+    lines += [f"#   - {p}" for p in problems] or ["#   - (see report.json)"]
+    lines.append("# There is deliberately no ready-to-paste transform line: fix the input and calibrate again.")
+    return "\n".join(lines) + "\n"
+
+
+def write_calibration_yaml(path: Path, calib: dict) -> None:
+    """calibration.yaml; a flagged one starts with a comment block saying why not to use it."""
+    text = yaml.safe_dump(to_jsonable(calib), sort_keys=False, default_flow_style=None, width=120)
+    if calib.get("ok") is False:
+        text = _flagged_header(list(calib.get("problems") or [])) + text
+    _atomic_write(Path(path), text.encode())
 
 
 def write_calibration(out: Path, result: Any) -> list[Path]:
@@ -15,7 +38,7 @@ def write_calibration(out: Path, result: Any) -> list[Path]:
     report = result.report
     out.mkdir(parents=True, exist_ok=True)
     write_html_report(out, result.run, report)  # first: a figure that fails adds its warning to the report
-    write_yaml(out / "calibration.yaml", report["calibration"])
+    write_calibration_yaml(out / "calibration.yaml", report["calibration"])
     write_json(out / "report.json", report)
     from .robot_files import write_robot_files
 
@@ -29,31 +52,37 @@ DIAGNOSIS_ADVICE = (
 )
 
 
-def write_diagnosis_only(out: Path, log_path: str | Path, reason: str) -> dict:
+def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: str = DIAGNOSIS_ADVICE) -> dict:
     """A run that could not calibrate: report.json with the reason and advice, no calibration.yaml."""
     from .. import __version__
 
     out.mkdir(parents=True, exist_ok=True)
-    stale = out / "calibration.yaml"
-    if stale.exists():  # with --force into an old folder: an old result must not pass for this recording's
-        stale.rename(out / "calibration.previous.yaml")
-    for old in [out / "report.html", *out.glob("*.png"), out / "base_to_camera.urdf", out / "static_tf.launch.py"]:
-        old.unlink(missing_ok=True)
     report = {
         "plsgraph_version": __version__,
         "recording": str(log_path),
         "ok": False,
         "calibration": None,
         "problems": [reason],
-        "advice": [DIAGNOSIS_ADVICE],
+        "advice": [advice] if advice else [],
     }
     write_json(out / "report.json", report)
     text = "\n".join([
         f"recording      {log_path}",
         "NO CALIBRATION: the recording does not determine the extrinsic.",
         f"  - {reason}",
-        f"advice: {DIAGNOSIS_ADVICE}",
+        *([f"advice: {advice}"] if advice else []),
         "",
         f"written: {out / 'report.json'} (diagnosis only)",
     ])
     return {"ok": False, "text": text, "report": report}
+
+
+def write_result_folder(out: Path, work: Callable[[Path], dict], final: Path | None = None) -> dict:
+    """Run ``work(stage)`` (which computes and writes into the staging folder it is given and returns the summary)
+    under a lock on ``out``, then move the stage into place. Paths in the summary's text name ``out``."""
+    out = Path(out)
+    with OutputLock(out), staged_output(out) as stage:
+        summary = work(stage)
+    if "text" in summary:
+        summary["text"] = summary["text"].replace(str(stage), str(out))
+    return summary

@@ -91,4 +91,6 @@ def comparison_text(c: Any) -> str:
     text = c.markdown
     if c.failed:
         text += "\n\nno answer from: " + "; ".join(f"{n}: {e}" for n, e in c.failed.items())
+    if getattr(c, "problems", ()):
+        text += "\n\nFLAGGED (the refined result is not fit to use):\n" + "\n".join(f"  - {p}" for p in c.problems)
     return text

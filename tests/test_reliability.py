@@ -1,0 +1,263 @@
+"""No confident wrong answer, no mixed or stale result files (scripts/adversarial.py reruns the same cases on the
+sample recording through the command line). Here: simulated tracks, no events, so each case costs a second or two."""
+
+import json
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+import plsgraph
+from plsgraph.batch import _batch_item
+from plsgraph.cli.main import main
+from plsgraph.core.board import Board
+from plsgraph.errors import InputError, InsufficientDataError, PlsgraphError
+from plsgraph.frontend.pose import camera_track_from_detections
+from plsgraph.gate import problems_of, upside_down_problems
+from plsgraph.odometry.wheels import base_track_from_wheels
+from plsgraph.options import CalibrationOptions
+from plsgraph.report.files import OutputLock, prepare_output_dir
+from plsgraph.report.output import write_calibration, write_result_folder
+from plsgraph.sim.robot import simulate_robot
+
+BOARD = "acircles_4x11_a2"
+
+
+@pytest.fixture(scope="module")
+def sim():
+    s = simulate_robot("rich", duration=10.0, seed=3, td=0.03, realism="ideal")
+    cam = camera_track_from_detections(s.detections(noise_px=0.3, seed=4), s.camera)
+    return s, cam
+
+
+def _calibrate(sim, radius=1.0, track=1.0, cut=None, swap=False):
+    s, cam = sim
+    keep = np.ones(s.wheel_t.size, dtype=bool)
+    if cut is not None:
+        rel = s.wheel_t - s.wheel_t[0]
+        keep = ~((rel > cut[0]) & (rel < cut[1]))
+    left, right = (s.wheel_right, s.wheel_left) if swap else (s.wheel_left, s.wheel_right)
+    base = base_track_from_wheels(s.wheel_t[keep], left[keep], right[keep], s.wheel_radius * radius,
+                                  s.track_width * track)
+    truth = {"T_base_cam": s.T_base_cam.tolist(), "td": s.td}
+    return plsgraph.calibrate_tracks(cam, base, s.camera, board=BOARD, truth=truth)
+
+
+# ---------------------------------------------------------------------------------------------- the gate
+
+
+def test_right_settings_pass_the_gate(sim):
+    r = _calibrate(sim)
+    assert r.ok and not r.problems
+    assert r.report["calibration"]["ok"] is True
+    assert r.report["calibration"]["ros_static_transform"].startswith("ros2 run")
+
+
+@pytest.mark.parametrize("radius", [1.15, 1.05])
+def test_a_wrong_wheel_radius_is_flagged(sim, radius):
+    # Before: exit 0 with yaw 7-18 deg off and a sigma of 0.4 deg.
+    r = _calibrate(sim, radius=radius)
+    assert not r.ok
+    assert any("wheel-radius" in p or "wheel radius" in p for p in r.problems)
+
+
+def test_a_wrong_wheel_radius_names_the_likely_one(sim):
+    r = _calibrate(sim, radius=1.15)
+    text = " ".join(r.problems)
+    assert "suggests 0.09" in text  # the nominal 0.098 m, as the closed form estimates it
+
+
+@pytest.mark.parametrize("track", [2.0, 0.5])
+def test_a_wrong_track_width_is_flagged(sim, track):
+    # Before: exit 0 with x/y 0.5-0.7 m off; the turn-rate ratio only a warning.
+    r = _calibrate(sim, track=track)
+    assert not r.ok
+    assert any("track width" in p or "track-width" in p for p in r.problems)
+
+
+def test_swapped_wheels_never_pass(sim):
+    try:
+        r = _calibrate(sim, swap=True)
+    except PlsgraphError as exc:  # refused outright is fine too
+        assert "wheel" in str(exc)
+        return
+    assert not r.ok
+
+
+def test_an_upside_down_camera_is_a_problem_unless_allowed():
+    T = np.eye(4)
+    T[:3, :3] = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # camera y (down in the image) -> base +z
+    assert upside_down_problems(T, allow=False)
+    assert not upside_down_problems(T, allow=True)
+    assert any("upside down" in p for p in problems_of(None, None, T_base_cam=T))
+
+
+def test_refined_far_from_closed_form_is_named_per_quantity(sim):
+    r = _calibrate(sim, radius=1.15)
+    text = " ".join(r.problems)
+    assert "refined rotation" in text and "closed form" in text
+
+
+# ---------------------------------------------------------------------------------------------- gaps
+
+
+def test_an_odometry_gap_is_cut_not_interpolated(sim):
+    # Before: the odometry was integrated across the gap as one arc and the result kept ok: true with no word of it.
+    r = _calibrate(sim, cut=(2.0, 3.0))
+    disc = r.report["discarded"]
+    assert disc["odometry_gaps_crossed_by_motion"] and disc["kept_segment_s"]
+    assert any("gap" in w and "longest stretch" in w for w in r.warnings)
+    assert not len(r.run.base_track.info["gaps"])  # what was calibrated has no gap left
+    if r.ok:  # from the good stretch: a right answer
+        assert r.truth_errors["refined.rot_err_deg"] < 1.5
+        assert r.truth_errors["refined.t_xy_err_m"] < 0.03
+
+
+def test_too_little_left_between_gaps_is_a_diagnosis(sim):
+    with pytest.raises(InsufficientDataError, match="gap"):
+        _calibrate(sim, cut=(3.86, 5.11))
+
+
+def test_the_gate_flags_a_base_track_with_a_gap_the_robot_moved_across(sim):
+    s, cam = sim
+    rel = s.wheel_t - s.wheel_t[0]
+    keep = ~((rel > 4.0) & (rel < 4.5))
+    base = base_track_from_wheels(s.wheel_t[keep], s.wheel_left[keep], s.wheel_right[keep])
+    probs = problems_of(None, None, base_track=base, camera_track=cam)
+    assert any("gap" in p for p in probs)
+
+
+def test_event_gaps_are_found_inside_and_between_chunks():
+    from plsgraph.gaps import event_gaps
+
+    t = np.r_[np.arange(0, 100_000_000, 1000), np.arange(600_000_000, 700_000_000, 1000)].astype(np.int64)
+    assert event_gaps(t, None) == [(99_999_000, 600_000_000)]
+    assert event_gaps(t[:10] + 2_000_000_000, int(t[-1])) == [(int(t[-1]), 2_000_000_000)]
+
+
+# ---------------------------------------------------------------------------------------------- files
+
+
+def test_a_flagged_calibration_yaml_says_so_and_has_no_tf_line(sim, tmp_path):
+    # Before: a flagged run's calibration.yaml had a ready-to-paste TF line and no ok / problems.
+    r = _calibrate(sim, radius=1.15)
+    out = tmp_path / "flagged"
+    out.mkdir()
+    write_calibration(out, r)
+    text = (out / "calibration.yaml").read_text()
+    c = yaml.safe_load(text)
+    assert c["ok"] is False and c["problems"]
+    assert "ros2 run" not in text
+    assert text.startswith("# FLAGGED")
+
+
+def _old_result(d):
+    d.mkdir()
+    (d / "calibration.yaml").write_text("ok: true\n")
+    (d / "residuals.png").write_bytes(b"old")
+    return d
+
+
+def test_force_replaces_the_whole_folder(tmp_path):
+    # Before: --force --no-refine left the old residuals.png, observability.png and methods.png.
+    out = _old_result(tmp_path / "out")
+
+    def work(stage):
+        (stage / "report.json").write_text("{}")
+        return {"ok": True, "text": f"written: {stage / 'report.json'}"}
+
+    res = write_result_folder(out, work)
+    assert sorted(p.name for p in out.iterdir()) == ["report.json"]
+    assert str(out / "report.json") in res["text"]
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".out.") and "lock" not in p.name]
+
+
+def test_an_interrupt_leaves_the_previous_result_intact(tmp_path):
+    # Before: an interrupt during figure writing left a new trajectories.png beside the old calibration.yaml.
+    out = _old_result(tmp_path / "out")
+
+    def work(stage):
+        (stage / "trajectories.png").write_bytes(b"new")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        write_result_folder(out, work)
+    assert sorted(p.name for p in out.iterdir()) == ["calibration.yaml", "residuals.png"]
+    assert (out / "residuals.png").read_bytes() == b"old"
+    assert not [p for p in tmp_path.iterdir() if "staging" in p.name]
+
+
+def test_a_second_run_on_the_same_out_fails_clearly(tmp_path):
+    # Before: two runs on one new --out both said "written" and the folder mixed their files.
+    out = tmp_path / "out"
+    with OutputLock(out), pytest.raises(InputError, match="another plsgraph run is writing"):
+        plsgraph.calibrate_to_dir(tmp_path / "nosuch.mcap", out, CalibrationOptions(board=BOARD))
+    assert not out.exists()
+
+
+def test_batch_force_replaces_a_failed_recordings_old_result(tmp_path):
+    # Before: the old calibration.yaml (ok: true) stayed beside a summary row saying "failed".
+    rec = tmp_path / "a.mcap"
+    rec.write_bytes(b"\0" * 4096)
+    out = _old_result(tmp_path / "a")
+    row = _batch_item((str(rec), str(out), CalibrationOptions(board=BOARD), True))
+    assert row["status"] == "failed"
+    assert sorted(p.name for p in out.iterdir()) == ["report.json"]
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["ok"] is False and rep["calibration"] is None and rep["problems"]
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root may write anywhere")
+def test_an_unwritable_out_is_refused_before_the_work(tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    try:
+        with pytest.raises(InputError, match="no write permission in .*ro") as exc:
+            prepare_output_dir(ro / "out", create=False)
+        assert ".tmp" not in str(exc.value)
+    finally:
+        ro.chmod(0o755)
+
+
+# ---------------------------------------------------------------------------------------------- user errors
+
+
+@pytest.mark.parametrize("over, expect", [
+    ({"cols": 1000000, "rows": 1000000}, "not a printable target"),
+    ({"square_size": float("nan")}, "square_size must be a finite"),
+    ({"cols": 4.5}, "cols has the wrong type: it must be a whole number"),
+    ({"pattern": "hexagons"}, "unknown pattern 'hexagons'"),
+])
+def test_bad_board_definitions_are_named(over, expect):
+    d = {"pattern": "asymmetric_circles", "cols": 4, "rows": 11, "square_size": 0.05, "circle_diameter": 0.03}
+    d.update(over)
+    with pytest.raises(InputError, match=expect):
+        Board.from_dict(d)
+
+
+@pytest.mark.parametrize("args, expect", [
+    (["--duration", "nan"], "--duration"),
+    (["--td", "nan"], "--td"),
+    (["--td", "1e9"], "--td"),
+    (["--seed", "-1"], "--seed"),
+])
+def test_bad_simulate_flags_are_user_errors(tmp_path, capsys, args, expect):
+    code = main(["simulate", "--out", str(tmp_path / "s.mcap"), "--duration", "2", *args])
+    err = capsys.readouterr().err
+    assert code == 2 and expect in err and err.count("error:") == 1
+    assert not (tmp_path / "s.mcap").exists()
+
+
+def test_a_recording_without_events_says_so_before_asking_for_intrinsics(tmp_path, capsys):
+    from plsgraph.io.recording import JointStates
+    from plsgraph.io.writer import write_recording
+
+    t = (np.arange(100) * 2e7).astype(np.int64) + 10**18
+    joints = JointStates(t, ("left_wheel_joint", "right_wheel_joint"), np.zeros((100, 2)), np.zeros((100, 2)))
+    rec = tmp_path / "odo_only.mcap"
+    write_recording(rec, None, joints, None, None)
+    code = main(["calibrate", str(rec), "--board", BOARD, "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert code == 2 and "no events" in err and "--camera-info" not in err
