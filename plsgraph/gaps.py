@@ -17,6 +17,9 @@ import numpy as np
 from .core.tracks import BaseTrack, CameraTrack, gap_indices
 from .errors import InsufficientDataError
 
+GAP_MOTION_M = 0.005  # a gap the base moved more than this across (or turned GAP_MOTION_DEG) cuts the motion
+GAP_MOTION_DEG = 0.5
+
 #: No events for this long is a gap in the event stream (a live sensor in front of a board never pauses so long
 #: while the robot moves; dropped packets or a damaged chunk do).
 EVENT_GAP_S = 0.2
@@ -29,8 +32,7 @@ MIN_SEGMENT_FRAMES = 30
 
 
 def motion_gaps(track: BaseTrack) -> list[tuple[float, float]]:
-    """The odometry gaps (t_start, t_end) across which the base moved (see gate.GAP_MOTION_M / _DEG)."""
-    from .gate import GAP_MOTION_DEG, GAP_MOTION_M
+    """The odometry gaps (t_start, t_end) across which the base moved more than GAP_MOTION_M or GAP_MOTION_DEG."""
 
     out = []
     for a, b in np.asarray(track.info.get("gaps", np.zeros((0, 2))), dtype=float).reshape(-1, 2):

@@ -12,6 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from .gaps import motion_gaps
+
 # --- odometry scale (closed form: velocity regression of camera against wheels) ---------------------------------
 SPEED_SCALE_LIMIT = 0.10  # |closed-form speed scale - 1|: its estimate scatters by ~5 % on correct simulated runs
 TURN_SCALE_LIMIT = 0.25  # |closed-form turn-rate scale - 1|: skid-steer robots legitimately reach x1.2
@@ -29,8 +31,6 @@ TD_DISAGREE_S = 0.025  # + 3 sigma of the refined td; the closed form's offset i
 # --- wheel order -----------------------------------------------------------------------------------------------
 UPSIDE_DOWN_LIMIT = 0.5  # base-z component of the camera's image 'down' axis above which the camera is upside down
 # --- gaps ------------------------------------------------------------------------------------------------------
-GAP_MOTION_M = 0.005  # a gap the base moved more than this across (or turned GAP_MOTION_DEG) cuts the motion
-GAP_MOTION_DEG = 0.5
 #: Directions the closed form calls observable that the refinement must then also observe.
 MOTION_DIRECTIONS = ("roll", "pitch", "yaw", "x", "y", "td")
 
@@ -166,8 +166,6 @@ def gap_problems(base_track: Any, camera_track: Any) -> list[str]:
     """Odometry gaps that the motion crossed inside the span the camera frames cover."""
     if base_track is None or camera_track is None or len(camera_track) == 0:
         return []
-    from .gaps import motion_gaps
-
     gaps = motion_gaps(base_track)
     lo, hi = camera_track.t[0] - 1.0, camera_track.t[-1] + 1.0  # td is within a second
     cut = [(a, b) for a, b in gaps if b > lo and a < hi]

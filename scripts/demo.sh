@@ -19,4 +19,9 @@ echo "== the paper's synthetic Tables I and II, quick version (20 trials; full: 
 .venv/bin/plsgraph reproduce-paper --quick --out "$out/paper_tables" --force
 echo
 echo "open $out/report.html for the pictures; $out/calibration.yaml is the result file"
+if [ "$status" -eq 1 ]; then
+    # The run worked and judged its own result not fit to use (calibration.yaml says why): the demo did its job.
+    echo "the calibration above is FLAGGED (exit 1): its problems are listed above and in calibration.yaml"
+    exit 0
+fi
 exit $status
