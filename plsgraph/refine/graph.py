@@ -34,7 +34,13 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from factors.odometry import OdometryNoise, make_odometry_factors, path_increments
+from factors.odometry import (
+    OdometryNoise,
+    PlanarSteps,
+    make_odometry_factors,
+    make_scaled_odometry_factors,
+    path_increments,
+)
 from factors.planar import make_planar_factor
 from factors.priors import make_height_prior, make_rotation_prior, make_subspace_prior, make_vertical_board_prior
 from factors.reprojection import FrameBatch, OdometryDetail, ReprojectionFrames, make_reprojection_factors
@@ -57,6 +63,7 @@ log = logging.getLogger(__name__)
 KEY_CAM = gtsam.symbol("c", 0)
 KEY_BOARD = gtsam.symbol("b", 0)
 KEY_TD = gtsam.symbol("t", 0)
+KEY_SCALE = gtsam.symbol("s", 0)  # odometry intrinsics (s_v, s_w): arc-length and heading-change factors
 # Sigma (in prior sigmas) of the prior that holds unobservable directions at the seed during the solve.
 _FREEZE_SIGMA = 1e-3
 
@@ -75,6 +82,16 @@ class RefinementOptions:
     robust_k: float = 1.5  # threshold relative to a frame's expected whitened norm (see reprojection_noise)
     min_points: int = 6
     odometry_noise: OdometryNoise = field(default_factory=OdometryNoise)
+    # Odometry intrinsics in the graph: the odometry's arc lengths are scaled by s_v (effective / nominal wheel
+    # radius) and its heading changes by s_w ((r / b) / (r0 / b0)), with priors around the nominal values (1, 1).
+    # A skid-steer robot's effective track is 1.2-2x the geometric one, hence the wide prior on s_w.
+    estimate_odometry_scale: bool = True
+    speed_scale_prior_sigma: float = 0.05  # relative (wheel radius)
+    turn_scale_prior_sigma: float = 1.0  # relative (track width)
+    scale_rebuild_tol: float = 1e-3  # rebuild the odometry detail between knots when a scale moved this much
+    # Odometry stamps that jitter about a regular clock (the message stamped on arrival, the wheels sampled on a
+    # timer) are put back on that clock: jittered stamps bias td and the lever arm (docs/refinement.md).
+    regularize_odometry_stamps: bool = True
     planar: bool = True
     planar_sigma_z: float = 0.005
     planar_sigma_tilt: float = 0.005
@@ -115,7 +132,7 @@ class RefinementOptions:
     def __post_init__(self) -> None:
         if not (np.isfinite(self.td_model_sigma) and self.td_model_sigma >= 0):
             raise InputError("refinement option td_model_sigma must be >= 0")
-        pos = ("sigma_px", "robust_k", "planar_sigma_z", "planar_sigma_tilt", "anchor_sigma", "reg_sigma_rot",
+        pos = ("sigma_px", "robust_k", "speed_scale_prior_sigma", "turn_scale_prior_sigma", "planar_sigma_z", "planar_sigma_tilt", "anchor_sigma", "reg_sigma_rot",
                "reg_sigma_trans", "reg_sigma_td", "camera_height_sigma", "board_height_sigma", "board_vertical_sigma")
         for name in pos:
             v = getattr(self, name)
@@ -163,6 +180,11 @@ class RefinementResult:
     timing: dict = field(default_factory=dict)
     seed_T_base_cam: np.ndarray | None = None
     seed_td: float = float("nan")
+    # Odometry intrinsics (see odometry_report): scales, their covariance, effective radius / track and status.
+    odometry: dict | None = None
+    # Quantity -> |refined - seed| in sigmas of their difference, for quantities where refinement and closed form
+    # disagree beyond what both uncertainties allow (see disagreement_with_seed); empty when they agree.
+    disagreement: dict = field(default_factory=dict)
 
     @property
     def R_base_cam(self) -> np.ndarray:
@@ -209,6 +231,8 @@ class RefinementResult:
             "warnings": list(self.warnings),
             "priors": dict(self.priors),
             "timing": dict(self.timing),
+            "odometry": None if self.odometry is None else dict(self.odometry),
+            "disagreement": dict(self.disagreement),
         }
 
 
@@ -227,6 +251,21 @@ class _Problem:
     odo_T: np.ndarray
     n_dropped: int
     warnings: tuple[str, ...]
+    steps: PlanarSteps | None = None  # the nominal odometry's steps (None: intrinsics not estimated)
+    scale: tuple[float, float] = (1.0, 1.0)  # (s_v, s_w) the odometry poses above were rescaled with
+
+
+def scaled_base_track(base_track: BaseTrack, s_v: float, s_w: float, steps: PlanarSteps | None = None,
+                      at: int = 0) -> BaseTrack:
+    """The base track with arc lengths scaled by ``s_v`` and heading changes by ``s_w`` (planar), equal to the
+    given one at sample ``at``."""
+    if s_v == 1.0 and s_w == 1.0:
+        return base_track
+    steps = steps or PlanarSteps.from_poses(base_track.T_world_base)
+    T0 = base_track.T_world_base
+    T = steps.poses(T0[0], s_v, s_w)
+    T = T0[at] @ inv_T(T[at]) @ T
+    return BaseTrack(base_track.t, T, base_track.v * s_v, base_track.omega * s_w, info=dict(base_track.info))
 
 
 def _check_seed(seed_T_base_cam: np.ndarray, seed_td: float) -> tuple[np.ndarray, float]:
@@ -244,6 +283,38 @@ def _check_seed(seed_T_base_cam: np.ndarray, seed_td: float) -> tuple[np.ndarray
     return T, td
 
 
+def regular_stamps(t: np.ndarray, gap_factor: float = 2.5, max_dev: float = 0.45) -> tuple[np.ndarray, float]:
+    """Stamps of a regularly sampled stream with their jitter removed, and the jitter's std (s).
+
+    Per stretch between gaps (steps longer than ``gap_factor`` median steps) the stamps are fitted by a straight
+    line over the sample index (a regular clock, its rate free); the stretch keeps its stamps unless every
+    deviation from the line is below ``max_dev`` of a step (jitter, not irregular sampling). The result stays
+    strictly increasing. Returns the original stamps when nothing qualifies.
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size < 10:
+        return t, 0.0
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    cuts = np.r_[0, np.flatnonzero(dt > gap_factor * med) + 1, t.size]
+    out = t.copy()
+    dev = []
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        if b - a < 10:
+            continue
+        i = np.arange(b - a, dtype=float)
+        A = np.stack([i, np.ones_like(i)], axis=1)
+        c = np.linalg.lstsq(A, t[a:b], rcond=None)[0]
+        fit = A @ c
+        r = t[a:b] - fit
+        if np.max(np.abs(r)) < max_dev * c[0] and c[0] > 0:
+            out[a:b] = fit
+            dev.append(r)
+    if not dev or np.any(np.diff(out) <= 0):
+        return t, 0.0
+    return out, float(np.std(np.concatenate(dev)))
+
+
 def _select_knots(base_track: BaseTrack, t_lo: float, t_hi: float, rate: float | None) -> np.ndarray:
     t = base_track.t
     i0 = int(max(0, np.searchsorted(t, t_lo, "right") - 1))
@@ -258,8 +329,21 @@ def _select_knots(base_track: BaseTrack, t_lo: float, t_hi: float, rate: float |
     return idx
 
 
+def _rescaled(prob: _Problem, scale: tuple[float, float], opt: RefinementOptions) -> _Problem:
+    """The problem with its odometry poses (knots' odometry, detail between knots) rebuilt for ``scale``."""
+    import dataclasses
+
+    k0 = int(prob.knot_idx[0])
+    track = scaled_base_track(prob.base_track, scale[0], scale[1], prob.steps, at=k0)
+    dt = float(np.median(np.diff(prob.odo_t)))
+    half = int(round(0.5 * opt.odometry_smoothing_s / dt)) if opt.odometry_smoothing_s > 0 else 0
+    return dataclasses.replace(prob, T_knots_odo=track.T_world_base[prob.knot_idx],
+                               odo_T=smooth_poses(track.T_world_base, half), scale=(float(scale[0]), float(scale[1])))
+
+
 def _prepare(
-    camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, seed_td: float, opt: RefinementOptions
+    camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, seed_td: float, opt: RefinementOptions,
+    scale: tuple[float, float] = (1.0, 1.0),
 ) -> _Problem:
     det = camera_track.detections
     if det is None or len(det) == 0:
@@ -270,6 +354,12 @@ def _prepare(
     if len(base_track) < 2:
         raise InsufficientDataError("refine: the base track has fewer than 2 odometry samples")
     warnings: list[str] = []
+    if opt.regularize_odometry_stamps:
+        t_reg, jitter = regular_stamps(base_track.t)
+        if jitter > 0:
+            log.info("odometry stamps put on a regular clock (jitter %.2f ms)", 1e3 * jitter)
+            base_track = BaseTrack(t_reg, base_track.T_world_base, base_track.v, base_track.omega,
+                                   info=dict(base_track.info, stamp_jitter_s=jitter))
     n_valid = np.all(np.isfinite(det.uv), axis=-1).sum(axis=1)
     tau = det.t + seed_td
     t_odo = base_track.t
@@ -301,7 +391,7 @@ def _prepare(
     frames = ReprojectionFrames(t, np.zeros(t.size), np.ones(t.size), det.uv[keep], det.board_points, camera)
     dt = float(np.median(np.diff(t_odo)))
     half = int(round(0.5 * opt.odometry_smoothing_s / dt)) if opt.odometry_smoothing_s > 0 else 0
-    return _Problem(
+    prob = _Problem(
         frames=frames,
         frame_t=t,
         knot_idx=knot_idx,
@@ -312,7 +402,11 @@ def _prepare(
         odo_T=smooth_poses(base_track.T_world_base, half),
         n_dropped=int((~keep).sum()),
         warnings=tuple(warnings),
+        steps=PlanarSteps.from_poses(base_track.T_world_base) if opt.estimate_odometry_scale else None,
     )
+    if opt.estimate_odometry_scale and tuple(scale) != (1.0, 1.0):
+        prob = _rescaled(prob, scale, opt)
+    return prob
 
 
 def smooth_poses(T: np.ndarray, half: int) -> np.ndarray:
@@ -427,8 +521,14 @@ def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: Refin
     for f in make_reprojection_factors(batch, opt.sigma_px, opt.robust, opt.robust_k):
         graph.add(f)
     d, a = path_increments(prob.base_track.t, prob.base_track.T_world_base, prob.knot_idx)
-    for f in make_odometry_factors(keys, prob.T_knots_odo, d, a, opt.odometry_noise):
-        graph.add(f)
+    if prob.steps is not None:
+        for f in make_scaled_odometry_factors(keys, KEY_SCALE, prob.steps, prob.knot_idx, d, a, opt.odometry_noise):
+            graph.add(f)
+        sig = np.array([opt.speed_scale_prior_sigma, opt.turn_scale_prior_sigma])
+        graph.add(gtsam.PriorFactorVector(KEY_SCALE, np.ones(2), gtsam.noiseModel.Diagonal.Sigmas(sig)))
+    else:
+        for f in make_odometry_factors(keys, prob.T_knots_odo, d, a, opt.odometry_noise):
+            graph.add(f)
     if opt.planar:
         for k in keys:
             graph.add(make_planar_factor(int(k), opt.planar_sigma_z, opt.planar_sigma_tilt, 0.0))
@@ -538,6 +638,8 @@ def _optimize(graph, initial: gtsam.Values, opt: RefinementOptions, progress=Non
 
 def _values(prob: _Problem, T_knots: np.ndarray, C: np.ndarray, B: np.ndarray, td: float) -> gtsam.Values:
     v = gtsam.Values()
+    if prob.steps is not None:
+        v.insert(KEY_SCALE, np.array(prob.scale, dtype=float))
     for k in range(prob.knot_t.size):
         v.insert(knot_key(k), gtsam.Pose3(T_knots[k]))
     v.insert(KEY_CAM, gtsam.Pose3(C))
@@ -629,13 +731,24 @@ def _prior_information(opt: RefinementOptions, user_priors: bool = True) -> np.n
 
 
 def _calibration_covariance(graph, values: gtsam.Values, C: np.ndarray, chi2: float,
-                            opt: RefinementOptions) -> tuple[np.ndarray, np.ndarray]:
-    """Marginal covariance of (T_base_cam, td) in GTSAM axes and in base (user) axes."""
-    cov = joint_marginal_covariance(graph, values, [KEY_CAM, KEY_TD])
+                            opt: RefinementOptions, with_scale: bool = False):
+    """Marginal covariance of (T_base_cam, td) in GTSAM axes and in base (user) axes; with ``with_scale`` also
+    the joint 9 x 9 covariance of (user axes, s_v, s_w) (None without the odometry intrinsics)."""
+    has_scale = values.exists(KEY_SCALE)
+    keys = [KEY_CAM, KEY_TD] + ([KEY_SCALE] if has_scale else [])
+    full = joint_marginal_covariance(graph, values, keys)
     if opt.scale_covariance and chi2 > 1.0:
-        cov = cov * chi2
+        full = full * chi2
+    cov = full[:7, :7]
     J = user_axes_jacobian(C[:3, :3])
-    return cov, J @ cov @ J.T
+    if not with_scale:
+        return cov, J @ cov @ J.T
+    joint = None
+    if has_scale:
+        J9 = np.eye(9)
+        J9[:7, :7] = J
+        joint = J9 @ full @ J9.T
+    return cov, J @ cov @ J.T, joint
 
 
 def _new_unobservable(
@@ -711,6 +824,7 @@ def refine(
     seed_td: float,
     options: RefinementOptions | None = None,
     progress: Callable[[int, int], None] | None = None,
+    seed_odometry_scale: tuple[float, float] | None = None,
 ) -> RefinementResult:
     """Refine T_base_cam and td jointly with the base trajectory and the board pose.
 
@@ -728,12 +842,14 @@ def refine(
     opt = options or RefinementOptions()
     t_start = time.perf_counter()
     C_seed, td_seed = _check_seed(seed_T_base_cam, seed_td)
-    prob = _prepare(camera_track, base_track, camera, td_seed, opt)
+    scale0 = _check_scale(seed_odometry_scale) if opt.estimate_odometry_scale else (1.0, 1.0)
+    prob = _prepare(camera_track, base_track, camera, td_seed, opt, scale0)
     warnings = list(prob.warnings)
     t_guess = C_seed[:3, 3].copy()
     if opt.camera_height is not None:
         t_guess[2] = opt.camera_height
-    t_C, B0 = seed_translation_and_board(camera_track, base_track, C_seed[:3, :3], td_seed, t_guess)
+    seed_track = scaled_base_track(prob.base_track, *scale0, prob.steps, at=int(prob.knot_idx[0]))
+    t_C, B0 = seed_translation_and_board(camera_track, seed_track, C_seed[:3, :3], td_seed, t_guess)
     C0 = make_T(C_seed[:3, :3], t_C)
     seed_values = _values(prob, prob.T_knots_odo, C0, B0, td_seed)
     values = seed_values
@@ -784,8 +900,15 @@ def refine(
             rows = rows[~bad]
         if moved:
             td_bracket = td_now
+        rescaled = False
+        if prob.steps is not None:
+            s_now = values.atVector(KEY_SCALE)
+            if np.max(np.abs(s_now / np.array(prob.scale) - 1.0)) > opt.scale_rebuild_tol:
+                # The detail between knots was built from the odometry at the old scales: rebuild it.
+                prob = _rescaled(prob, (float(s_now[0]), float(s_now[1])), opt)
+                rescaled = True
         cov_check = None
-        if bad.any() or moved:
+        if bad.any() or moved or rescaled:
             continue
         if not (converged and opt.freeze_unobservable and opt.marginals):
             settled = True
@@ -829,16 +952,11 @@ def refine(
         )
 
     t1 = time.perf_counter()
-    cov = cov_base = None
+    cov = cov_base = joint = None
     report: ObservabilityReport | None = None
     if converged and opt.marginals:
         try:
-            if cov_check is not None:  # computed at these values on this same graph by the last check
-                cov = cov_check * (chi2 if opt.scale_covariance and chi2 > 1.0 else 1.0)
-                J = user_axes_jacobian(C[:3, :3])
-                cov_base = J @ cov @ J.T
-            else:
-                cov, cov_base = _calibration_covariance(final_graph, values, C, chi2, opt)
+            cov, cov_base, joint = _calibration_covariance(final_graph, values, C, chi2, opt, with_scale=True)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
     if cov_base is not None:
@@ -889,7 +1007,56 @@ def refine(
                 "total_s": time.perf_counter() - t_start},
         seed_T_base_cam=C_seed,
         seed_td=td_seed,
+        odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
     )
+
+
+def _check_scale(scale) -> tuple[float, float]:
+    if scale is None:
+        return (1.0, 1.0)
+    s = np.asarray(scale, dtype=float).ravel()
+    if s.size != 2 or not np.all(np.isfinite(s)) or np.any(s <= 0.2) or np.any(s >= 5.0):
+        raise InputError(f"seed_odometry_scale must be two finite factors (speed, turn rate) in (0.2, 5), got {scale}")
+    return float(s[0]), float(s[1])
+
+
+def odometry_report(values: gtsam.Values, joint: np.ndarray | None, info: dict, opt: RefinementOptions,
+                    seed: tuple[float, float]) -> dict:
+    """The odometry intrinsics the refinement estimated: scale factors, effective wheel radius and track width
+    (when the nominal ones are known), their sigmas and how much the data (not the prior) determined them.
+
+    ``wheel_radius = r0 s_v`` and ``track_width = b0 s_v / s_w`` (the closed form's definition). Status per
+    intrinsic as for the calibration: posterior / prior sigma <= 0.1 observable, >= 0.5 unobservable.
+    """
+    s = values.atVector(KEY_SCALE)
+    s_v, s_w = float(s[0]), float(s[1])
+    out: dict = {"speed_scale": s_v, "turn_scale": s_w, "seed_speed_scale": seed[0], "seed_turn_scale": seed[1]}
+    S = None if joint is None else joint[7:, 7:]
+    if S is not None:
+        out["speed_scale_sigma"] = float(np.sqrt(S[0, 0]))
+        out["turn_scale_sigma"] = float(np.sqrt(S[1, 1]))
+    r0, b0 = info.get("wheel_radius"), info.get("track_width")
+    if r0 and b0:
+        out["wheel_radius_nominal_m"] = float(r0)
+        out["track_width_nominal_m"] = float(b0)
+        out["wheel_radius_m"] = float(r0 * s_v)
+        out["track_width_m"] = float(b0 * s_v / s_w)
+        if S is not None:
+            jb = np.array([b0 / s_w, -b0 * s_v / s_w**2])
+            out["wheel_radius_sigma_m"] = float(r0 * np.sqrt(S[0, 0]))
+            out["track_width_sigma_m"] = float(np.sqrt(jb @ S @ jb))
+    if S is not None:
+        from .observability import OBSERVABLE_RATIO, UNOBSERVABLE_RATIO
+
+        def status(ratio: float) -> str:
+            return "observable" if ratio <= OBSERVABLE_RATIO else "unobservable" if ratio >= UNOBSERVABLE_RATIO \
+                else "weak"
+
+        # Relative sigma of the radius (= that of s_v) and of the track (s_v / s_w) against their priors.
+        rel_b = float(np.sqrt(np.array([1 / s_v, -1 / s_w]) @ S @ np.array([1 / s_v, -1 / s_w])))
+        out["status"] = {"wheel_radius": status(float(np.sqrt(S[0, 0])) / opt.speed_scale_prior_sigma),
+                         "track_width": status(rel_b / opt.turn_scale_prior_sigma)}
+    return out
 
 
 def _prior_notes(opt: RefinementOptions, frozen: list[np.ndarray]) -> dict[str, str]:
