@@ -92,6 +92,10 @@ class RefinementOptions:
     # Odometry stamps that jitter about a regular clock (the message stamped on arrival, the wheels sampled on a
     # timer) are put back on that clock: jittered stamps bias td and the lever arm (docs/refinement.md).
     regularize_odometry_stamps: bool = True
+    # Before the graph, td is searched within seed +- td_search_s by matching how far the camera and the base turn
+    # over short intervals (scale-free in the turn rate); a wrong seed td otherwise leaves the graph in a local
+    # minimum (docs/refinement.md). 0 disables the search.
+    td_search_s: float = 0.5
     planar: bool = True
     planar_sigma_z: float = 0.005
     planar_sigma_tilt: float = 0.005
@@ -313,6 +317,62 @@ def regular_stamps(t: np.ndarray, gap_factor: float = 2.5, max_dev: float = 0.45
     if not dev or np.any(np.diff(out) <= 0):
         return t, 0.0
     return out, float(np.std(np.concatenate(dev)))
+
+
+def turn_angle_td_search(camera_track: CameraTrack, base_track: BaseTrack, td0: float, half: float,
+                         interval_s: float = 0.25, step: float = 0.005) -> tuple[float, float, float] | None:
+    """td (s) within ``td0 +- half`` at which the camera's and the base's turn angles over ``interval_s`` agree
+    best, the turn-rate scale s_w that matches them, and the relative residual there; None when the recording
+    has too little turning or the best td lies at the border of the range.
+
+    The angle the camera turns between two of its poses equals the angle the base turns (a rigid mount, planar
+    motion), whatever R_base_cam; the odometry's angle is off by the turn scale s_w, which is fitted per
+    candidate (least squares), so the search depends neither on the rotation seed nor on the track width.
+    """
+    t = camera_track.t
+    R = camera_track.T_board_cam[:, :3, :3]
+    j = np.searchsorted(t, t + interval_s)
+    ok = j < t.size
+    i = np.flatnonzero(ok)
+    j = j[ok]
+    ok = np.abs(t[j] - t[i] - interval_s) < 0.2 * interval_s
+    i, j = i[ok], j[ok]
+    tb = base_track.t
+    ok = (t[i] + td0 - half >= tb[0]) & (t[j] + td0 + half <= tb[-1])
+    i, j = i[ok], j[ok]
+    if i.size < 20:
+        return None
+    a = np.linalg.norm(so3_log(np.einsum("nji,njk->nik", R[i], R[j])), axis=-1)
+    Tb = base_track.T_world_base
+    th = np.unwrap(np.arctan2(Tb[:, 1, 0], Tb[:, 0, 0]))
+    if np.sqrt(np.mean(a**2)) < 0.02:  # hardly any turning: td is not seen this way
+        return None
+
+    def cost(td: float) -> tuple[float, float]:
+        b = np.abs(np.interp(t[j] + td, tb, th) - np.interp(t[i] + td, tb, th))
+        s = float(a @ b / max(b @ b, 1e-12))
+        r = a - s * b
+        # Huber-like: a few pairs across slips or bad poses must not decide.
+        k = 3.0 * max(float(np.median(np.abs(r))) * 1.4826, 1e-4)
+        rho = np.where(np.abs(r) <= k, r**2, 2 * k * np.abs(r) - k**2)
+        return float(np.sum(rho) / (a @ a)), s
+
+    grid = td0 + np.arange(-half, half + 0.5 * step, step)
+    c = np.array([cost(float(x))[0] for x in grid])
+    k = int(np.argmin(c))
+    if k == 0 or k == grid.size - 1:
+        return None
+    fine = grid[k] + np.arange(-step, step + 1e-9, step / 10)
+    cf = np.array([cost(float(x))[0] for x in fine])
+    m = int(np.argmin(cf))
+    td = float(fine[m])
+    if 0 < m < fine.size - 1:
+        y0, y1, y2 = cf[m - 1 : m + 2]
+        den = y0 - 2 * y1 + y2
+        if den > 0:
+            td += 0.5 * (step / 10) * (y0 - y2) / den
+    val, s_w = cost(td)
+    return td, s_w, val
 
 
 def _select_knots(base_track: BaseTrack, t_lo: float, t_hi: float, rate: float | None) -> np.ndarray:
@@ -843,6 +903,15 @@ def refine(
     t_start = time.perf_counter()
     C_seed, td_seed = _check_seed(seed_T_base_cam, seed_td)
     scale0 = _check_scale(seed_odometry_scale) if opt.estimate_odometry_scale else (1.0, 1.0)
+    td_given = td_seed
+    if opt.td_search_s > 0:
+        found = turn_angle_td_search(camera_track, base_track, td_seed, opt.td_search_s)
+        if found is not None and abs(found[0] - td_seed) > 0.002:
+            log.info("refine: td seed %.4f s -> %.4f s (turn-angle search)", td_seed, found[0])
+            if abs(found[0] - td_seed) > 0.02 and opt.estimate_odometry_scale:
+                # The seed's odometry scales were fitted at the wrong td: start from nominal speed and this turn scale.
+                scale0 = (1.0, float(np.clip(found[1], 0.3, 3.0)))
+            td_seed = found[0]
     prob = _prepare(camera_track, base_track, camera, td_seed, opt, scale0)
     warnings = list(prob.warnings)
     t_guess = C_seed[:3, 3].copy()
@@ -1006,7 +1075,7 @@ def refine(
         timing={"setup_s": t_setup, "optimize_s": t_opt, "marginals_s": t_marg,
                 "total_s": time.perf_counter() - t_start},
         seed_T_base_cam=C_seed,
-        seed_td=td_seed,
+        seed_td=td_given,
         odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
     )
 
