@@ -132,6 +132,15 @@ class RefinementOptions:
     odometry_smoothing_s: float = 0.1
     marginals: bool = True
     scale_covariance: bool = True  # inflate the covariance by chi2/dof when the fit is worse than sigma_px says
+    # Second opinion on the covariance: the factors are independent in the model, but detection errors of
+    # consecutive windows and wheel slip are correlated in time. The covariance is multiplied by the integrated
+    # autocorrelation time of the whitened residuals (reprojection over frames, odometry over edges; the larger),
+    # i.e. samples / effective samples (docs/refinement.md, "Honest uncertainty").
+    inflate_correlated: bool = True
+    max_inflation: float = 100.0
+    # Disagreement with the seed: assumed 1-sigma of the closed form (it gives none), combined with the refinement's.
+    seed_sigma_rot: float = np.radians(1.0)
+    seed_sigma_td: float = 0.01
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.td_model_sigma) and self.td_model_sigma >= 0):
@@ -189,6 +198,7 @@ class RefinementResult:
     # Quantity -> |refined - seed| in sigmas of their difference, for quantities where refinement and closed form
     # disagree beyond what both uncertainties allow (see disagreement_with_seed); empty when they agree.
     disagreement: dict = field(default_factory=dict)
+    inflation: dict = field(default_factory=dict)  # autocorrelation times and the covariance factor applied
 
     @property
     def R_base_cam(self) -> np.ndarray:
@@ -237,6 +247,7 @@ class RefinementResult:
             "timing": dict(self.timing),
             "odometry": None if self.odometry is None else dict(self.odometry),
             "disagreement": dict(self.disagreement),
+            "inflation": dict(self.inflation),
         }
 
 
@@ -572,22 +583,33 @@ def _add_priors(graph: gtsam.NonlinearFactorGraph, C0: np.ndarray, td0: float, o
         graph.add(make_vertical_board_prior(KEY_BOARD, opt.board_vertical_sigma))
 
 
+def _scaled_noise(noise: OdometryNoise, var_factor: float) -> OdometryNoise:
+    import dataclasses
+
+    k = float(np.sqrt(var_factor))
+    return dataclasses.replace(noise, **{f.name: getattr(noise, f.name) * k for f in dataclasses.fields(noise)})
+
+
 def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: RefinementOptions,
-                 C_prior: np.ndarray, td_prior: float, R_prior: np.ndarray):
+                 C_prior: np.ndarray, td_prior: float, R_prior: np.ndarray, rep_var: float = 1.0,
+                 odo_var: float = 1.0):
+    """The factor graph; ``rep_var`` / ``odo_var`` multiply the variances of the reprojection / odometry factors
+    (used for the covariance under correlated errors, see correlation_inflation)."""
     frames, kidx = _brackets(prob, td_bracket, rows)
     keys = np.array([knot_key(k) for k in range(prob.knot_t.size)], dtype=np.int64)
     batch = FrameBatch(frames, keys, kidx, KEY_CAM, KEY_BOARD, KEY_TD)
     graph = gtsam.NonlinearFactorGraph()
-    for f in make_reprojection_factors(batch, opt.sigma_px, opt.robust, opt.robust_k):
+    for f in make_reprojection_factors(batch, opt.sigma_px * np.sqrt(rep_var), opt.robust, opt.robust_k):
         graph.add(f)
+    noise = opt.odometry_noise if odo_var == 1.0 else _scaled_noise(opt.odometry_noise, odo_var)
     d, a = path_increments(prob.base_track.t, prob.base_track.T_world_base, prob.knot_idx)
     if prob.steps is not None:
-        for f in make_scaled_odometry_factors(keys, KEY_SCALE, prob.steps, prob.knot_idx, d, a, opt.odometry_noise):
+        for f in make_scaled_odometry_factors(keys, KEY_SCALE, prob.steps, prob.knot_idx, d, a, noise):
             graph.add(f)
         sig = np.array([opt.speed_scale_prior_sigma, opt.turn_scale_prior_sigma])
         graph.add(gtsam.PriorFactorVector(KEY_SCALE, np.ones(2), gtsam.noiseModel.Diagonal.Sigmas(sig)))
     else:
-        for f in make_odometry_factors(keys, prob.T_knots_odo, d, a, opt.odometry_noise):
+        for f in make_odometry_factors(keys, prob.T_knots_odo, d, a, noise):
             graph.add(f)
     if opt.planar:
         for k in keys:
@@ -838,7 +860,8 @@ def _new_unobservable(
     return out
 
 
-def _honest_covariance(cov_user: np.ndarray, opt: RefinementOptions, frozen: bool) -> np.ndarray:
+def _honest_covariance(cov_user: np.ndarray, opt: RefinementOptions, frozen: bool,
+                       cov_decide: np.ndarray | None = None) -> np.ndarray:
     """The reported covariance: directions held at the seed get the regulariser's sigma back, td its model floor.
 
     A direction the solve held at the seed carries the seed's value, so the data's (weak) information on it
@@ -850,9 +873,17 @@ def _honest_covariance(cov_user: np.ndarray, opt: RefinementOptions, frozen: boo
     cov = 0.5 * (cov_user + cov_user.T)
     if frozen and opt.freeze_unobservable:
         Lp = _prior_information(opt, user_priors=False)
-        lam, V = scipy.linalg.eigh(np.linalg.inv(cov), Lp)  # V^T Lp V = I, cov = V diag(1/lam) V^T
-        lam = np.where(1.0 / np.sqrt(np.maximum(lam, 1e-300)) >= opt.freeze_ratio, 1.0, lam)
-        cov = (V / lam) @ V.T
+        # Which directions are held is decided on ``cov_decide`` (the covariance before the inflation for correlated
+        # errors, which must not turn a determined direction into a held one); they get the prior back in ``cov``.
+        dec = cov if cov_decide is None else 0.5 * (cov_decide + cov_decide.T)
+        lam, V = scipy.linalg.eigh(np.linalg.inv(dec), Lp)  # V^T Lp V = I, dec = V diag(1/lam) V^T
+        held = 1.0 / np.sqrt(np.maximum(lam, 1e-300)) >= opt.freeze_ratio
+        Vi = np.linalg.inv(V)
+        Cv = Vi @ cov @ Vi.T  # cov in the same coordinates
+        Cv[held, :] = 0.0
+        Cv[:, held] = 0.0
+        Cv[held, held] = 1.0
+        cov = V @ Cv @ V.T
     cov = cov.copy()
     cov[6, 6] += opt.td_model_sigma**2
     return cov
@@ -1021,15 +1052,23 @@ def refine(
         )
 
     t1 = time.perf_counter()
-    cov = cov_base = joint = None
+    cov = cov_base = joint = cov_plain = None
+    inflation: dict = {}
     report: ObservabilityReport | None = None
     if converged and opt.marginals:
         try:
-            cov, cov_base, joint = _calibration_covariance(final_graph, values, C, chi2, opt, with_scale=True)
+            cov_graph = final_graph
+            if opt.inflate_correlated:
+                inflation = correlation_inflation(final_graph, batch, values, opt)
+                cov_graph = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
+                                         inflation["reprojection_autocorrelation_time"],
+                                         inflation["odometry_autocorrelation_time"])[0]
+                cov_plain = _calibration_covariance(final_graph, values, C, chi2, opt)[1]
+            cov, cov_base, joint = _calibration_covariance(cov_graph, values, C, chi2, opt, with_scale=True)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
     if cov_base is not None:
-        cov_base = _honest_covariance(cov_base, opt, bool(frozen))
+        cov_base = _honest_covariance(cov_base, opt, bool(frozen), cov_plain)
         Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
         cov = Ji @ cov_base @ Ji.T
         report = observability_report(cov_base, prior_info, converged=True, regularized=True,
@@ -1077,7 +1116,72 @@ def refine(
         seed_T_base_cam=C_seed,
         seed_td=td_given,
         odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
+        disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_given, opt),
+        inflation=inflation,
     )
+
+
+def autocorrelation_time(x: np.ndarray, max_lag: int = 60) -> float:
+    """Integrated autocorrelation time 1 + 2 sum_l rho_l of a multichannel series ``x`` (time first; NaN = missing),
+    the sum stopped at the first lag whose correlation is <= 0 (Geyer's initial positive sequence, simplified).
+
+    It is the factor by which correlated samples inflate the variance of a mean over them (1 for white noise).
+    """
+    x = np.asarray(x, dtype=float).reshape(len(x), -1)
+    n = x.shape[0]
+    if n < 4:
+        return 1.0
+    x = x - np.nanmean(x, axis=0)
+    ok = np.isfinite(x)
+    x0 = np.where(ok, x, 0.0)
+    var = float(np.sum(x0**2))
+    if var <= 0:
+        return 1.0
+    tau = 1.0
+    for lag in range(1, min(max_lag, n // 4) + 1):
+        both = ok[lag:] & ok[:-lag]
+        num = float(np.sum(np.where(both, x0[lag:] * x0[:-lag], 0.0)))
+        den = float(np.sqrt(np.sum(np.where(both, x0[lag:] ** 2, 0.0)) * np.sum(np.where(both, x0[:-lag] ** 2, 0.0))))
+        rho = num / den if den > 0 else 0.0
+        if rho <= 0.0:
+            break
+        tau += 2.0 * rho
+    return float(tau)
+
+
+def correlation_inflation(graph, batch: FrameBatch, values: gtsam.Values, opt: RefinementOptions) -> dict:
+    """Autocorrelation times of the reprojection residuals (over frames) and of the whitened odometry residuals
+    (over edges), each capped at ``max_inflation``: the covariance is that of the graph whose reprojection and
+    odometry variances are multiplied by them (information / effective-sample-size correction per source)."""
+    r = batch.evaluate_all(values, False).residual / opt.sigma_px  # (m, N, 2), frames in time order
+    tau_rep = autocorrelation_time(r.reshape(r.shape[0], -1))
+    odo = []
+    for i in range(graph.size()):
+        f = graph.at(i)
+        if isinstance(f, gtsam.BetweenFactorPose3) or (
+            isinstance(f, gtsam.CustomFactor) and f.dim() == 6 and len(f.keys()) == 3
+            and gtsam.Symbol(f.keys()[2]).chr() == ord("s")
+        ):
+            odo.append(f.whitenedError(values))
+    tau_odo = autocorrelation_time(np.array(odo)) if len(odo) >= 4 else 1.0
+    return {"reprojection_autocorrelation_time": float(np.clip(tau_rep, 1.0, opt.max_inflation)),
+            "odometry_autocorrelation_time": float(np.clip(tau_odo, 1.0, opt.max_inflation))}
+
+
+def disagreement_with_seed(res_T: np.ndarray, res_td: float, cov_base: np.ndarray, seed_T: np.ndarray,
+                           seed_td: float, opt: RefinementOptions, limit: float = 3.0) -> dict[str, float]:
+    """Quantities (roll, pitch, yaw, td) on which the refinement and its seed differ by more than ``limit``
+    combined sigmas (the refinement's and the assumed ``seed_sigma_*`` of the closed form), in those sigmas."""
+    d = so3_log(res_T[:3, :3] @ seed_T[:3, :3].T)  # base axes
+    out = {}
+    for k, ax in enumerate(("roll", "pitch", "yaw")):
+        z = abs(float(d[k])) / float(np.sqrt(cov_base[k, k] + opt.seed_sigma_rot**2))
+        if z > limit:
+            out[ax] = round(z, 2)
+    z = abs(res_td - seed_td) / float(np.sqrt(cov_base[6, 6] + opt.seed_sigma_td**2))
+    if z > limit:
+        out["td"] = round(z, 2)
+    return out
 
 
 def _check_scale(scale) -> tuple[float, float]:
