@@ -28,4 +28,7 @@ def problems_of(closed_form: Any, refinement: Any) -> list[str]:
     ref = refinement
     if ref is not None and not ref.converged:
         problems.append("refinement did not converge; the covariance is withheld and the closed form is reported")
+    for q, z in (getattr(ref, "disagreement", None) or {}).items():
+        problems.append(f"refinement and closed form disagree on {q} by {z:.1f} sigma; check the recording (motion, "
+                        "board detections) before trusting either")
     return problems

@@ -95,7 +95,7 @@ class RefinementOptions:
     # Before the graph, td is searched within seed +- td_search_s by matching how far the camera and the base turn
     # over short intervals (scale-free in the turn rate); a wrong seed td otherwise leaves the graph in a local
     # minimum (docs/refinement.md). 0 disables the search.
-    td_search_s: float = 0.5
+    td_search_s: float = 0.6
     planar: bool = True
     planar_sigma_z: float = 0.005
     planar_sigma_tilt: float = 0.005
@@ -353,20 +353,32 @@ def turn_angle_td_search(camera_track: CameraTrack, base_track: BaseTrack, td0: 
     i, j = i[ok], j[ok]
     if i.size < 20:
         return None
-    a = np.linalg.norm(so3_log(np.einsum("nji,njk->nik", R[i], R[j])), axis=-1)
+    w_ij = so3_log(np.einsum("nji,njk->nik", R[i], R[j]))  # camera rotations over the intervals (camera axes)
+    # Planar motion: every one of them turns about the same axis, the vertical in camera axes - the dominant
+    # direction of the rotation vectors, found without td or R_base_cam. The signed angle about it is far less
+    # noisy than the magnitude (PnP's out-of-plane rotation noise of a small board is large).
+    axis = np.linalg.svd(w_ij, full_matrices=False)[2][0]
+    a = w_ij @ axis
     Tb = base_track.T_world_base
     th = np.unwrap(np.arctan2(Tb[:, 1, 0], Tb[:, 0, 0]))
     if np.sqrt(np.mean(a**2)) < 0.02:  # hardly any turning: td is not seen this way
         return None
+    db0 = np.interp(t[j] + td0, tb, th) - np.interp(t[i] + td0, tb, th)
+    if a @ db0 < 0:
+        a = -a
+    k_rad = 0.01  # Huber threshold (rad): about the turn-angle error of two poses plus odometry slip
 
     def cost(td: float) -> tuple[float, float]:
-        b = np.abs(np.interp(t[j] + td, tb, th) - np.interp(t[i] + td, tb, th))
-        s = float(a @ b / max(b @ b, 1e-12))
-        r = a - s * b
-        # Huber-like: a few pairs across slips or bad poses must not decide.
-        k = 3.0 * max(float(np.median(np.abs(r))) * 1.4826, 1e-4)
-        rho = np.where(np.abs(r) <= k, r**2, 2 * k * np.abs(r) - k**2)
-        return float(np.sum(rho) / (a @ a)), s
+        b = np.interp(t[j] + td, tb, th) - np.interp(t[i] + td, tb, th)
+        # Robust (Huber, IRLS) fit of the turn scale: pairs across a bad pose (a flipped PnP solution) or a slip
+        # must not decide; the cost is in units of a fixed angle so that all candidates compare alike.
+        w = np.ones_like(a)
+        for _ in range(4):
+            s = float((w * a) @ b / max((w * b) @ b, 1e-12))
+            r = a - s * b
+            w = np.minimum(1.0, k_rad / np.maximum(np.abs(r), 1e-12))
+        rho = np.where(np.abs(r) <= k_rad, r**2, 2 * k_rad * np.abs(r) - k_rad**2)
+        return float(np.mean(rho)), s
 
     grid = td0 + np.arange(-half, half + 0.5 * step, step)
     c = np.array([cost(float(x))[0] for x in grid])

@@ -49,17 +49,27 @@ def to_jsonable(obj: Any) -> Any:
     return obj
 
 
-def ros_static_transform(T_base_cam: np.ndarray, parent: str = "base_link", child: str = "event_camera") -> str:
-    """A ready-to-paste ROS 2 static transform publisher line for T_base_cam."""
+def ros_static_transform(T_base_cam: np.ndarray, parent: str = "base_link", child: str = "event_camera",
+                         z_known: bool = True) -> str:
+    """A ready-to-paste ROS 2 static transform publisher line for T_base_cam.
+
+    Without ``z_known`` (planar driving never observes the camera height) z is written as 0 with a shell comment
+    saying it must be measured.
+    """
     T = np.asarray(T_base_cam, dtype=float)
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
     x, y, z = T[:3, 3]
-    return (
+    if not z_known:
+        z = 0.0
+    line = (
         "ros2 run tf2_ros static_transform_publisher "
         f"--x {x:.6f} --y {y:.6f} --z {z:.6f} "
         f"--qx {q[0]:.9f} --qy {q[1]:.9f} --qz {q[2]:.9f} --qw {q[3]:.9f} "
         f"--frame-id {parent} --child-frame-id {child}"
     )
+    if not z_known:
+        line += "  # z unknown (not observable from driving on a floor): measure the camera height and set --z"
+    return line
 
 
 def calibration_dict(
@@ -70,9 +80,15 @@ def calibration_dict(
     parent_frame: str = "base_link",
     child_frame: str = "event_camera",
     extra: Mapping[str, Any] | None = None,
+    z_known: bool = True,
 ) -> dict:
-    """The content of calibration.yaml (also embedded in report.json under ``calibration``)."""
-    T = np.asarray(T_base_cam, dtype=float)
+    """The content of calibration.yaml (also embedded in report.json under ``calibration``).
+
+    Without ``z_known`` the translation's z is written as 0 and ``translation_z_status: unknown``.
+    """
+    T = np.asarray(T_base_cam, dtype=float).copy()
+    if not z_known:
+        T[2, 3] = 0.0
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
     d: dict[str, Any] = {
         "T_base_cam": T.tolist(),
@@ -89,7 +105,8 @@ def calibration_dict(
             "matrix": None if covariance is None else np.asarray(covariance, dtype=float).tolist(),
         },
         "observability": list(observability or []),
-        "ros_static_transform": ros_static_transform(T, parent_frame, child_frame),
+        "translation_z_status": "measured" if z_known else "unknown",
+        "ros_static_transform": ros_static_transform(T, parent_frame, child_frame, z_known),
     }
     if extra:
         d.update(extra)
