@@ -145,7 +145,8 @@ class RefinementOptions:
     def __post_init__(self) -> None:
         if not (np.isfinite(self.td_model_sigma) and self.td_model_sigma >= 0):
             raise InputError("refinement option td_model_sigma must be >= 0")
-        pos = ("sigma_px", "robust_k", "speed_scale_prior_sigma", "turn_scale_prior_sigma", "planar_sigma_z", "planar_sigma_tilt", "anchor_sigma", "reg_sigma_rot",
+        pos = ("sigma_px", "robust_k", "speed_scale_prior_sigma", "turn_scale_prior_sigma",
+               "planar_sigma_z", "planar_sigma_tilt", "anchor_sigma", "reg_sigma_rot",
                "reg_sigma_trans", "reg_sigma_td", "camera_height_sigma", "board_height_sigma", "board_vertical_sigma")
         for name in pos:
             v = getattr(self, name)
@@ -978,7 +979,7 @@ def refine(
     td_bracket = td_seed
     frozen: list[np.ndarray] = []
     t_opt = 0.0
-    cov = cov_base = cov_check = None
+    cov = cov_base = None
     for pas in range(opt.max_passes):
         graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3])
         if initial_error is None:
@@ -1019,20 +1020,18 @@ def refine(
                 # The detail between knots was built from the odometry at the old scales: rebuild it.
                 prob = _rescaled(prob, (float(s_now[0]), float(s_now[1])), opt)
                 rescaled = True
-        cov_check = None
         if bad.any() or moved or rescaled:
             continue
         if not (converged and opt.freeze_unobservable and opt.marginals):
             settled = True
             break
         # Check again at the solution; a direction found only now is frozen and the solve starts over.
-        new, cov_check = _unobservable_at(graph, values, opt, frozen, warnings)
+        new = _unobservable_at(graph, values, opt, frozen, warnings)[0]
         if not new:
             settled = True
             break
         frozen += new
         values = seed_values
-        cov_check = None
         log.info("refine: %d direction(s) not observable; holding them at the seed and solving again", len(new))
     if not settled:
         warnings.append("outlier rejection / re-bracketing / freezing did not settle within max_passes")
