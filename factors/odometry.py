@@ -106,3 +106,114 @@ def make_odometry_factors(
         nm = gtsam.noiseModel.Gaussian.Covariance(cov[i])
         out.append(gtsam.BetweenFactorPose3(int(keys[i]), int(keys[i + 1]), gtsam.Pose3(rel[i]), nm))
     return out
+
+
+# ------------------------------------------------------------------------------------- odometry intrinsics
+# A wrong wheel radius scales every arc length, a wrong (effective) track width every heading change: the
+# odometry a robot with effective radius r and track b reports, integrated with the nominal r0 and b0, has arc
+# lengths ds0 = ds / s_v and heading changes dth0 = dth / s_w with s_v = r / r0 and s_w = (r / b) / (r0 / b0).
+# ScaledOdometry rebuilds the motion of each edge for given (s_v, s_w) from the nominal odometry's steps.
+
+
+def _rot2(a: np.ndarray) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+@dataclass(frozen=True)
+class PlanarSteps:
+    """The steps of a planar odometry track, in a form that can be rescaled.
+
+    Step j goes from sample j to j + 1: heading change ``dth`` (n - 1,) and chord ``chord`` (n - 1, 2), the
+    displacement expressed in the frame of the step's mid heading (for an arc: along x, of length
+    ds sinc(dth / 2)). Scaling the arc length by s_v and the heading change by s_w scales the chord by s_v and
+    turns it with the mid heading (second-order effects of the chord's sinc are below 1e-4 relative per step).
+    """
+
+    dth: np.ndarray
+    chord: np.ndarray
+
+    @classmethod
+    def from_poses(cls, T_world_base: np.ndarray) -> PlanarSteps:
+        T = np.asarray(T_world_base, dtype=float)
+        th = np.unwrap(np.arctan2(T[:, 1, 0], T[:, 0, 0]))
+        dth = np.diff(th)
+        mid = th[:-1] + 0.5 * dth
+        dp = np.diff(T[:, :2, 3], axis=0)
+        chord = np.einsum("nji,nj->ni", _rot2(mid), dp)  # R(mid)^T dp
+        return cls(dth, chord)
+
+    def poses(self, T0: np.ndarray, s_v: float = 1.0, s_w: float = 1.0) -> np.ndarray:
+        """The whole track (n, 4, 4) rescaled, starting at pose ``T0`` (its heading and position are kept)."""
+        th0 = float(np.arctan2(T0[1, 0], T0[0, 0]))
+        th = th0 + s_w * np.r_[0.0, np.cumsum(self.dth)]
+        mid = th[:-1] + 0.5 * s_w * self.dth
+        dp = s_v * np.einsum("nij,nj->ni", _rot2(mid), self.chord)
+        p = T0[:2, 3] + np.r_[np.zeros((1, 2)), np.cumsum(dp, axis=0)]
+        n = th.size
+        out = np.zeros((n, 4, 4))
+        out[:, :2, :2] = _rot2(th)
+        out[:, 2, 2] = 1.0
+        out[:, 3, 3] = 1.0
+        out[:, :2, 3] = p
+        out[:, 2, 3] = T0[2, 3]
+        return out
+
+
+def scaled_edge_motion(steps: PlanarSteps, lo: int, hi: int, s_v: float, s_w: float):
+    """Relative motion of the samples ``lo`` -> ``hi`` (4 x 4) for scales (s_v, s_w), and its derivative (6, 2)
+    in the right-perturbation tangent of that motion (rot xyz, trans xyz)."""
+    dth = steps.dth[lo:hi]
+    ph = np.r_[0.0, np.cumsum(dth)][:-1] + 0.5 * dth  # mid headings relative to sample lo (nominal)
+    c = steps.chord[lo:hi]
+    Rm = _rot2(s_w * ph)
+    rc = np.einsum("nij,nj->ni", Rm, c)
+    p = s_v * rc.sum(axis=0)
+    dp_dv = rc.sum(axis=0)
+    dp_dw = s_v * np.sum(ph[:, None] * np.stack([-rc[:, 1], rc[:, 0]], axis=1), axis=0)
+    th = s_w * float(np.sum(dth))
+    M = np.eye(4)
+    M[:2, :2] = _rot2(np.array(th))
+    M[:2, 3] = p
+    # Right perturbation: d(rotation) = d(th) about z; d(translation) in the body frame = R(th)^T dp.
+    Rt = M[:2, :2].T
+    D = np.zeros((6, 2))
+    D[3:5, 0] = Rt @ dp_dv
+    D[3:5, 1] = Rt @ dp_dw
+    D[2, 1] = float(np.sum(dth))
+    return M, D
+
+
+def make_scaled_odometry_factors(
+    keys, scale_key: int, steps: PlanarSteps, knot_index: np.ndarray, distance: np.ndarray, angle: np.ndarray,
+    noise: OdometryNoise | None = None,
+) -> list[gtsam.CustomFactor]:
+    """Between-factors between consecutive knots whose measured motion is the odometry rescaled by the
+    2-vector at ``scale_key`` = (s_v, s_w) (arc-length and heading-change factors, see :class:`PlanarSteps`).
+
+    Error as GTSAM's BetweenFactorPose3: ``Log(M(s)^-1 X_a^-1 X_b)``.
+    """
+    cov = odometry_covariance(distance, angle, noise)
+    k = np.asarray(knot_index, dtype=int)
+    out = []
+    for i in range(k.size - 1):
+        lo, hi = int(k[i]), int(k[i + 1])
+
+        def error(this, values, H, lo=lo, hi=hi):
+            Xa = values.atPose3(this.keys()[0])
+            Xb = values.atPose3(this.keys()[1])
+            s = values.atVector(this.keys()[2])
+            M, D = scaled_edge_motion(steps, lo, hi, float(s[0]), float(s[1]))
+            Z = Xa.between(Xb)
+            E = gtsam.Pose3(M).between(Z)
+            e = gtsam.Pose3.Logmap(E)
+            if H is not None:
+                Jinv = gtsam.Pose3.LogmapDerivative(E)
+                H[0] = -Jinv @ Z.inverse().AdjointMap()
+                H[1] = Jinv
+                H[2] = -Jinv @ E.inverse().AdjointMap() @ D
+            return e
+
+        nm = gtsam.noiseModel.Gaussian.Covariance(cov[i])
+        out.append(gtsam.CustomFactor(nm, [int(keys[i]), int(keys[i + 1]), int(scale_key)], error))
+    return out

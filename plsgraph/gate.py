@@ -17,6 +17,9 @@ from .gaps import motion_gaps
 # --- odometry scale (closed form: velocity regression of camera against wheels) ---------------------------------
 SPEED_SCALE_LIMIT = 0.10  # |closed-form speed scale - 1|: its estimate scatters by ~5 % on correct simulated runs
 TURN_SCALE_LIMIT = 0.25  # |closed-form turn-rate scale - 1|: skid-steer robots legitimately reach x1.2
+# When the refinement estimates the odometry's scales (wheel radius, effective track) they are applied, and only
+# implausible values are problems: SPEED_SCALE_LIMIT on the distance scale, this range on effective / nominal track.
+TRACK_RATIO_RANGE = (0.8, 2.5)
 # --- odometry scale seen by the refinement (the refined base path against the odometry it was tied to) ---------
 PATH_SPEED_LIMIT = 0.01  # |refined path length / odometry path length - 1|: 0.3 % on correct simulated runs
 PATH_TURN_LIMIT = 0.03  # |refined heading change / odometry heading change - 1|: 0.5 % on correct simulated runs
@@ -35,10 +38,26 @@ UPSIDE_DOWN_LIMIT = 0.5  # base-z component of the camera's image 'down' axis ab
 MOTION_DIRECTIONS = ("roll", "pitch", "yaw", "x", "y", "td")
 
 
-def _closed_form_problems(cf: Any) -> list[str]:
+def _estimated_scales(refinement: Any) -> tuple[float, float] | None:
+    """The odometry's speed and turn scales as the refinement estimated them (None when it did not)."""
+    odo = getattr(refinement, "odometry", None) or {}
+    if refinement is None or not refinement.converged or "speed_scale" not in odo:
+        return None
+    return float(odo["speed_scale"]), float(odo["turn_scale"])
+
+
+def _estimated_geometry(refinement: Any) -> tuple[float | None, float | None]:
+    odo = getattr(refinement, "odometry", None) or {}
+    return odo.get("wheel_radius_m"), odo.get("track_width_m")
+
+
+def _closed_form_problems(cf: Any, refinement: Any = None) -> list[str]:
     problems = [f"closed form: {r}" for r in cf.degenerate_reasons] if cf.degenerate else []
     scale = getattr(cf, "odometry_scale", None) or {}
     speed, turn = scale.get("speed"), scale.get("turn_rate")
+    if _estimated_scales(refinement) is not None:
+        speed = None  # estimated jointly and applied by the refinement: judged there (see _odometry_problems)
+        turn = turn if turn is not None and turn <= 0 else None
     if speed is not None and abs(speed - 1.0) > SPEED_SCALE_LIMIT:
         # Rotations do not care about scale, distances do: a board printed at another size than its YAML says, or
         # a wrong wheel radius, shows up as the camera and the wheels disagreeing on how far the robot went.
@@ -146,9 +165,17 @@ def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
             problems.append(
                 f"the refined time offset is {1e3 * d_td:.1f} ms from the closed form's (limit {1e3 * lim:.1f} ms)"
             )
+    for q, z in (getattr(ref, "disagreement", None) or {}).items():
+        problems.append(f"refinement and closed form disagree on {q} by {z:.1f} sigma; check the recording (motion, "
+                        "board detections) before trusting either")
+    est = _estimated_scales(ref)
+    if est is not None:
+        problems += _odometry_problems(*est, *_estimated_geometry(ref))
     scales = _path_scales(ref, base_track)
     if scales is not None:
         s_v, s_w = scales
+        if est is not None:  # the refinement scaled the odometry on purpose: only a stretch beyond that counts
+            s_v, s_w = s_v / est[0], s_w / est[1]
         if abs(s_v - 1) > PATH_SPEED_LIMIT:
             problems.append(
                 f"to fit the camera the refinement had to stretch the odometry's path by x{s_v:.3f} (limit "
@@ -159,6 +186,26 @@ def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
                 f"to fit the camera the refinement had to scale the odometry's turns by x{s_w:.3f} (limit "
                 f"{PATH_TURN_LIMIT:.0%}): the track width (--track-width) does not match the robot's effective one"
             )
+    return problems
+
+
+def _odometry_problems(s_v: float, s_w: float, radius: float | None = None, track: float | None = None) -> list[str]:
+    """Estimated odometry scales that no plausible robot explains (``radius``/``track``: the effective values)."""
+    problems = []
+    if abs(s_v - 1.0) > SPEED_SCALE_LIMIT:
+        problems.append(
+            f"the wheel odometry's distances had to be scaled by x{s_v:.3f} to match the camera (more than "
+            f"{SPEED_SCALE_LIMIT:.0%}): a wheel radius (--wheel-radius"
+            + (f"; the motion suggests {radius:.4f} m" if radius else "") + ") that far off, or a board printed at "
+            "another size than its YAML says; the two cannot be told apart, so the translation cannot be trusted"
+        )
+    ratio = s_v / s_w if s_w > 0 else float("inf")  # effective / nominal track width
+    if not TRACK_RATIO_RANGE[0] <= ratio <= TRACK_RATIO_RANGE[1]:
+        problems.append(
+            f"the effective track width comes out {ratio:.2f} x the nominal one (plausible: "
+            f"{TRACK_RATIO_RANGE[0]}-{TRACK_RATIO_RANGE[1]} x, skid-steer robots reach 2 x): check --track-width"
+            + (f" (the motion suggests an effective {track:.3f} m)" if track else "")
+        )
     return problems
 
 
@@ -202,7 +249,7 @@ def problems_of(
     solving (e.g. wheels whose order the data contradicts, flagged rather than corrected)."""
     problems: list[str] = list(input_problems)
     if closed_form is not None:
-        problems += _closed_form_problems(closed_form)
+        problems += _closed_form_problems(closed_form, refinement)
     problems += _refinement_problems(closed_form, refinement, base_track)
     problems += gap_problems(base_track, camera_track)
     if T_base_cam is None:

@@ -286,7 +286,10 @@ def run_refinement(run: Run, progress: ProgressFactory) -> Any:
     user = run.options.refine
     with _Timer(run, "refinement"), progress("refining (GTSAM)") as bar:
         opts = RefinementOptions(camera_height=user.camera_height, board_height=user.board_height)
-        res = refine(run.camera_track, run.base_track, run.camera, seed, cf.td, opts, progress=bar)
+        scale = cf.odometry_scale or {}
+        s0 = (scale.get("speed", 1.0), scale.get("turn_rate", 1.0))  # the closed form's odometry scales: the seed
+        res = refine(run.camera_track, run.base_track, run.camera, seed, cf.td, opts, progress=bar,
+                     seed_odometry_scale=s0 if all(0.2 < x < 5.0 for x in s0) else None)
     run.warn(*res.warnings)
     run.discarded["refinement_frames_rejected"] = int(res.n_frames_rejected)
     run.discarded["refinement_frames_dropped"] = int(res.n_frames_dropped)

@@ -18,7 +18,37 @@ from .pipeline import Run
 from .report.files import COVARIANCE_ORDER, calibration_dict, to_jsonable
 
 HEIGHT_FROM_USER = "--camera-height prior"
-HEIGHT_UNMEASURED = "not observable from planar motion: seed value, not a measurement"
+HEIGHT_FROM_BOARD = "--board-height prior (through the board)"
+HEIGHT_UNMEASURED = "not observable from planar motion: unknown, written as 0; measure it (--camera-height)"
+
+
+def height_source(run: Run) -> str | None:
+    """Where the camera height comes from (None: nowhere - it is unknown)."""
+    if run.options.refine.camera_height is not None:
+        return HEIGHT_FROM_USER
+    ref = run.refinement
+    if run.options.refine.board_height is not None and ref is not None and ref.converged:
+        return HEIGHT_FROM_BOARD
+    return None
+
+
+def odometry_section(run: Run) -> dict | None:
+    """calibration.yaml's ``odometry``: the effective wheel radius and track width the refinement estimated."""
+    ref = run.refinement
+    o = None if ref is None or not ref.converged else getattr(ref, "odometry", None)
+    if not o or "wheel_radius_m" not in o:
+        return None
+    return {
+        "wheel_radius_m": o["wheel_radius_m"],
+        "track_width_m": o["track_width_m"],
+        "wheel_radius_sigma_m": o.get("wheel_radius_sigma_m"),
+        "track_width_sigma_m": o.get("track_width_sigma_m"),
+        "wheel_radius_nominal_m": o.get("wheel_radius_nominal_m"),
+        "track_width_nominal_m": o.get("track_width_nominal_m"),
+        "status": dict(o.get("status", {})),
+        "note": "effective values that explain the wheel odometry (a skid-steer robot's track is wider than its "
+                "geometric one); in the board's length unit (a misprinted board scales the radius alike)",
+    }
 
 
 @dataclass(frozen=True)
@@ -156,6 +186,7 @@ def truth_errors(run: Run) -> dict | None:
 def robot_sections(run: Run) -> dict[str, Any]:
     """calibration.yaml's ``odometry`` section (the wheel geometry the data support), ``wheel_order`` and ``clock``."""
     odo = run.options.odometry
+    refined = odometry_section(run)
     scale = dict(getattr(run.closed_form, "odometry_scale", None) or {})
     sec: dict[str, Any] = {
         "nominal_wheel_radius_m": odo.wheel_radius,
@@ -168,6 +199,14 @@ def robot_sections(run: Run) -> dict[str, Any]:
                    "nominal geometry, without uncertainty") if scale else "nominal (not estimated)",
         "base_source": run.recording_info.get("base_source"),
     }
+    if refined is not None:  # estimated jointly with the extrinsic, with uncertainty: what the driver should take
+        sec = {**refined, "source": "refinement (jointly with T_base_cam and td)",
+               "closed_form_wheel_radius_m": sec["effective_wheel_radius_m"],
+               "closed_form_track_width_m": sec["effective_track_width_m"], "base_source": sec["base_source"]}
+    else:
+        sec = {"wheel_radius_m": sec["effective_wheel_radius_m"] or odo.wheel_radius,
+               "track_width_m": sec["effective_track_width_m"] or odo.track_width,
+               "wheel_radius_sigma_m": None, "track_width_sigma_m": None, **sec}
     out: dict[str, Any] = {"odometry": sec}
     wo = run.recording_info.get("wheel_order")
     if wo is not None:
@@ -207,12 +246,22 @@ def calibration_result(run: Run) -> CalibrationResult:
     td = td + run.clock_offset_s  # the camera track was shifted onto the odometry clock by that much
     problems = problems_of_run(run, T_base_cam=T)
     ok = not problems
-    height = HEIGHT_FROM_USER if run.options.refine.camera_height is not None else HEIGHT_UNMEASURED
+    height = height_source(run)
     obs = observability_rows(run)
+    if height is None:
+        for row in obs:
+            if row["name"] == "z":
+                row["status"] = "unobservable"
+                row["note"] = ("The camera height is not observable from driving on a flat floor; it is unknown and "
+                               "written as 0. Measure it and pass --camera-height (or the board's --board-height).")
     mount = run.options.mount
+    extra: dict[str, Any] = {"source": source, "translation_z_source": height or HEIGHT_UNMEASURED,
+                             **robot_sections(run)}
     calib = calibration_dict(T, td, cov, obs, parent_frame=mount.parent_frame, child_frame=mount.child_frame,
-                             extra={"source": source, "translation_z_source": height, **robot_sections(run)},
-                             ok=ok, problems=problems)
+                             extra=extra, ok=ok, problems=problems, z_known=height is not None)
+    if height is None:
+        T = T.copy()
+        T[2, 3] = 0.0
     cf = run.closed_form
     methods = method_rows(run)
     errs = truth_errors(run)

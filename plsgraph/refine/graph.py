@@ -34,7 +34,13 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 
-from factors.odometry import OdometryNoise, make_odometry_factors, path_increments
+from factors.odometry import (
+    OdometryNoise,
+    PlanarSteps,
+    make_odometry_factors,
+    make_scaled_odometry_factors,
+    path_increments,
+)
 from factors.planar import make_planar_factor
 from factors.priors import make_height_prior, make_rotation_prior, make_subspace_prior, make_vertical_board_prior
 from factors.reprojection import FrameBatch, OdometryDetail, ReprojectionFrames, make_reprojection_factors
@@ -57,6 +63,7 @@ log = logging.getLogger(__name__)
 KEY_CAM = gtsam.symbol("c", 0)
 KEY_BOARD = gtsam.symbol("b", 0)
 KEY_TD = gtsam.symbol("t", 0)
+KEY_SCALE = gtsam.symbol("s", 0)  # odometry intrinsics (s_v, s_w): arc-length and heading-change factors
 # Sigma (in prior sigmas) of the prior that holds unobservable directions at the seed during the solve.
 _FREEZE_SIGMA = 1e-3
 
@@ -75,6 +82,21 @@ class RefinementOptions:
     robust_k: float = 1.5  # threshold relative to a frame's expected whitened norm (see reprojection_noise)
     min_points: int = 6
     odometry_noise: OdometryNoise = field(default_factory=OdometryNoise)
+    # Odometry intrinsics in the graph: the odometry's arc lengths are scaled by s_v (effective / nominal wheel
+    # radius) and its heading changes by s_w ((r / b) / (r0 / b0)), with priors around the nominal values (1, 1).
+    # A skid-steer robot's effective track is 1.2-2x the geometric one, hence the wide prior on s_w.
+    estimate_odometry_scale: bool = True
+    speed_scale_prior_sigma: float = 0.05  # relative (wheel radius)
+    turn_scale_prior_sigma: float = 1.0  # relative (track width)
+    scale_rebuild_tol: float = 1e-3  # rebuild the odometry detail between knots when a scale moved this much
+    # Odometry stamps that jitter about a regular clock (the message stamped on arrival, the wheels sampled on a
+    # timer) are put back on that clock: jittered stamps bias td and the lever arm (docs/refinement.md).
+    regularize_odometry_stamps: bool = True
+    # Before the graph, td is searched within seed +- td_search_s by matching how far the camera and the base turn
+    # over short intervals (scale-free in the turn rate); a wrong seed td otherwise leaves the graph in a local
+    # minimum (docs/refinement.md). 0 disables the search.
+    td_search_s: float = 0.6
+    td_search_replace_s: float = 0.02  # the search's td replaces the seed only when this far from it
     planar: bool = True
     planar_sigma_z: float = 0.005
     planar_sigma_tilt: float = 0.005
@@ -111,11 +133,21 @@ class RefinementOptions:
     odometry_smoothing_s: float = 0.1
     marginals: bool = True
     scale_covariance: bool = True  # inflate the covariance by chi2/dof when the fit is worse than sigma_px says
+    # Second opinion on the covariance: the factors are independent in the model, but detection errors of
+    # consecutive windows and wheel slip are correlated in time. The covariance is multiplied by the integrated
+    # autocorrelation time of the whitened residuals (reprojection over frames, odometry over edges; the larger),
+    # i.e. samples / effective samples (docs/refinement.md, "Honest uncertainty").
+    inflate_correlated: bool = True
+    max_inflation: float = 100.0
+    # Disagreement with the seed: assumed 1-sigma of the closed form (it gives none), combined with the refinement's.
+    seed_sigma_rot: float = np.radians(1.0)
+    seed_sigma_td: float = 0.01
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.td_model_sigma) and self.td_model_sigma >= 0):
             raise InputError("refinement option td_model_sigma must be >= 0")
-        pos = ("sigma_px", "robust_k", "planar_sigma_z", "planar_sigma_tilt", "anchor_sigma", "reg_sigma_rot",
+        pos = ("sigma_px", "robust_k", "speed_scale_prior_sigma", "turn_scale_prior_sigma",
+               "planar_sigma_z", "planar_sigma_tilt", "anchor_sigma", "reg_sigma_rot",
                "reg_sigma_trans", "reg_sigma_td", "camera_height_sigma", "board_height_sigma", "board_vertical_sigma")
         for name in pos:
             v = getattr(self, name)
@@ -163,6 +195,12 @@ class RefinementResult:
     timing: dict = field(default_factory=dict)
     seed_T_base_cam: np.ndarray | None = None
     seed_td: float = float("nan")
+    # Odometry intrinsics (see odometry_report): scales, their covariance, effective radius / track and status.
+    odometry: dict | None = None
+    # Quantity -> |refined - seed| in sigmas of their difference, for quantities where refinement and closed form
+    # disagree beyond what both uncertainties allow (see disagreement_with_seed); empty when they agree.
+    disagreement: dict = field(default_factory=dict)
+    inflation: dict = field(default_factory=dict)  # autocorrelation times and the covariance factor applied
 
     @property
     def R_base_cam(self) -> np.ndarray:
@@ -209,6 +247,9 @@ class RefinementResult:
             "warnings": list(self.warnings),
             "priors": dict(self.priors),
             "timing": dict(self.timing),
+            "odometry": None if self.odometry is None else dict(self.odometry),
+            "disagreement": dict(self.disagreement),
+            "inflation": dict(self.inflation),
         }
 
 
@@ -227,6 +268,21 @@ class _Problem:
     odo_T: np.ndarray
     n_dropped: int
     warnings: tuple[str, ...]
+    steps: PlanarSteps | None = None  # the nominal odometry's steps (None: intrinsics not estimated)
+    scale: tuple[float, float] = (1.0, 1.0)  # (s_v, s_w) the odometry poses above were rescaled with
+
+
+def scaled_base_track(base_track: BaseTrack, s_v: float, s_w: float, steps: PlanarSteps | None = None,
+                      at: int = 0) -> BaseTrack:
+    """The base track with arc lengths scaled by ``s_v`` and heading changes by ``s_w`` (planar), equal to the
+    given one at sample ``at``."""
+    if s_v == 1.0 and s_w == 1.0:
+        return base_track
+    steps = steps or PlanarSteps.from_poses(base_track.T_world_base)
+    T0 = base_track.T_world_base
+    T = steps.poses(T0[0], s_v, s_w)
+    T = T0[at] @ inv_T(T[at]) @ T
+    return BaseTrack(base_track.t, T, base_track.v * s_v, base_track.omega * s_w, info=dict(base_track.info))
 
 
 def _check_seed(seed_T_base_cam: np.ndarray, seed_td: float) -> tuple[np.ndarray, float]:
@@ -244,6 +300,106 @@ def _check_seed(seed_T_base_cam: np.ndarray, seed_td: float) -> tuple[np.ndarray
     return T, td
 
 
+def regular_stamps(t: np.ndarray, gap_factor: float = 2.5, max_dev: float = 0.45) -> tuple[np.ndarray, float]:
+    """Stamps of a regularly sampled stream with their jitter removed, and the jitter's std (s).
+
+    Per stretch between gaps (steps longer than ``gap_factor`` median steps) the stamps are fitted by a straight
+    line over the sample index (a regular clock, its rate free); the stretch keeps its stamps unless every
+    deviation from the line is below ``max_dev`` of a step (jitter, not irregular sampling). The result stays
+    strictly increasing. Returns the original stamps when nothing qualifies.
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size < 10:
+        return t, 0.0
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    cuts = np.r_[0, np.flatnonzero(dt > gap_factor * med) + 1, t.size]
+    out = t.copy()
+    dev = []
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        if b - a < 10:
+            continue
+        i = np.arange(b - a, dtype=float)
+        A = np.stack([i, np.ones_like(i)], axis=1)
+        c = np.linalg.lstsq(A, t[a:b], rcond=None)[0]
+        fit = A @ c
+        r = t[a:b] - fit
+        if np.max(np.abs(r)) < max_dev * c[0] and c[0] > 0:
+            out[a:b] = fit
+            dev.append(r)
+    if not dev or np.any(np.diff(out) <= 0):
+        return t, 0.0
+    return out, float(np.std(np.concatenate(dev)))
+
+
+def turn_angle_td_search(camera_track: CameraTrack, base_track: BaseTrack, td0: float, half: float,
+                         interval_s: float = 0.25, step: float = 0.005) -> tuple[float, float, float] | None:
+    """td (s) within ``td0 +- half`` at which the camera's and the base's turn angles over ``interval_s`` agree
+    best, the turn-rate scale s_w that matches them, and the relative residual there; None when the recording
+    has too little turning or the best td lies at the border of the range.
+
+    The angle the camera turns between two of its poses equals the angle the base turns (a rigid mount, planar
+    motion), whatever R_base_cam; the odometry's angle is off by the turn scale s_w, which is fitted per
+    candidate (least squares), so the search depends neither on the rotation seed nor on the track width.
+    """
+    t = camera_track.t
+    R = camera_track.T_board_cam[:, :3, :3]
+    j = np.searchsorted(t, t + interval_s)
+    ok = j < t.size
+    i = np.flatnonzero(ok)
+    j = j[ok]
+    ok = np.abs(t[j] - t[i] - interval_s) < 0.2 * interval_s
+    i, j = i[ok], j[ok]
+    tb = base_track.t
+    ok = (t[i] + td0 - half >= tb[0]) & (t[j] + td0 + half <= tb[-1])
+    i, j = i[ok], j[ok]
+    if i.size < 20:
+        return None
+    w_ij = so3_log(np.einsum("nji,njk->nik", R[i], R[j]))  # camera rotations over the intervals (camera axes)
+    # Planar motion: every one of them turns about the same axis, the vertical in camera axes - the dominant
+    # direction of the rotation vectors, found without td or R_base_cam. The signed angle about it is far less
+    # noisy than the magnitude (PnP's out-of-plane rotation noise of a small board is large).
+    axis = np.linalg.svd(w_ij, full_matrices=False)[2][0]
+    a = w_ij @ axis
+    Tb = base_track.T_world_base
+    th = np.unwrap(np.arctan2(Tb[:, 1, 0], Tb[:, 0, 0]))
+    if np.sqrt(np.mean(a**2)) < 0.02:  # hardly any turning: td is not seen this way
+        return None
+    db0 = np.interp(t[j] + td0, tb, th) - np.interp(t[i] + td0, tb, th)
+    if a @ db0 < 0:
+        a = -a
+    k_rad = 0.01  # Huber threshold (rad): about the turn-angle error of two poses plus odometry slip
+
+    def cost(td: float) -> tuple[float, float]:
+        b = np.interp(t[j] + td, tb, th) - np.interp(t[i] + td, tb, th)
+        # Robust (Huber, IRLS) fit of the turn scale: pairs across a bad pose (a flipped PnP solution) or a slip
+        # must not decide; the cost is in units of a fixed angle so that all candidates compare alike.
+        w = np.ones_like(a)
+        for _ in range(4):
+            s = float((w * a) @ b / max((w * b) @ b, 1e-12))
+            r = a - s * b
+            w = np.minimum(1.0, k_rad / np.maximum(np.abs(r), 1e-12))
+        rho = np.where(np.abs(r) <= k_rad, r**2, 2 * k_rad * np.abs(r) - k_rad**2)
+        return float(np.mean(rho)), s
+
+    grid = td0 + np.arange(-half, half + 0.5 * step, step)
+    c = np.array([cost(float(x))[0] for x in grid])
+    k = int(np.argmin(c))
+    if k == 0 or k == grid.size - 1:
+        return None
+    fine = grid[k] + np.arange(-step, step + 1e-9, step / 10)
+    cf = np.array([cost(float(x))[0] for x in fine])
+    m = int(np.argmin(cf))
+    td = float(fine[m])
+    if 0 < m < fine.size - 1:
+        y0, y1, y2 = cf[m - 1 : m + 2]
+        den = y0 - 2 * y1 + y2
+        if den > 0:
+            td += 0.5 * (step / 10) * (y0 - y2) / den
+    val, s_w = cost(td)
+    return td, s_w, val
+
+
 def _select_knots(base_track: BaseTrack, t_lo: float, t_hi: float, rate: float | None) -> np.ndarray:
     t = base_track.t
     i0 = int(max(0, np.searchsorted(t, t_lo, "right") - 1))
@@ -258,8 +414,21 @@ def _select_knots(base_track: BaseTrack, t_lo: float, t_hi: float, rate: float |
     return idx
 
 
+def _rescaled(prob: _Problem, scale: tuple[float, float], opt: RefinementOptions) -> _Problem:
+    """The problem with its odometry poses (knots' odometry, detail between knots) rebuilt for ``scale``."""
+    import dataclasses
+
+    k0 = int(prob.knot_idx[0])
+    track = scaled_base_track(prob.base_track, scale[0], scale[1], prob.steps, at=k0)
+    dt = float(np.median(np.diff(prob.odo_t)))
+    half = int(round(0.5 * opt.odometry_smoothing_s / dt)) if opt.odometry_smoothing_s > 0 else 0
+    return dataclasses.replace(prob, T_knots_odo=track.T_world_base[prob.knot_idx],
+                               odo_T=smooth_poses(track.T_world_base, half), scale=(float(scale[0]), float(scale[1])))
+
+
 def _prepare(
-    camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, seed_td: float, opt: RefinementOptions
+    camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, seed_td: float, opt: RefinementOptions,
+    scale: tuple[float, float] = (1.0, 1.0),
 ) -> _Problem:
     det = camera_track.detections
     if det is None or len(det) == 0:
@@ -270,6 +439,12 @@ def _prepare(
     if len(base_track) < 2:
         raise InsufficientDataError("refine: the base track has fewer than 2 odometry samples")
     warnings: list[str] = []
+    if opt.regularize_odometry_stamps:
+        t_reg, jitter = regular_stamps(base_track.t)
+        if jitter > 0:
+            log.info("odometry stamps put on a regular clock (jitter %.2f ms)", 1e3 * jitter)
+            base_track = BaseTrack(t_reg, base_track.T_world_base, base_track.v, base_track.omega,
+                                   info=dict(base_track.info, stamp_jitter_s=jitter))
     n_valid = np.all(np.isfinite(det.uv), axis=-1).sum(axis=1)
     tau = det.t + seed_td
     t_odo = base_track.t
@@ -301,7 +476,7 @@ def _prepare(
     frames = ReprojectionFrames(t, np.zeros(t.size), np.ones(t.size), det.uv[keep], det.board_points, camera)
     dt = float(np.median(np.diff(t_odo)))
     half = int(round(0.5 * opt.odometry_smoothing_s / dt)) if opt.odometry_smoothing_s > 0 else 0
-    return _Problem(
+    prob = _Problem(
         frames=frames,
         frame_t=t,
         knot_idx=knot_idx,
@@ -312,7 +487,11 @@ def _prepare(
         odo_T=smooth_poses(base_track.T_world_base, half),
         n_dropped=int((~keep).sum()),
         warnings=tuple(warnings),
+        steps=PlanarSteps.from_poses(base_track.T_world_base) if opt.estimate_odometry_scale else None,
     )
+    if opt.estimate_odometry_scale and tuple(scale) != (1.0, 1.0):
+        prob = _rescaled(prob, scale, opt)
+    return prob
 
 
 def smooth_poses(T: np.ndarray, half: int) -> np.ndarray:
@@ -418,17 +597,34 @@ def _add_priors(graph: gtsam.NonlinearFactorGraph, C0: np.ndarray, td0: float, o
         graph.add(make_vertical_board_prior(KEY_BOARD, opt.board_vertical_sigma))
 
 
+def _scaled_noise(noise: OdometryNoise, var_factor: float) -> OdometryNoise:
+    import dataclasses
+
+    k = float(np.sqrt(var_factor))
+    return dataclasses.replace(noise, **{f.name: getattr(noise, f.name) * k for f in dataclasses.fields(noise)})
+
+
 def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: RefinementOptions,
-                 C_prior: np.ndarray, td_prior: float, R_prior: np.ndarray):
+                 C_prior: np.ndarray, td_prior: float, R_prior: np.ndarray, rep_var: float = 1.0,
+                 odo_var: float = 1.0):
+    """The factor graph; ``rep_var`` / ``odo_var`` multiply the variances of the reprojection / odometry factors
+    (used for the covariance under correlated errors, see correlation_inflation)."""
     frames, kidx = _brackets(prob, td_bracket, rows)
     keys = np.array([knot_key(k) for k in range(prob.knot_t.size)], dtype=np.int64)
     batch = FrameBatch(frames, keys, kidx, KEY_CAM, KEY_BOARD, KEY_TD)
     graph = gtsam.NonlinearFactorGraph()
-    for f in make_reprojection_factors(batch, opt.sigma_px, opt.robust, opt.robust_k):
+    for f in make_reprojection_factors(batch, opt.sigma_px * np.sqrt(rep_var), opt.robust, opt.robust_k):
         graph.add(f)
+    noise = opt.odometry_noise if odo_var == 1.0 else _scaled_noise(opt.odometry_noise, odo_var)
     d, a = path_increments(prob.base_track.t, prob.base_track.T_world_base, prob.knot_idx)
-    for f in make_odometry_factors(keys, prob.T_knots_odo, d, a, opt.odometry_noise):
-        graph.add(f)
+    if prob.steps is not None:
+        for f in make_scaled_odometry_factors(keys, KEY_SCALE, prob.steps, prob.knot_idx, d, a, noise):
+            graph.add(f)
+        sig = np.array([opt.speed_scale_prior_sigma, opt.turn_scale_prior_sigma])
+        graph.add(gtsam.PriorFactorVector(KEY_SCALE, np.ones(2), gtsam.noiseModel.Diagonal.Sigmas(sig)))
+    else:
+        for f in make_odometry_factors(keys, prob.T_knots_odo, d, a, noise):
+            graph.add(f)
     if opt.planar:
         for k in keys:
             graph.add(make_planar_factor(int(k), opt.planar_sigma_z, opt.planar_sigma_tilt, 0.0))
@@ -538,6 +734,8 @@ def _optimize(graph, initial: gtsam.Values, opt: RefinementOptions, progress=Non
 
 def _values(prob: _Problem, T_knots: np.ndarray, C: np.ndarray, B: np.ndarray, td: float) -> gtsam.Values:
     v = gtsam.Values()
+    if prob.steps is not None:
+        v.insert(KEY_SCALE, np.array(prob.scale, dtype=float))
     for k in range(prob.knot_t.size):
         v.insert(knot_key(k), gtsam.Pose3(T_knots[k]))
     v.insert(KEY_CAM, gtsam.Pose3(C))
@@ -629,13 +827,24 @@ def _prior_information(opt: RefinementOptions, user_priors: bool = True) -> np.n
 
 
 def _calibration_covariance(graph, values: gtsam.Values, C: np.ndarray, chi2: float,
-                            opt: RefinementOptions) -> tuple[np.ndarray, np.ndarray]:
-    """Marginal covariance of (T_base_cam, td) in GTSAM axes and in base (user) axes."""
-    cov = joint_marginal_covariance(graph, values, [KEY_CAM, KEY_TD])
+                            opt: RefinementOptions, with_scale: bool = False):
+    """Marginal covariance of (T_base_cam, td) in GTSAM axes and in base (user) axes; with ``with_scale`` also
+    the joint 9 x 9 covariance of (user axes, s_v, s_w) (None without the odometry intrinsics)."""
+    has_scale = values.exists(KEY_SCALE)
+    keys = [KEY_CAM, KEY_TD] + ([KEY_SCALE] if has_scale else [])
+    full = joint_marginal_covariance(graph, values, keys)
     if opt.scale_covariance and chi2 > 1.0:
-        cov = cov * chi2
+        full = full * chi2
+    cov = full[:7, :7]
     J = user_axes_jacobian(C[:3, :3])
-    return cov, J @ cov @ J.T
+    if not with_scale:
+        return cov, J @ cov @ J.T
+    joint = None
+    if has_scale:
+        J9 = np.eye(9)
+        J9[:7, :7] = J
+        joint = J9 @ full @ J9.T
+    return cov, J @ cov @ J.T, joint
 
 
 def _new_unobservable(
@@ -665,7 +874,8 @@ def _new_unobservable(
     return out
 
 
-def _honest_covariance(cov_user: np.ndarray, opt: RefinementOptions, frozen: bool) -> np.ndarray:
+def _honest_covariance(cov_user: np.ndarray, opt: RefinementOptions, frozen: bool,
+                       cov_decide: np.ndarray | None = None) -> np.ndarray:
     """The reported covariance: directions held at the seed get the regulariser's sigma back, td its model floor.
 
     A direction the solve held at the seed carries the seed's value, so the data's (weak) information on it
@@ -677,9 +887,17 @@ def _honest_covariance(cov_user: np.ndarray, opt: RefinementOptions, frozen: boo
     cov = 0.5 * (cov_user + cov_user.T)
     if frozen and opt.freeze_unobservable:
         Lp = _prior_information(opt, user_priors=False)
-        lam, V = scipy.linalg.eigh(np.linalg.inv(cov), Lp)  # V^T Lp V = I, cov = V diag(1/lam) V^T
-        lam = np.where(1.0 / np.sqrt(np.maximum(lam, 1e-300)) >= opt.freeze_ratio, 1.0, lam)
-        cov = (V / lam) @ V.T
+        # Which directions are held is decided on ``cov_decide`` (the covariance before the inflation for correlated
+        # errors, which must not turn a determined direction into a held one); they get the prior back in ``cov``.
+        dec = cov if cov_decide is None else 0.5 * (cov_decide + cov_decide.T)
+        lam, V = scipy.linalg.eigh(np.linalg.inv(dec), Lp)  # V^T Lp V = I, dec = V diag(1/lam) V^T
+        held = 1.0 / np.sqrt(np.maximum(lam, 1e-300)) >= opt.freeze_ratio
+        Vi = np.linalg.inv(V)
+        Cv = Vi @ cov @ Vi.T  # cov in the same coordinates
+        Cv[held, :] = 0.0
+        Cv[:, held] = 0.0
+        Cv[held, held] = 1.0
+        cov = V @ Cv @ V.T
     cov = cov.copy()
     cov[6, 6] += opt.td_model_sigma**2
     return cov
@@ -711,6 +929,7 @@ def refine(
     seed_td: float,
     options: RefinementOptions | None = None,
     progress: Callable[[int, int], None] | None = None,
+    seed_odometry_scale: tuple[float, float] | None = None,
 ) -> RefinementResult:
     """Refine T_base_cam and td jointly with the base trajectory and the board pose.
 
@@ -728,12 +947,26 @@ def refine(
     opt = options or RefinementOptions()
     t_start = time.perf_counter()
     C_seed, td_seed = _check_seed(seed_T_base_cam, seed_td)
-    prob = _prepare(camera_track, base_track, camera, td_seed, opt)
+    scale0 = _check_scale(seed_odometry_scale) if opt.estimate_odometry_scale else (1.0, 1.0)
+    td_given = td_seed
+    if opt.td_search_s > 0:
+        found = turn_angle_td_search(camera_track, base_track, td_seed, opt.td_search_s)
+        # The search escapes a wrong correlation peak (tens to hundreds of ms off); closer than td_search_replace_s
+        # the graph's own estimate is the finer one (replacing a good seed by the search cost 0.25 deg of yaw on an
+        # ideal recording), so the seed stays.
+        if found is not None and abs(found[0] - td_seed) > opt.td_search_replace_s:
+            log.info("refine: td seed %.4f s -> %.4f s (turn-angle search)", td_seed, found[0])
+            if opt.estimate_odometry_scale:
+                # The seed's odometry scales were fitted at the wrong td: start from nominal speed and this turn scale.
+                scale0 = (1.0, float(np.clip(found[1], 0.3, 3.0)))
+            td_seed = found[0]
+    prob = _prepare(camera_track, base_track, camera, td_seed, opt, scale0)
     warnings = list(prob.warnings)
     t_guess = C_seed[:3, 3].copy()
     if opt.camera_height is not None:
         t_guess[2] = opt.camera_height
-    t_C, B0 = seed_translation_and_board(camera_track, base_track, C_seed[:3, :3], td_seed, t_guess)
+    seed_track = scaled_base_track(prob.base_track, *scale0, prob.steps, at=int(prob.knot_idx[0]))
+    t_C, B0 = seed_translation_and_board(camera_track, seed_track, C_seed[:3, :3], td_seed, t_guess)
     C0 = make_T(C_seed[:3, :3], t_C)
     seed_values = _values(prob, prob.T_knots_odo, C0, B0, td_seed)
     values = seed_values
@@ -750,7 +983,7 @@ def refine(
     td_bracket = td_seed
     frozen: list[np.ndarray] = []
     t_opt = 0.0
-    cov = cov_base = cov_check = None
+    cov = cov_base = None
     for pas in range(opt.max_passes):
         graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3])
         if initial_error is None:
@@ -784,20 +1017,25 @@ def refine(
             rows = rows[~bad]
         if moved:
             td_bracket = td_now
-        cov_check = None
-        if bad.any() or moved:
+        rescaled = False
+        if prob.steps is not None:
+            s_now = values.atVector(KEY_SCALE)
+            if np.max(np.abs(s_now / np.array(prob.scale) - 1.0)) > opt.scale_rebuild_tol:
+                # The detail between knots was built from the odometry at the old scales: rebuild it.
+                prob = _rescaled(prob, (float(s_now[0]), float(s_now[1])), opt)
+                rescaled = True
+        if bad.any() or moved or rescaled:
             continue
         if not (converged and opt.freeze_unobservable and opt.marginals):
             settled = True
             break
         # Check again at the solution; a direction found only now is frozen and the solve starts over.
-        new, cov_check = _unobservable_at(graph, values, opt, frozen, warnings)
+        new = _unobservable_at(graph, values, opt, frozen, warnings)[0]
         if not new:
             settled = True
             break
         frozen += new
         values = seed_values
-        cov_check = None
         log.info("refine: %d direction(s) not observable; holding them at the seed and solving again", len(new))
     if not settled:
         warnings.append("outlier rejection / re-bracketing / freezing did not settle within max_passes")
@@ -829,20 +1067,23 @@ def refine(
         )
 
     t1 = time.perf_counter()
-    cov = cov_base = None
+    cov = cov_base = joint = cov_plain = None
+    inflation: dict = {}
     report: ObservabilityReport | None = None
     if converged and opt.marginals:
         try:
-            if cov_check is not None:  # computed at these values on this same graph by the last check
-                cov = cov_check * (chi2 if opt.scale_covariance and chi2 > 1.0 else 1.0)
-                J = user_axes_jacobian(C[:3, :3])
-                cov_base = J @ cov @ J.T
-            else:
-                cov, cov_base = _calibration_covariance(final_graph, values, C, chi2, opt)
+            cov_graph = final_graph
+            if opt.inflate_correlated:
+                inflation = correlation_inflation(final_graph, batch, values, opt)
+                cov_graph = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
+                                         inflation["reprojection_autocorrelation_time"],
+                                         inflation["odometry_autocorrelation_time"])[0]
+                cov_plain = _calibration_covariance(final_graph, values, C, chi2, opt)[1]
+            cov, cov_base, joint = _calibration_covariance(cov_graph, values, C, chi2, opt, with_scale=True)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
     if cov_base is not None:
-        cov_base = _honest_covariance(cov_base, opt, bool(frozen))
+        cov_base = _honest_covariance(cov_base, opt, bool(frozen), cov_plain)
         Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
         cov = Ji @ cov_base @ Ji.T
         report = observability_report(cov_base, prior_info, converged=True, regularized=True,
@@ -888,8 +1129,122 @@ def refine(
         timing={"setup_s": t_setup, "optimize_s": t_opt, "marginals_s": t_marg,
                 "total_s": time.perf_counter() - t_start},
         seed_T_base_cam=C_seed,
-        seed_td=td_seed,
+        seed_td=td_given,
+        odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
+        disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_given, opt),
+        inflation=inflation,
     )
+
+
+def autocorrelation_time(x: np.ndarray, max_lag: int = 60) -> float:
+    """Integrated autocorrelation time 1 + 2 sum_l rho_l of a multichannel series ``x`` (time first; NaN = missing),
+    the sum stopped at the first lag whose correlation is <= 0 (Geyer's initial positive sequence, simplified).
+
+    It is the factor by which correlated samples inflate the variance of a mean over them (1 for white noise).
+    """
+    x = np.asarray(x, dtype=float).reshape(len(x), -1)
+    n = x.shape[0]
+    if n < 4:
+        return 1.0
+    x = x - np.nanmean(x, axis=0)
+    ok = np.isfinite(x)
+    x0 = np.where(ok, x, 0.0)
+    var = float(np.sum(x0**2))
+    if var <= 0:
+        return 1.0
+    tau = 1.0
+    for lag in range(1, min(max_lag, n // 4) + 1):
+        both = ok[lag:] & ok[:-lag]
+        num = float(np.sum(np.where(both, x0[lag:] * x0[:-lag], 0.0)))
+        den = float(np.sqrt(np.sum(np.where(both, x0[lag:] ** 2, 0.0)) * np.sum(np.where(both, x0[:-lag] ** 2, 0.0))))
+        rho = num / den if den > 0 else 0.0
+        if rho <= 0.0:
+            break
+        tau += 2.0 * rho
+    return float(tau)
+
+
+def correlation_inflation(graph, batch: FrameBatch, values: gtsam.Values, opt: RefinementOptions) -> dict:
+    """Autocorrelation times of the reprojection residuals (over frames) and of the whitened odometry residuals
+    (over edges), each capped at ``max_inflation``: the covariance is that of the graph whose reprojection and
+    odometry variances are multiplied by them (information / effective-sample-size correction per source)."""
+    r = batch.evaluate_all(values, False).residual / opt.sigma_px  # (m, N, 2), frames in time order
+    tau_rep = autocorrelation_time(r.reshape(r.shape[0], -1))
+    odo = []
+    for i in range(graph.size()):
+        f = graph.at(i)
+        if isinstance(f, gtsam.BetweenFactorPose3) or (
+            isinstance(f, gtsam.CustomFactor) and f.dim() == 6 and len(f.keys()) == 3
+            and gtsam.Symbol(f.keys()[2]).chr() == ord("s")
+        ):
+            odo.append(f.whitenedError(values))
+    tau_odo = autocorrelation_time(np.array(odo)) if len(odo) >= 4 else 1.0
+    return {"reprojection_autocorrelation_time": float(np.clip(tau_rep, 1.0, opt.max_inflation)),
+            "odometry_autocorrelation_time": float(np.clip(tau_odo, 1.0, opt.max_inflation))}
+
+
+def disagreement_with_seed(res_T: np.ndarray, res_td: float, cov_base: np.ndarray, seed_T: np.ndarray,
+                           seed_td: float, opt: RefinementOptions, limit: float = 3.0) -> dict[str, float]:
+    """Quantities (roll, pitch, yaw, td) on which the refinement and its seed differ by more than ``limit``
+    combined sigmas (the refinement's and the assumed ``seed_sigma_*`` of the closed form), in those sigmas."""
+    d = so3_log(res_T[:3, :3] @ seed_T[:3, :3].T)  # base axes
+    out = {}
+    for k, ax in enumerate(("roll", "pitch", "yaw")):
+        z = abs(float(d[k])) / float(np.sqrt(cov_base[k, k] + opt.seed_sigma_rot**2))
+        if z > limit:
+            out[ax] = round(z, 2)
+    z = abs(res_td - seed_td) / float(np.sqrt(cov_base[6, 6] + opt.seed_sigma_td**2))
+    if z > limit:
+        out["td"] = round(z, 2)
+    return out
+
+
+def _check_scale(scale) -> tuple[float, float]:
+    if scale is None:
+        return (1.0, 1.0)
+    s = np.asarray(scale, dtype=float).ravel()
+    if s.size != 2 or not np.all(np.isfinite(s)) or np.any(s <= 0.2) or np.any(s >= 5.0):
+        raise InputError(f"seed_odometry_scale must be two finite factors (speed, turn rate) in (0.2, 5), got {scale}")
+    return float(s[0]), float(s[1])
+
+
+def odometry_report(values: gtsam.Values, joint: np.ndarray | None, info: dict, opt: RefinementOptions,
+                    seed: tuple[float, float]) -> dict:
+    """The odometry intrinsics the refinement estimated: scale factors, effective wheel radius and track width
+    (when the nominal ones are known), their sigmas and how much the data (not the prior) determined them.
+
+    ``wheel_radius = r0 s_v`` and ``track_width = b0 s_v / s_w`` (the closed form's definition). Status per
+    intrinsic as for the calibration: posterior / prior sigma <= 0.1 observable, >= 0.5 unobservable.
+    """
+    s = values.atVector(KEY_SCALE)
+    s_v, s_w = float(s[0]), float(s[1])
+    out: dict = {"speed_scale": s_v, "turn_scale": s_w, "seed_speed_scale": seed[0], "seed_turn_scale": seed[1]}
+    S = None if joint is None else joint[7:, 7:]
+    if S is not None:
+        out["speed_scale_sigma"] = float(np.sqrt(S[0, 0]))
+        out["turn_scale_sigma"] = float(np.sqrt(S[1, 1]))
+    r0, b0 = info.get("wheel_radius"), info.get("track_width")
+    if r0 and b0:
+        out["wheel_radius_nominal_m"] = float(r0)
+        out["track_width_nominal_m"] = float(b0)
+        out["wheel_radius_m"] = float(r0 * s_v)
+        out["track_width_m"] = float(b0 * s_v / s_w)
+        if S is not None:
+            jb = np.array([b0 / s_w, -b0 * s_v / s_w**2])
+            out["wheel_radius_sigma_m"] = float(r0 * np.sqrt(S[0, 0]))
+            out["track_width_sigma_m"] = float(np.sqrt(jb @ S @ jb))
+    if S is not None:
+        from .observability import OBSERVABLE_RATIO, UNOBSERVABLE_RATIO
+
+        def status(ratio: float) -> str:
+            return "observable" if ratio <= OBSERVABLE_RATIO else "unobservable" if ratio >= UNOBSERVABLE_RATIO \
+                else "weak"
+
+        # Relative sigma of the radius (= that of s_v) and of the track (s_v / s_w) against their priors.
+        rel_b = float(np.sqrt(np.array([1 / s_v, -1 / s_w]) @ S @ np.array([1 / s_v, -1 / s_w])))
+        out["status"] = {"wheel_radius": status(float(np.sqrt(S[0, 0])) / opt.speed_scale_prior_sigma),
+                         "track_width": status(rel_b / opt.turn_scale_prior_sigma)}
+    return out
 
 
 def _prior_notes(opt: RefinementOptions, frozen: list[np.ndarray]) -> dict[str, str]:

@@ -49,17 +49,27 @@ def to_jsonable(obj: Any) -> Any:
     return obj
 
 
-def ros_static_transform(T_base_cam: np.ndarray, parent: str = "base_link", child: str = "event_camera") -> str:
-    """A ready-to-paste ROS 2 static transform publisher line for T_base_cam."""
+def ros_static_transform(T_base_cam: np.ndarray, parent: str = "base_link", child: str = "event_camera",
+                         z_known: bool = True) -> str:
+    """A ready-to-paste ROS 2 static transform publisher line for T_base_cam.
+
+    Without ``z_known`` (planar driving never observes the camera height) z is written as 0 with a shell comment
+    saying it must be measured.
+    """
     T = np.asarray(T_base_cam, dtype=float)
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
     x, y, z = T[:3, 3]
-    return (
+    if not z_known:
+        z = 0.0
+    line = (
         "ros2 run tf2_ros static_transform_publisher "
         f"--x {x:.6f} --y {y:.6f} --z {z:.6f} "
         f"--qx {q[0]:.9f} --qy {q[1]:.9f} --qz {q[2]:.9f} --qw {q[3]:.9f} "
         f"--frame-id {parent} --child-frame-id {child}"
     )
+    if not z_known:
+        line += "  # z unknown (not observable from driving on a floor): measure the camera height and set --z"
+    return line
 
 
 def calibration_dict(
@@ -72,14 +82,18 @@ def calibration_dict(
     extra: Mapping[str, Any] | None = None,
     ok: bool = True,
     problems: list[str] | tuple[str, ...] = (),
+    z_known: bool = True,
 ) -> dict:
     """The content of calibration.yaml (also embedded in report.json under ``calibration``).
 
     ``ok`` and ``problems`` come first, so whoever reads only this file sees a flagged result; a flagged one has
-    no ready-to-paste transform line, only a comment saying why not to use it."""
-    T = np.asarray(T_base_cam, dtype=float)
+    no ready-to-paste transform line, only a comment saying why not to use it. Without ``z_known`` the
+    translation's z is written as 0 and ``translation_z_status: unknown``."""
+    T = np.asarray(T_base_cam, dtype=float).copy()
+    if not z_known:
+        T[2, 3] = 0.0
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
-    tf = ros_static_transform(T, parent_frame, child_frame) if ok else (
+    tf = ros_static_transform(T, parent_frame, child_frame, z_known) if ok else (
         "# NOT FOR USE: this result is flagged (see problems); fix the input and calibrate again")
     d: dict[str, Any] = {
         "ok": bool(ok),
@@ -98,6 +112,7 @@ def calibration_dict(
             "matrix": None if covariance is None else np.asarray(covariance, dtype=float).tolist(),
         },
         "observability": list(observability or []),
+        "translation_z_status": "measured" if z_known else "unknown",
         "ros_static_transform": tf,
     }
     if extra:
