@@ -787,6 +787,31 @@ def track_by_fitting(
     reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_rms_px)
     if reason != REASON_OK:
         return _fail(n, reason, rms)
+    # A prediction off by a whole lattice step would label every circle as its neighbour, and that also fits a
+    # homography. It would leave a row of real circles unlabelled just beyond the board's edge: refuse when
+    # any site one step beyond the board holds a circle, or when too few of those sites are in view to tell
+    # (unless every circle was found: 44 real circles cannot sit on a shifted board).
+    _, beyond, which = _shift_tables(board)
+    b = beyond[which < len(_STEPS)]
+    H, _ = cv2.findHomography(board.points[good, :2], c[good], 0)
+    if H is None:
+        return _fail(n, REASON_ORDER)
+    bh = np.c_[b, np.ones(len(b))] @ H.T
+    bp = bh[:, :2] / bh[:, 2:]
+    h, w = active.shape
+    nn_med = float(np.nanmedian(nn))
+    margin = 0.5 * nn_med
+    vis = (bh[:, 2] > 0) & (bp[:, 0] >= margin) & (bp[:, 1] >= margin) & (bp[:, 0] < w - margin) & (
+        bp[:, 1] < h - margin)
+    if np.count_nonzero(good) < n and np.count_nonzero(vis) < 0.75 * len(b):
+        return _fail(n, REASON_AMBIGUOUS)
+    r_med = float(np.nanmedian(r_exp))
+    cb, rb, eb, nb = fit_circles(active, bp[vis], min(0.5 * nn_med, r_med + 2.0))
+    circle = (np.all(np.isfinite(cb), axis=1) & (np.linalg.norm(cb - bp[vis], axis=1) < nn_med / 3.0)
+              & (rb > 0.6 * r_med) & (rb < 1.7 * r_med + 0.5) & (eb < 0.3 * r_med + 0.5)
+              & (nb >= max(6.0, 0.4 * 2 * np.pi * r_med)))
+    if np.any(circle):
+        return _fail(n, REASON_AMBIGUOUS)
     return GridDetection(uv, True, REASON_OK, rms)
 
 

@@ -289,6 +289,23 @@ class _WindowJob:
                 order = _span_order(wanted)[:MAX_SPANS_PER_WINDOW]
             else:
                 order = [0]
+            still_n = STILL_RATE_FRACTION * (ref_rate or 0.0) * age0
+            if (self.hold_still and circles and last_uv is not None and ref_rate is not None and roi is not None
+                    and len(near) < 20 * still_n + 50 and len(self._clean(near, ba=True)) < still_n):
+                # Nothing moves around the board: it is where it was last seen (an event camera sees no change
+                # without motion). Held detections are marked in the window outcomes.
+                codes[k] = _CODE["held_still"]
+                t_det = tq * 1e-9 - 0.5 * period_s
+                if t_out and t_det <= t_out[-1]:
+                    codes[k] = _CODE["time_not_increasing"]
+                    skipped["time_not_increasing"] += 1
+                    continue
+                t_out.append(t_det)
+                k_out.append(k)
+                uv_out.append(last_uv)
+                prev = (int(tq), t_det, _complete_by_homography(last_uv, board))
+                predicted = prev[2]
+                continue
             img = None
             det = None
             for j in order:
@@ -340,22 +357,6 @@ class _WindowJob:
                     last_good = j
                     break
             if det is None or det.reason != REASON_OK:
-                still_n = STILL_RATE_FRACTION * (ref_rate or 0.0) * age0
-                if (self.hold_still and circles and last_uv is not None and ref_rate is not None and roi is not None
-                        and len(near) < 20 * still_n + 50 and len(self._clean(near, ba=True)) < still_n):
-                    # Nothing moves around the board: it is where it was last seen (an event camera sees no change
-                    # without motion). Held detections are marked in the window outcomes.
-                    codes[k] = _CODE["held_still"]
-                    t_det = tq * 1e-9 - 0.5 * period_s
-                    if t_out and t_det <= t_out[-1]:
-                        codes[k] = _CODE["time_not_increasing"]
-                        continue
-                    t_out.append(t_det)
-                    k_out.append(k)
-                    uv_out.append(last_uv)
-                    prev = (int(tq), t_det, _complete_by_homography(last_uv, board))
-                    predicted = prev[2]
-                    continue
                 reason = "too_few_events" if det is None else det.reason
                 skipped[reason] += 1
                 codes[k] = _CODE.get(reason, _CODE["grid_not_found"])
