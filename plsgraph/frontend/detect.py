@@ -688,13 +688,14 @@ def blob_candidates(active: np.ndarray, sigma: float, min_level: float = 0.25) -
 
 
 def fit_circles(active: np.ndarray, uv: np.ndarray, radius: np.ndarray, iterations: int = 2
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Circles fitted (algebraic least squares, Kasa) to the active pixels within ``radius`` (n,) of ``uv``.
 
     A rim's centre, unlike its centroid, does not move when part of the rim is missing (breaks where the
     edge runs along the motion). The disk is re-centred on the fit ``iterations`` times. Returns centres
-    (n, 2), radii (n,), RMS distance of the pixels from the circle (n,) and pixel counts (n,); a disk with
-    fewer than 6 pixels or a degenerate fit gives NaN.
+    (n, 2), radii (n,), RMS distance of the pixels from the circle (n,), pixel counts (n,) and the number of
+    the 8 sectors around the centre that hold pixels (n,) and the share of the pixels closer to the centre
+    than half the radius (n,); a disk with fewer than 6 pixels or a degenerate fit gives NaN.
     """
     uv0 = np.asarray(uv, dtype=float)
     n = uv0.shape[0]
@@ -739,18 +740,71 @@ def fit_circles(active: np.ndarray, uv: np.ndarray, radius: np.ndarray, iteratio
         dist = np.sqrt((x - d[:, :1]) ** 2 + (y - d[:, 1:]) ** 2)
         res = np.where(good, np.sqrt(S((dist - rad[:, None]) ** 2) / np.maximum(cnt, 1)), np.nan)
         c = np.where(good[:, None], cc + d, np.nan)
-    return c, rad, res, cnt
+    # Angular coverage: how many of 8 sectors around the fitted centre hold rim pixels (a ring with its two
+    # motion breaks covers 5 or more; an edge or a corner of the background at most about half).
+    ang = np.arctan2(y - d[:, 1:], x - d[:, :1])
+    sector = np.clip(((ang + np.pi) / (2 * np.pi) * 8).astype(int), 0, 7)
+    occ = np.zeros((n, 8), dtype=bool)
+    rows = np.repeat(np.arange(n), wt.shape[1]).reshape(wt.shape)
+    occ[rows[wt > 0], sector[wt > 0]] = True
+    # A rim's inside is empty; a line or a blob through the disk fills it.
+    inner = np.sum(wt * (dist < 0.5 * rad[:, None]), axis=1) / np.maximum(cnt, 1)
+    return c, rad, res, cnt, occ.sum(axis=1), np.where(good, inner, 1.0)
 
 
 def fit_circle_centres(active: np.ndarray, uv: np.ndarray, radius: np.ndarray) -> np.ndarray:
     """:func:`fit_circles` centres, keeping the input position where the fit failed or moved too far."""
     uv = np.asarray(uv, dtype=float)
-    c, _, _, _ = fit_circles(active, uv, radius, iterations=1)
+    c = fit_circles(active, uv, radius, iterations=1)[0]
     move = np.linalg.norm(c - uv, axis=1)
     use = np.isfinite(move) & (move < 0.5 * np.asarray(radius))
     out = uv.copy()
     out[use] = c[use]
     return out
+
+
+def edge_check(active: np.ndarray, uv: np.ndarray, board: Board) -> str:
+    """Refuse a labelling that a shift by one lattice step could explain: :data:`REASON_OK` or why not.
+
+    A labelling shifted by a lattice step (or turned onto another placement) still fits one homography, but
+    leaves real circles just beyond the board's edge, where the labelled board has none. Circles are fitted
+    (:func:`fit_circles`) to the activity image ``active`` at every site one step beyond the board; any circle
+    there refuses the labelling (``ambiguous_labels``), and so does a view in which fewer than 3/4 of those
+    sites are inside the image, unless every circle was labelled (a shifted board would need more circles
+    than the board has).
+    """
+    n = board.n_points
+    seen = np.all(np.isfinite(uv), axis=1)
+    if np.count_nonzero(seen) < 4:
+        return REASON_TOO_FEW
+    H, _ = cv2.findHomography(board.points[seen, :2], uv[seen], 0)
+    if H is None:
+        return REASON_ORDER
+    _, beyond, which = _shift_tables(board)
+    b = beyond[which < len(_STEPS)]
+    bh = np.c_[b, np.ones(len(b))] @ H.T
+    bp = bh[:, :2] / np.where(np.abs(bh[:, 2:]) > 1e-12, bh[:, 2:], 1e-12)
+    nn = float(np.median(_neighbour_distance(uv[seen])))
+    r = nn * 0.5 * board.circle_diameter / (np.sqrt(2.0) * board.square_size)
+    h, w = active.shape
+    m = 0.5 * nn
+    vis = (bh[:, 2] > 0) & (bp[:, 0] >= m) & (bp[:, 1] >= m) & (bp[:, 0] < w - m) & (bp[:, 1] < h - m)
+    if np.count_nonzero(seen) < n and np.count_nonzero(vis) < 0.75 * len(b):
+        return REASON_AMBIGUOUS
+    if not np.any(vis):
+        return REASON_OK
+    disk = min(0.5 * nn, r + 2.0)
+    # What the board's own circles look like in this image (radius, fit residual, pixels): a circle beyond
+    # the edge must look like them; the paper's edge or background texture there does not.
+    _, r0, e0, n0, _, _ = fit_circles(active, uv[seen], disk)
+    if not np.any(np.isfinite(r0)):
+        return REASON_OK
+    r_ref, e_ref, n_ref = float(np.nanmedian(r0)), float(np.nanmedian(e0)), float(np.median(n0))
+    cb, rb, eb, nb, sect, inner = fit_circles(active, bp[vis], disk)
+    circle = (np.all(np.isfinite(cb), axis=1) & (np.linalg.norm(cb - bp[vis], axis=1) < nn / 4.0)
+              & (np.abs(rb - r_ref) < 0.25 * r_ref + 0.3) & (eb < 1.3 * e_ref + 0.1) & (nb >= 0.6 * n_ref)
+              & (sect >= 6) & (inner <= 0.1))
+    return REASON_AMBIGUOUS if np.any(circle) else REASON_OK
 
 
 def track_by_fitting(
@@ -776,10 +830,10 @@ def track_by_fitting(
     # Circle radius over nearest-neighbour distance (the diagonal neighbour at sqrt(2) s).
     r_exp = nn * 0.5 * board.circle_diameter / (np.sqrt(2.0) * board.square_size)
     disk = np.minimum(0.5 * nn, r_exp + 2.0)
-    c, rad, res, cnt = fit_circles(active, np.where(ok[:, None], pred, np.nan), np.where(ok, disk, 1.0))
+    c, rad, res, cnt, sect, inner = fit_circles(active, np.where(ok[:, None], pred, np.nan), np.where(ok, disk, 1.0))
     good = (ok & np.all(np.isfinite(c), axis=1) & (np.linalg.norm(c - pred, axis=1) < nn / 3.0)
             & (rad > 0.6 * r_exp) & (rad < 1.7 * r_exp + 0.5) & (res < 0.3 * r_exp + 0.5)
-            & (cnt >= np.maximum(6, 0.4 * 2 * np.pi * r_exp)))
+            & (cnt >= np.maximum(6, 0.4 * 2 * np.pi * r_exp)) & (sect >= 5) & (inner <= 0.15))
     if np.count_nonzero(good) < min_points:
         return _fail(n, REASON_TOO_FEW)
     uv = np.full((n, 2), np.nan)
@@ -788,30 +842,10 @@ def track_by_fitting(
     if reason != REASON_OK:
         return _fail(n, reason, rms)
     # A prediction off by a whole lattice step would label every circle as its neighbour, and that also fits a
-    # homography. It would leave a row of real circles unlabelled just beyond the board's edge: refuse when
-    # any site one step beyond the board holds a circle, or when too few of those sites are in view to tell
-    # (unless every circle was found: 44 real circles cannot sit on a shifted board).
-    _, beyond, which = _shift_tables(board)
-    b = beyond[which < len(_STEPS)]
-    H, _ = cv2.findHomography(board.points[good, :2], c[good], 0)
-    if H is None:
-        return _fail(n, REASON_ORDER)
-    bh = np.c_[b, np.ones(len(b))] @ H.T
-    bp = bh[:, :2] / bh[:, 2:]
-    h, w = active.shape
-    nn_med = float(np.nanmedian(nn))
-    margin = 0.5 * nn_med
-    vis = (bh[:, 2] > 0) & (bp[:, 0] >= margin) & (bp[:, 1] >= margin) & (bp[:, 0] < w - margin) & (
-        bp[:, 1] < h - margin)
-    if np.count_nonzero(good) < n and np.count_nonzero(vis) < 0.75 * len(b):
-        return _fail(n, REASON_AMBIGUOUS)
-    r_med = float(np.nanmedian(r_exp))
-    cb, rb, eb, nb = fit_circles(active, bp[vis], min(0.5 * nn_med, r_med + 2.0))
-    circle = (np.all(np.isfinite(cb), axis=1) & (np.linalg.norm(cb - bp[vis], axis=1) < nn_med / 3.0)
-              & (rb > 0.6 * r_med) & (rb < 1.7 * r_med + 0.5) & (eb < 0.3 * r_med + 0.5)
-              & (nb >= max(6.0, 0.4 * 2 * np.pi * r_med)))
-    if np.any(circle):
-        return _fail(n, REASON_AMBIGUOUS)
+    # homography: see :func:`edge_check`.
+    reason = edge_check(active, uv - np.asarray(origin, dtype=float), board)
+    if reason != REASON_OK:
+        return _fail(n, reason, rms)
     return GridDetection(uv, True, REASON_OK, rms)
 
 
@@ -843,6 +877,7 @@ def _detect_rims(
     # breaks up to 2k + 1 wide and shrinks every hole evenly (its centroid stays). k = 2 closes most
     # breaks; k = 3 helps slow motion (wide breaks), k = 1 small, distant circles (small holes).
     result = _fail(n, REASON_NOT_FOUND)
+    active_b = active.astype(bool)
     if predicted_uv is not None:
         # Tracking: fit each circle where it is predicted (also small circles without a hole).
         det = track_by_fitting(active.astype(bool), predicted_uv, board, camera, origin=(x0, y0),
@@ -860,13 +895,16 @@ def _detect_rims(
         keep = area >= 0.4 * ref
         if predicted_uv is not None:
             det = track_circle_grid(centres[keep] + (x0, y0), predicted_uv, board, camera, max_rms_px=max_rms_px)
-            if det.ok:
+            if det.ok and edge_check(active_b, det.uv - (x0, y0), board) == REASON_OK:
                 return det
         det = label_circle_grid(
             centres[keep] + (x0, y0), board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px
         )
         if det.ok:
-            return det
+            reason = edge_check(active_b, det.uv - (x0, y0), board)
+            if reason == REASON_OK:
+                return det
+            det = _fail(n, reason)
         result = det if result.reason == REASON_NOT_FOUND else result
     if not blobs:
         return result

@@ -270,8 +270,9 @@ class _WindowJob:
         for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
             if progress is not None:
                 progress(k, t_query.size)
-            if i1 - i0 < self.min_events:
-                # Not even sensor noise: the stream has a gap here (a still camera keeps firing noise events).
+            if i1 - i0 < (1 if last_uv is not None else self.min_events):
+                # Not even sensor noise: the stream has a gap here (a still camera keeps firing noise events; while
+                # a board is followed, a quiet window may still be a still board and is judged below).
                 skipped["too_few_events"] += 1
                 roi = predicted = last_uv = None
                 continue
