@@ -116,6 +116,11 @@ def _active_age_s(kind: str, params: dict, window_s: float) -> float:
 WINDOW_LADDER = (1.0, 0.5, 0.25, 0.125, 2.0, 4.0, 8.0, 16.0)
 #: At most this many spans are tried per window: the ones closest to the span the event rate asks for.
 MAX_SPANS_PER_WINDOW = 4
+#: Spans longer than a period are searched over the whole image (no region from a previous detection) only
+#: when they hold fewer events than this: slow motion, where they are needed, fires few.
+MAX_LONG_SPAN_EVENTS = 60_000
+#: Windows after the last detection during which the board is still searched for around where it was.
+KEEP_ROI_WINDOWS = 15
 #: Per-window outcome codes kept in ``info["window_outcomes"]["code"]`` (int8); index into this tuple.
 OUTCOMES = ("detected", "held_still", "too_few_events", "grid_not_found", "inconsistent_order", "mirrored_order",
             "ambiguous_labels", "too_few_points", "empty_image", "time_not_increasing")
@@ -225,6 +230,43 @@ class _WindowJob:
             ev = _select(ev, noise.background_activity_filter(ev, self.ba_dt_s))
         return ev
 
+    def _hold_backwards(self, t_query, t_out, uv_out, k_out, codes, skipped, age0) -> None:
+        """Before the first detection of the recording: windows in which nothing moved around where the board
+        was first found (walking back from it) show the board there too. A recording often starts standing still,
+        and an event camera sees nothing of a still board."""
+        k0 = k_out[0]
+        uv0 = uv_out[0]
+        roi = _roi_around(uv0, self.stream.width, self.stream.height)
+        tq0 = int(t_query[k0])
+        ref = len(self._clean(self.stream.slice_time(tq0 - int(age0 * 1e9), tq0 + 1), roi)) / max(age0, 1e-9)
+        still_n = STILL_RATE_FRACTION * ref * age0
+        held = []
+        for k in range(k0 - 1, -1, -1):
+            if codes[k] == _CODE["too_few_events"] and self.stream.slice_time(
+                    int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1).t.size == 0:
+                break  # a gap in the stream: nothing is known about it
+            near = self._clean(self.stream.slice_time(int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1), roi)
+            if not (len(near) < 20 * still_n + 50 and len(self._clean(near, ba=True)) < still_n):
+                break
+            held.append(k)
+        if not held:
+            return
+        held = held[::-1]
+        period = self.period_s
+        t_new = [t_query[k] * 1e-9 - 0.5 * period for k in held]
+        if t_new[-1] >= t_out[0]:
+            held, t_new = held[:-1], t_new[:-1]
+        for k in held:
+            reason = OUTCOMES[codes[k]]
+            if reason in skipped:
+                skipped[reason] -= 1
+                if skipped[reason] == 0:
+                    del skipped[reason]
+            codes[k] = _CODE["held_still"]
+        t_out[:0] = t_new
+        uv_out[:0] = [uv0] * len(held)
+        k_out[:0] = held
+
     def _detect(self, img, kind, params, age, roi, predicted):
         board = self.board
         as_image = False
@@ -263,6 +305,7 @@ class _WindowJob:
         st = dict(self.state or {})
         roi, predicted, prev = st.get("roi"), st.get("predicted"), st.get("prev")
         last_uv, ref_rate, last_good = st.get("last_uv"), st.get("ref_rate"), st.get("last_good", 0)
+        lost = st.get("lost", 0)  # windows since the last detection
         as_image = False
         period_s = self.period_s
         age0 = _active_age_s(kind, params, self.window_s)
@@ -314,13 +357,15 @@ class _WindowJob:
                 age = frac * age0
                 c0 = time.perf_counter()
                 if frac > 1.0:
-                    if decaying or roi is None:
-                        # A decaying surface's look-back is fixed by tau; long spans are for following a board
-                        # found before (in its region: the whole image over many periods is costly to filter).
-                        continue
+                    if decaying:
+                        continue  # a decaying surface's look-back is fixed by tau
                     # Slow motion: a longer look-back from the whole buffered stream, where background activity
-                    # would otherwise fill the circles' insides (in the board's region when it is known).
-                    sub = self._clean(stream.slice_time(int(tq) - int(age * 1e9), int(tq) + 1), roi, ba=True)
+                    # would otherwise fill the circles' insides (in the board's region when it is known; over the
+                    # whole image only while the event rate is low enough to filter it cheaply).
+                    sub = stream.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
+                    if roi is None and len(sub) > MAX_LONG_SPAN_EVENTS:
+                        continue
+                    sub = self._clean(sub, roi, ba=True)
                     if len(sub) < self.min_events:
                         continue
                     img = surfaces.surface(sub, kind, int(tq), **params)
@@ -361,7 +406,11 @@ class _WindowJob:
                 reason = "too_few_events" if det is None else det.reason
                 skipped[reason] += 1
                 codes[k] = _CODE.get(reason, _CODE["grid_not_found"])
-                roi = predicted = None
+                # Keep looking where the board was for a while (slow boards are lost for a window or two, when
+                # their rims are too thin); then search the whole image again.
+                lost += 1
+                if lost > KEEP_ROI_WINDOWS:
+                    roi = predicted = None
                 continue
             t_det = None
             age = WINDOW_LADDER[last_good] * age0
@@ -374,6 +423,7 @@ class _WindowJob:
             if t_det is None:  # "window_centre", or no event near the detection (cannot happen for rims)
                 t_det = tq * 1e-9 - 0.5 * age
             codes[k] = _CODE["detected"]
+            lost = 0
             # Constant-velocity prediction of all circles for the next window (from the last two windows;
             # circles not seen are filled in by the board's homography).
             full = _complete_by_homography(det.uv, board) if circles else det.uv
@@ -389,8 +439,11 @@ class _WindowJob:
             roi = _roi_around(det.uv, stream.width, stream.height)
             n_roi = len(self._clean(ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1), roi))
             ref_rate = n_roi / max(age0, 1e-9)
+        if self.hold_still and circles and k_out and not st.get("seen_before"):
+            self._hold_backwards(t_query, t_out, uv_out, k_out, codes, skipped, age0)
         self.state = {"roi": roi, "predicted": predicted, "prev": prev, "last_uv": last_uv, "ref_rate": ref_rate,
-                      "last_good": last_good}
+                      "seen_before": bool(k_out) or bool(st.get("seen_before")),
+                      "last_good": last_good, "lost": lost}
         return t_out, uv_out, k_out, skipped, secs, n_events, retries, codes
 
 
