@@ -246,7 +246,7 @@ class _WindowJob:
                     int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1).t.size == 0:
                 break  # a gap in the stream: nothing is known about it
             near = self._clean(self.stream.slice_time(int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1), roi)
-            if not (len(near) < 20 * still_n + 50 and len(self._clean(near, ba=True)) < still_n):
+            if not (len(near) < 3 * still_n + 50 and len(self._clean(near, ba=True)) < still_n):
                 break
             held.append(k)
         if not held:
@@ -330,12 +330,15 @@ class _WindowJob:
                 wanted = WINDOW_LADDER[last_good]
                 if ref_rate is not None and rate_now > 0:
                     wanted = WINDOW_LADDER[last_good] * ref_rate / rate_now
-                order = _span_order(wanted)[:MAX_SPANS_PER_WINDOW]
+                order = _span_order(wanted)
+                if wanted <= 1.0:  # events enough for a period or less: long spans (costly to filter) cannot help
+                    order = [j for j in order if WINDOW_LADDER[j] <= 1.0]
+                order = order[:MAX_SPANS_PER_WINDOW]
             else:
                 order = [0]
             still_n = STILL_RATE_FRACTION * (ref_rate or 0.0) * age0
             if (self.hold_still and circles and last_uv is not None and ref_rate is not None and roi is not None
-                    and len(near) < 20 * still_n + 50 and len(self._clean(near, ba=True)) < still_n):
+                    and len(near) < 3 * still_n + 50 and len(self._clean(near, ba=True)) < still_n):
                 # Nothing moves around the board: it is where it was last seen (an event camera sees no change
                 # without motion). Held detections are marked in the window outcomes.
                 codes[k] = _CODE["held_still"]
