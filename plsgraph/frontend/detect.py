@@ -704,7 +704,8 @@ def fit_circles(active: np.ndarray, uv: np.ndarray, radius: np.ndarray, iteratio
     R = int(np.ceil(np.max(radius, initial=1.0))) + 1
     off = np.arange(-R, R + 1)
     dy, dx = np.meshgrid(off, off, indexing="ij")
-    dx, dy = dx.ravel(), dy.ravel()
+    inside_r = dx * dx + dy * dy <= (np.max(radius, initial=1.0) + 1.0) ** 2  # the square's corners never count
+    dx, dy = dx[inside_r], dy[inside_r]
     c = uv0.copy()
     rad = np.full(n, np.nan)
     res = np.full(n, np.nan)
@@ -763,7 +764,8 @@ def fit_circle_centres(active: np.ndarray, uv: np.ndarray, radius: np.ndarray) -
     return out
 
 
-def edge_check(active: np.ndarray, uv: np.ndarray, board: Board) -> str:
+def edge_check(active: np.ndarray, uv: np.ndarray, board: Board,
+               ref: tuple[float, float, float] | None = None) -> str:
     """Refuse a labelling that a shift by one lattice step could explain: :data:`REASON_OK` or why not.
 
     A labelling shifted by a lattice step (or turned onto another placement) still fits one homography, but
@@ -796,11 +798,13 @@ def edge_check(active: np.ndarray, uv: np.ndarray, board: Board) -> str:
     disk = min(0.5 * nn, r + 2.0)
     # What the board's own circles look like in this image (radius, fit residual, pixels): a circle beyond
     # the edge must look like them; the paper's edge or background texture there does not.
-    _, r0, e0, n0, _, _ = fit_circles(active, uv[seen], disk)
-    if not np.any(np.isfinite(r0)):
-        return REASON_OK
-    r_ref, e_ref, n_ref = float(np.nanmedian(r0)), float(np.nanmedian(e0)), float(np.median(n0))
-    cb, rb, eb, nb, sect, inner = fit_circles(active, bp[vis], disk)
+    if ref is None:  # ``ref``: (radius, residual, pixels) of the board's circles when the caller has them
+        _, r0, e0, n0, _, _ = fit_circles(active, uv[seen], disk)
+        if not np.any(np.isfinite(r0)):
+            return REASON_OK
+        ref = (float(np.nanmedian(r0)), float(np.nanmedian(e0)), float(np.median(n0)))
+    r_ref, e_ref, n_ref = ref
+    cb, rb, eb, nb, sect, inner = fit_circles(active, bp[vis], disk, iterations=1)
     circle = (np.all(np.isfinite(cb), axis=1) & (np.linalg.norm(cb - bp[vis], axis=1) < nn / 4.0)
               & (np.abs(rb - r_ref) < 0.25 * r_ref + 0.3) & (eb < 1.3 * e_ref + 0.1) & (nb >= 0.6 * n_ref)
               & (sect >= 6) & (inner <= 0.1))
@@ -843,7 +847,8 @@ def track_by_fitting(
         return _fail(n, reason, rms)
     # A prediction off by a whole lattice step would label every circle as its neighbour, and that also fits a
     # homography: see :func:`edge_check`.
-    reason = edge_check(active, uv - np.asarray(origin, dtype=float), board)
+    reason = edge_check(active, uv - np.asarray(origin, dtype=float), board,
+                        ref=(float(np.median(rad[good])), float(np.median(res[good])), float(np.median(cnt[good]))))
     if reason != REASON_OK:
         return _fail(n, reason, rms)
     return GridDetection(uv, True, REASON_OK, rms)
