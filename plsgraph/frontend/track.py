@@ -140,6 +140,18 @@ def _select(ev: EventStream, keep: np.ndarray) -> EventStream:
     return EventStream(ev.t[keep], ev.x[keep], ev.y[keep], ev.p[keep], ev.width, ev.height)
 
 
+def _supported_events(ev: EventStream) -> int:
+    """Events whose pixel has two active 8-neighbours in the same span: edges, not isolated noise (an image-level
+    background-activity filter, cheap enough to run on every window)."""
+    if len(ev) == 0:
+        return 0
+    pix = ev.y.astype(np.int64) * ev.width + ev.x.astype(np.int64)
+    img = np.bincount(pix, minlength=ev.width * ev.height).reshape(ev.height, ev.width)
+    active = (img > 0).astype(np.uint8)
+    nb = cv2.boxFilter(active, cv2.CV_16U, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT) - active
+    return int(np.sum(img[nb >= 2]))
+
+
 def _in_roi(ev: EventStream, roi: tuple[int, int, int, int] | None) -> np.ndarray | slice:
     if roi is None:
         return slice(None)
@@ -246,7 +258,7 @@ class _WindowJob:
                     int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1).t.size == 0:
                 break  # a gap in the stream: nothing is known about it
             near = self._clean(self.stream.slice_time(int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1), roi)
-            if not (len(near) < 3 * still_n + 50 and len(self._clean(near, ba=True)) < still_n):
+            if not _supported_events(near) < still_n:
                 break
             held.append(k)
         if not held:
@@ -338,7 +350,7 @@ class _WindowJob:
                 order = [0]
             still_n = STILL_RATE_FRACTION * (ref_rate or 0.0) * age0
             if (self.hold_still and circles and last_uv is not None and ref_rate is not None and roi is not None
-                    and len(near) < 3 * still_n + 50 and len(self._clean(near, ba=True)) < still_n):
+                    and _supported_events(near) < still_n):
                 # Nothing moves around the board: it is where it was last seen (an event camera sees no change
                 # without motion). Held detections are marked in the window outcomes.
                 codes[k] = _CODE["held_still"]
