@@ -252,13 +252,15 @@ class _WindowJob:
         tq0 = int(t_query[k0])
         ref = len(self._clean(self.stream.slice_time(tq0 - int(age0 * 1e9), tq0 + 1), roi)) / max(age0, 1e-9)
         still_n = STILL_RATE_FRACTION * ref * age0
+        ref_all = _supported_events(self._clean(self.stream.slice_time(tq0 - int(age0 * 1e9), tq0 + 1)))
         held = []
         for k in range(k0 - 1, -1, -1):
             if codes[k] == _CODE["too_few_events"] and self.stream.slice_time(
                     int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1).t.size == 0:
                 break  # a gap in the stream: nothing is known about it
             near = self._clean(self.stream.slice_time(int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1), roi)
-            if not _supported_events(near) < still_n:
+            whole = self._clean(self.stream.slice_time(int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1))
+            if not (_supported_events(near) < still_n and _supported_events(whole) < STILL_RATE_FRACTION * ref_all):
                 break
             held.append(k)
         if not held:
@@ -318,6 +320,7 @@ class _WindowJob:
         roi, predicted, prev = st.get("roi"), st.get("predicted"), st.get("prev")
         last_uv, ref_rate, last_good = st.get("last_uv"), st.get("ref_rate"), st.get("last_good", 0)
         lost = st.get("lost", 0)  # windows since the last detection
+        ref_all = st.get("ref_all")  # the same as ref_rate over the whole image (supported events only)
         as_image = False
         period_s = self.period_s
         age0 = _active_age_s(kind, params, self.window_s)
@@ -349,8 +352,13 @@ class _WindowJob:
             else:
                 order = [0]
             still_n = STILL_RATE_FRACTION * (ref_rate or 0.0) * age0
+            # Held only straight after a detection or a held window, and only if the whole image is quiet too: a
+            # camera turning the board out of view leaves the board's region quiet when it shows a plain wall.
             if (self.hold_still and circles and last_uv is not None and ref_rate is not None and roi is not None
-                    and _supported_events(near) < still_n):
+                    and prev is not None and abs(int(tq) - prev[0] - period_s * 1e9) < 0.5 * period_s * 1e9
+                    and _supported_events(near) < still_n
+                    and _supported_events(self._clean(ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1)))
+                    < STILL_RATE_FRACTION * (ref_all or 0.0) * age0):
                 # Nothing moves around the board: it is where it was last seen (an event camera sees no change
                 # without motion). Held detections are marked in the window outcomes.
                 codes[k] = _CODE["held_still"]
@@ -454,11 +462,13 @@ class _WindowJob:
             roi = _roi_around(det.uv, stream.width, stream.height)
             n_roi = len(self._clean(ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1), roi))
             ref_rate = n_roi / max(age0, 1e-9)
+            ref_all = _supported_events(self._clean(ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1))) / max(
+                age0, 1e-9)
         if self.hold_still and circles and k_out and not st.get("seen_before"):
             self._hold_backwards(t_query, t_out, uv_out, k_out, codes, skipped, age0)
         self.state = {"roi": roi, "predicted": predicted, "prev": prev, "last_uv": last_uv, "ref_rate": ref_rate,
                       "seen_before": bool(k_out) or bool(st.get("seen_before")),
-                      "last_good": last_good, "lost": lost}
+                      "last_good": last_good, "lost": lost, "ref_all": ref_all}
         return t_out, uv_out, k_out, skipped, secs, n_events, retries, codes
 
 
