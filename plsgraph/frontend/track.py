@@ -452,6 +452,15 @@ class _WindowJob:
             full = _complete_by_homography(det.uv, board) if circles else det.uv
             if prev is not None and abs(int(tq) - prev[0] - period_s * 1e9) < 0.5 * period_s * 1e9 and t_det > prev[1]:
                 predicted = full + (full - prev[2]) * (period_s / (t_det - prev[1]))
+                ok = np.all(np.isfinite(full), axis=1)
+                if ok.sum() >= 2:
+                    step = np.nanmax(np.linalg.norm(predicted - full, axis=1))
+                    d = np.linalg.norm(full[ok][:, None] - full[ok][None], axis=-1)
+                    np.fill_diagonal(d, np.inf)
+                    if step > 0.4 * float(np.median(d.min(axis=1))):
+                        # A jump of half a spacing per window: the circles' labels could not be told from their
+                        # predicted positions; the next window is searched without them.
+                        predicted = None
             else:
                 predicted = full
             prev = (int(tq), t_det, full)
