@@ -121,6 +121,8 @@ MAX_SPANS_PER_WINDOW = 4
 MAX_LONG_SPAN_EVENTS = 60_000
 #: Windows after the last detection during which the board is still searched for around where it was.
 KEEP_ROI_WINDOWS = 15
+#: Predicted motion per window, in neighbour spacings, beyond which circles are not labelled by prediction.
+MAX_PREDICTED_STEP = 0.4
 #: Per-window outcome codes kept in ``info["window_outcomes"]["code"]`` (int8); index into this tuple.
 OUTCOMES = ("detected", "held_still", "too_few_events", "grid_not_found", "inconsistent_order", "mirrored_order",
             "ambiguous_labels", "too_few_points", "empty_image", "time_not_increasing")
@@ -457,8 +459,8 @@ class _WindowJob:
                     step = np.nanmax(np.linalg.norm(predicted - full, axis=1))
                     d = np.linalg.norm(full[ok][:, None] - full[ok][None], axis=-1)
                     np.fill_diagonal(d, np.inf)
-                    if step > 0.4 * float(np.median(d.min(axis=1))):
-                        # A jump of half a spacing per window: the circles' labels could not be told from their
+                    if step > MAX_PREDICTED_STEP * float(np.median(d.min(axis=1))):
+                        # A jump of most of a spacing per window: the circles' labels could not be told from their
                         # predicted positions; the next window is searched without them.
                         predicted = None
             else:
