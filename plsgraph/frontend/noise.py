@@ -128,7 +128,7 @@ class NoiseModel:
     """
 
     def __init__(self, width: int, height: int, *, hot_ratio: float = 8.0, hot_min_rate_hz: float = 5.0,
-                 flicker: bool = True, flicker_sample_s: float = 0.1):
+                 flicker: bool = True, flicker_sample_s: float = 0.25):
         self.width, self.height = width, height
         self.hot_ratio, self.hot_min_rate_hz = hot_ratio, hot_min_rate_hz
         self.flicker, self.flicker_sample_s = flicker, flicker_sample_s
