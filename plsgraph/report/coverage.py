@@ -49,7 +49,7 @@ def _fig_coverage(info: dict, out: Path) -> str | None:
     t = t - t[0]
     code = np.asarray(wo["code"], dtype=int)
     names = list(wo["names"])
-    fig, ax = plt.subplots(figsize=(8.0, 1.9))
+    fig, ax = plt.subplots(figsize=(8.0, 2.4))
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
     for i, name in enumerate(names):
         sel = code == i
@@ -60,7 +60,7 @@ def _fig_coverage(info: dict, out: Path) -> str | None:
     ax.set_xlim(t[0], t[-1] + dt)
     ax.set_xlabel("time in the recording (s)")
     ax.set_title("board detection per window")
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.55), ncol=4, fontsize=7, frameon=False)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.75), ncol=4, fontsize=7, frameon=False)
     return _save(plt, fig, out, "coverage.png")
 
 
