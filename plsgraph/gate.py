@@ -159,7 +159,8 @@ def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
                     f"the refined camera position x/y is {100 * d_xy:.1f} cm from the closed form's "
                     f"(limit {100 * lim:.1f} cm)"
                 )
-        d_td = abs(float(cf.td) - float(ref.td))
+        td_seed = cf.td if getattr(ref, "td_searched", None) is None else ref.td_searched  # a wrong peak replaced
+        d_td = abs(float(td_seed) - float(ref.td))
         lim = TD_DISAGREE_S + 3 * float(sig[6])
         if d_td > lim:
             problems.append(

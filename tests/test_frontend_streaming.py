@@ -4,7 +4,11 @@ import numpy as np
 from realdata import DATA_DIR
 
 from plsgraph.core.board import load_board
-from plsgraph.frontend.track import camera_track_from_event_chunks, camera_track_from_events
+from plsgraph.frontend.track import (
+    camera_track_from_event_chunks,
+    camera_track_from_events,
+    later_than_all_before,
+)
 from plsgraph.io.events_reader import iter_event_chunks, read_events
 from plsgraph.io.recording import read_recording
 
@@ -44,3 +48,14 @@ def test_windows_longer_than_the_history_keep_all_their_events():
     assert streamed.info["windows"] == one.info["windows"]
     assert streamed.info["events_used"] == one.info["events_used"]
     assert streamed.info["late_events"] == 0
+
+
+
+def test_detections_out_of_order_across_spans_keep_a_strictly_increasing_track():
+    """A detection stamped before an earlier one (its events inside a previous span) is dropped, also when it is not
+    just before its immediate predecessor (a realistic recording once ended with 'times must be strictly
+    increasing')."""
+    t = np.array([1.0, 3.0, 2.0, 2.5, 4.0])
+    keep = later_than_all_before(t)
+    assert keep.tolist() == [True, True, False, False, True]
+    assert later_than_all_before(np.zeros(0)).size == 0

@@ -728,6 +728,13 @@ def _track_from_detections(
     return CameraTrack(track.t, track.T_board_cam, track.cov, track.rms_px, track.detections, info)
 
 
+def later_than_all_before(t: np.ndarray) -> np.ndarray:
+    """Mask of the stamps later than every stamp before them: what a time-ordered track may keep when detections
+    of one span can be stamped before those of the previous one."""
+    t = np.asarray(t)
+    return np.r_[True, t[1:] > np.maximum.accumulate(t)[:-1]] if t.size else np.zeros(0, dtype=bool)
+
+
 def camera_track_from_event_chunks(
     chunks: Iterable[EventStream],
     camera: CameraModel,
@@ -835,7 +842,7 @@ def camera_track_from_event_chunks(
     t = np.concatenate(t_parts) if t_parts else np.zeros(0)
     uv = np.concatenate(uv_parts) if uv_parts else np.zeros((0, board.n_points, 2))
     if t.size > 1:  # a detection stamped before its predecessor (across spans) would break the time order
-        keep = np.r_[True, np.diff(t) > 0]
+        keep = later_than_all_before(t)
         if not keep.all():
             skipped["time_not_increasing"] += int(np.count_nonzero(~keep))
         t, uv = t[keep], uv[keep]

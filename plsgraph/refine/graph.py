@@ -201,6 +201,9 @@ class RefinementResult:
     # disagree beyond what both uncertainties allow (see disagreement_with_seed); empty when they agree.
     disagreement: dict = field(default_factory=dict)
     inflation: dict = field(default_factory=dict)  # autocorrelation times and the covariance factor applied
+    # td the refinement started from when the turn-angle search replaced the closed form's (a wrong correlation
+    # peak); None when the closed form's td was kept. Comparisons of td with "the seed" use this one.
+    td_searched: float | None = None
 
     @property
     def R_base_cam(self) -> np.ndarray:
@@ -949,6 +952,7 @@ def refine(
     C_seed, td_seed = _check_seed(seed_T_base_cam, seed_td)
     scale0 = _check_scale(seed_odometry_scale) if opt.estimate_odometry_scale else (1.0, 1.0)
     td_given = td_seed
+    search_note = None
     if opt.td_search_s > 0:
         found = turn_angle_td_search(camera_track, base_track, td_seed, opt.td_search_s)
         # The search escapes a wrong correlation peak (tens to hundreds of ms off); closer than td_search_replace_s
@@ -956,12 +960,14 @@ def refine(
         # ideal recording), so the seed stays.
         if found is not None and abs(found[0] - td_seed) > opt.td_search_replace_s:
             log.info("refine: td seed %.4f s -> %.4f s (turn-angle search)", td_seed, found[0])
+            search_note = (f"the closed form's time offset {1e3 * td_seed:+.1f} ms was a wrong correlation peak: the "
+                           f"turn-angle search found {1e3 * found[0]:+.1f} ms and the refinement started there")
             if opt.estimate_odometry_scale:
                 # The seed's odometry scales were fitted at the wrong td: start from nominal speed and this turn scale.
                 scale0 = (1.0, float(np.clip(found[1], 0.3, 3.0)))
             td_seed = found[0]
     prob = _prepare(camera_track, base_track, camera, td_seed, opt, scale0)
-    warnings = list(prob.warnings)
+    warnings = list(prob.warnings) + ([search_note] if search_note else [])
     t_guess = C_seed[:3, 3].copy()
     if opt.camera_height is not None:
         t_guess[2] = opt.camera_height
@@ -1131,8 +1137,9 @@ def refine(
         seed_T_base_cam=C_seed,
         seed_td=td_given,
         odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
-        disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_given, opt),
+        disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_seed, opt),
         inflation=inflation,
+        td_searched=None if td_seed == td_given else float(td_seed),
     )
 
 
