@@ -402,9 +402,6 @@ def label_circle_grid(
     occupied[tuple((B - bmin).T)] = np.arange(n)
     # Score every lattice symmetry and every shift at once: the number of seen points that land on board
     # circles is the cross-correlation of two small occupancy images (template matching on the lattice).
-    if np.ptp(best_lat, axis=0).max() > 2 * span.max():
-        # A lattice patch far larger than the board (clutter grown into a lattice): it cannot be the board.
-        return _fail(n, REASON_ORDER)
     board_img = np.zeros(tuple(span), np.float32)
     board_img[tuple((B - bmin).T)] = 1.0
     scored = []  # (hit map, offset to add to a hit-map index to get the shift), per lattice map
@@ -655,209 +652,9 @@ def track_circle_grid(
     return GridDetection(uv, True, REASON_OK, rms)
 
 
-def blob_candidates(active: np.ndarray, sigma: float, min_level: float = 0.25) -> np.ndarray:
-    """Centres (k, 2) of small rims: local maxima of the activity image blurred by ``sigma``.
-
-    A ring of radius r blurred by a Gaussian of sigma about 0.6 to 1 r peaks at its centre, also when it
-    has breaks or is only a few pixels across (when its inside is too small to survive as a hole). Maxima
-    below ``min_level`` times the 99th percentile of the blurred image are dropped (isolated noise).
-    """
-    b = cv2.GaussianBlur(active.astype(np.float32), (0, 0), sigma)
-    hi = float(np.percentile(b, 99.5))
-    if hi <= 0:
-        return np.zeros((0, 2))
-    peak = (b >= cv2.dilate(b, np.ones((3, 3), np.uint8))) & (b > min_level * hi)
-    ys, xs = np.nonzero(peak)
-    if xs.size == 0:
-        return np.zeros((0, 2))
-    # Plateaus give several equal maxima: keep one per 8-connected group (its mean).
-    n, lab, _, cent = cv2.connectedComponentsWithStats(peak.astype(np.uint8), connectivity=8)
-    cent = cent[1:]
-    # Sub-pixel: a parabola through the blurred values around each maximum.
-    cx = np.clip(np.round(cent[:, 0]).astype(int), 1, b.shape[1] - 2)
-    cy = np.clip(np.round(cent[:, 1]).astype(int), 1, b.shape[0] - 2)
-    c0 = b[cy, cx]
-
-    def vertex(m, p):
-        den = m - 2 * c0 + p
-        return np.where(np.abs(den) > 1e-9, 0.5 * (m - p) / np.where(np.abs(den) > 1e-9, den, 1.0), 0.0)
-
-    dx = np.clip(vertex(b[cy, cx - 1], b[cy, cx + 1]), -0.5, 0.5)
-    dy = np.clip(vertex(b[cy - 1, cx], b[cy + 1, cx]), -0.5, 0.5)
-    return np.stack([cx + dx, cy + dy], axis=-1).astype(float)
-
-
-def fit_circles(active: np.ndarray, uv: np.ndarray, radius: np.ndarray, iterations: int = 2
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Circles fitted (algebraic least squares, Kasa) to the active pixels within ``radius`` (n,) of ``uv``.
-
-    A rim's centre, unlike its centroid, does not move when part of the rim is missing (breaks where the
-    edge runs along the motion). The disk is re-centred on the fit ``iterations`` times. Returns centres
-    (n, 2), radii (n,), RMS distance of the pixels from the circle (n,), pixel counts (n,) and the number of
-    the 8 sectors around the centre that hold pixels (n,) and the share of the pixels closer to the centre
-    than half the radius (n,); a disk with fewer than 6 pixels or a degenerate fit gives NaN.
-    """
-    uv0 = np.asarray(uv, dtype=float)
-    n = uv0.shape[0]
-    radius = np.broadcast_to(np.asarray(radius, dtype=float), (n,))
-    h, w = active.shape
-    R = int(np.ceil(np.max(radius, initial=1.0))) + 1
-    off = np.arange(-R, R + 1)
-    dy, dx = np.meshgrid(off, off, indexing="ij")
-    inside_r = dx * dx + dy * dy <= (np.max(radius, initial=1.0) + 1.0) ** 2  # the square's corners never count
-    dx, dy = dx[inside_r], dy[inside_r]
-    c = uv0.copy()
-    rad = np.full(n, np.nan)
-    res = np.full(n, np.nan)
-    cnt = np.zeros(n, dtype=int)
-    for _ in range(max(1, iterations)):
-        ok_c = np.all(np.isfinite(c), axis=1)
-        cc = np.where(ok_c[:, None], c, 0.0)
-        cx, cy = np.round(cc[:, 0]).astype(int), np.round(cc[:, 1]).astype(int)
-        px, py = cx[:, None] + dx[None], cy[:, None] + dy[None]
-        inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
-        r2 = (px - cc[:, :1]) ** 2 + (py - cc[:, 1:]) ** 2
-        wt = (ok_c[:, None] & inside & (r2 <= radius[:, None] ** 2)
-              & active[np.clip(py, 0, h - 1), np.clip(px, 0, w - 1)]).astype(float)
-        x, y = px - cc[:, :1], py - cc[:, 1:]
-        z = x * x + y * y
-
-        def S(a, wt=wt):
-            return np.sum(wt * a, axis=1)
-
-        A = np.stack([np.stack([S(x * x), S(x * y), S(x)], -1), np.stack([S(x * y), S(y * y), S(y)], -1),
-                      np.stack([S(x), S(y), S(np.ones_like(x))], -1)], axis=1)
-        rhs = -np.stack([S(x * z), S(y * z), S(z)], -1)
-        cnt = np.count_nonzero(wt, axis=1)
-        good = cnt >= 6
-        good[good] = np.abs(np.linalg.det(A[good])) > 1e-6
-        sol = np.zeros_like(rhs)
-        if np.any(good):
-            sol[good] = np.linalg.solve(A[good], rhs[good][..., None])[..., 0]
-        d = -0.5 * sol[:, :2]
-        r_fit2 = np.sum(d * d, axis=1) - sol[:, 2]
-        good &= r_fit2 > 0
-        rad = np.where(good, np.sqrt(np.maximum(r_fit2, 0.0)), np.nan)
-        dist = np.sqrt((x - d[:, :1]) ** 2 + (y - d[:, 1:]) ** 2)
-        res = np.where(good, np.sqrt(S((dist - rad[:, None]) ** 2) / np.maximum(cnt, 1)), np.nan)
-        c = np.where(good[:, None], cc + d, np.nan)
-    # Angular coverage: how many of 8 sectors around the fitted centre hold rim pixels (a ring with its two
-    # motion breaks covers 5 or more; an edge or a corner of the background at most about half).
-    ang = np.arctan2(y - d[:, 1:], x - d[:, :1])
-    sector = np.clip(((ang + np.pi) / (2 * np.pi) * 8).astype(int), 0, 7)
-    occ = np.zeros((n, 8), dtype=bool)
-    rows = np.repeat(np.arange(n), wt.shape[1]).reshape(wt.shape)
-    occ[rows[wt > 0], sector[wt > 0]] = True
-    # A rim's inside is empty; a line or a blob through the disk fills it.
-    inner = np.sum(wt * (dist < 0.5 * rad[:, None]), axis=1) / np.maximum(cnt, 1)
-    return c, rad, res, cnt, occ.sum(axis=1), np.where(good, inner, 1.0)
-
-
-def fit_circle_centres(active: np.ndarray, uv: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """:func:`fit_circles` centres, keeping the input position where the fit failed or moved too far."""
-    uv = np.asarray(uv, dtype=float)
-    c = fit_circles(active, uv, radius, iterations=1)[0]
-    move = np.linalg.norm(c - uv, axis=1)
-    use = np.isfinite(move) & (move < 0.5 * np.asarray(radius))
-    out = uv.copy()
-    out[use] = c[use]
-    return out
-
-
-def edge_check(active: np.ndarray, uv: np.ndarray, board: Board,
-               ref: tuple[float, float, float] | None = None) -> str:
-    """Refuse a labelling that a shift by one lattice step could explain: :data:`REASON_OK` or why not.
-
-    A labelling shifted by a lattice step (or turned onto another placement) still fits one homography, but
-    leaves real circles just beyond the board's edge, where the labelled board has none. Circles are fitted
-    (:func:`fit_circles`) to the activity image ``active`` at every site one step beyond the board; any circle
-    there refuses the labelling (``ambiguous_labels``), and so does a view in which fewer than 3/4 of those
-    sites are inside the image, unless every circle was labelled (a shifted board would need more circles
-    than the board has).
-    """
-    n = board.n_points
-    seen = np.all(np.isfinite(uv), axis=1)
-    if np.count_nonzero(seen) < 4:
-        return REASON_TOO_FEW
-    H, _ = cv2.findHomography(board.points[seen, :2], uv[seen], 0)
-    if H is None:
-        return REASON_ORDER
-    _, beyond, which = _shift_tables(board)
-    b = beyond[which < len(_STEPS)]
-    bh = np.c_[b, np.ones(len(b))] @ H.T
-    bp = bh[:, :2] / np.where(np.abs(bh[:, 2:]) > 1e-12, bh[:, 2:], 1e-12)
-    nn = float(np.median(_neighbour_distance(uv[seen])))
-    r = nn * 0.5 * board.circle_diameter / (np.sqrt(2.0) * board.square_size)
-    h, w = active.shape
-    m = 0.5 * nn
-    vis = (bh[:, 2] > 0) & (bp[:, 0] >= m) & (bp[:, 1] >= m) & (bp[:, 0] < w - m) & (bp[:, 1] < h - m)
-    if np.count_nonzero(seen) < n and np.count_nonzero(vis) < 0.75 * len(b):
-        return REASON_AMBIGUOUS
-    if not np.any(vis):
-        return REASON_OK
-    disk = min(0.5 * nn, r + 2.0)
-    # What the board's own circles look like in this image (radius, fit residual, pixels): a circle beyond
-    # the edge must look like them; the paper's edge or background texture there does not.
-    if ref is None:  # ``ref``: (radius, residual, pixels) of the board's circles when the caller has them
-        _, r0, e0, n0, _, _ = fit_circles(active, uv[seen], disk)
-        if not np.any(np.isfinite(r0)):
-            return REASON_OK
-        ref = (float(np.nanmedian(r0)), float(np.nanmedian(e0)), float(np.median(n0)))
-    r_ref, e_ref, n_ref = ref
-    cb, rb, eb, nb, sect, inner = fit_circles(active, bp[vis], disk, iterations=1)
-    circle = (np.all(np.isfinite(cb), axis=1) & (np.linalg.norm(cb - bp[vis], axis=1) < nn / 4.0)
-              & (np.abs(rb - r_ref) < 0.25 * r_ref + 0.3) & (eb < 1.3 * e_ref + 0.1) & (nb >= 0.6 * n_ref)
-              & (sect >= 6) & (inner <= 0.1))
-    return REASON_AMBIGUOUS if np.any(circle) else REASON_OK
-
-
-def track_by_fitting(
-    active: np.ndarray, predicted_uv: np.ndarray, board: Board, camera: CameraModel | None = None, *,
-    origin: tuple[int, int] = (0, 0), min_points: int | None = None, max_rms_px: float = 1.0,
-) -> GridDetection:
-    """Circles measured where they are predicted: a circle is fitted to the rim pixels around each prediction.
-
-    Needs no hole and no blob, so it follows circles only a few pixels across and rims with wide breaks (slow
-    motion, distant boards). Labels come from the prediction; a circle counts only if its fit lies within a
-    third of the neighbour spacing of the prediction (a neighbour is a whole spacing away), has the radius
-    the board predicts (0.6 to 1.7 times: motion widens rims) and the pixels hug it. The result must pass
-    :func:`check_grid_order`. ``origin``: offset of ``active`` in the full image (a region of interest).
-    """
-    n = board.n_points
-    min_points = max(6, n // 2) if min_points is None else int(min_points)
-    pred = np.asarray(predicted_uv, dtype=float) - np.asarray(origin, dtype=float)
-    ok = np.all(np.isfinite(pred), axis=1)
-    if np.count_nonzero(ok) < min_points:
-        return _fail(n, REASON_NOT_FOUND)
-    nn = np.full(n, np.nan)
-    nn[ok] = _neighbour_distance(pred[ok])
-    # Circle radius over nearest-neighbour distance (the diagonal neighbour at sqrt(2) s).
-    r_exp = nn * 0.5 * board.circle_diameter / (np.sqrt(2.0) * board.square_size)
-    disk = np.minimum(0.5 * nn, r_exp + 2.0)
-    c, rad, res, cnt, sect, inner = fit_circles(active, np.where(ok[:, None], pred, np.nan), np.where(ok, disk, 1.0))
-    good = (ok & np.all(np.isfinite(c), axis=1) & (np.linalg.norm(c - pred, axis=1) < nn / 3.0)
-            & (rad > 0.6 * r_exp) & (rad < 1.7 * r_exp + 0.5) & (res < 0.3 * r_exp + 0.5)
-            & (cnt >= np.maximum(6, 0.4 * 2 * np.pi * r_exp)) & (sect >= 5) & (inner <= 0.15))
-    if np.count_nonzero(good) < min_points:
-        return _fail(n, REASON_TOO_FEW)
-    uv = np.full((n, 2), np.nan)
-    uv[good] = c[good] + np.asarray(origin, dtype=float)
-    reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_rms_px)
-    if reason != REASON_OK:
-        return _fail(n, reason, rms)
-    # A prediction off by a whole lattice step would label every circle as its neighbour, and that also fits a
-    # homography: see :func:`edge_check`.
-    reason = edge_check(active, uv - np.asarray(origin, dtype=float), board,
-                        ref=(float(np.median(rad[good])), float(np.median(res[good])), float(np.median(cnt[good]))))
-    if reason != REASON_OK:
-        return _fail(n, reason, rms)
-    return GridDetection(uv, True, REASON_OK, rms)
-
-
 def _detect_rims(
     image: np.ndarray, board: Board, camera: CameraModel | None, threshold: float, max_rms_px: float,
     min_points: int | None, roi: tuple[int, int, int, int] | None = None, predicted_uv: np.ndarray | None = None,
-    blobs: bool = False,
 ) -> GridDetection:
     n = board.n_points
     if image.ndim != 2:
@@ -882,13 +679,6 @@ def _detect_rims(
     # breaks up to 2k + 1 wide and shrinks every hole evenly (its centroid stays). k = 2 closes most
     # breaks; k = 3 helps slow motion (wide breaks), k = 1 small, distant circles (small holes).
     result = _fail(n, REASON_NOT_FOUND)
-    active_b = active.astype(bool)
-    if predicted_uv is not None:
-        # Tracking: fit each circle where it is predicted (also small circles without a hole).
-        det = track_by_fitting(active.astype(bool), predicted_uv, board, camera, origin=(x0, y0),
-                               max_rms_px=max_rms_px)
-        if det.ok:
-            return det
     for k in (2, 3, 1):
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1))
         centres, area = rim_holes(cv2.dilate(active, kernel).astype(bool))
@@ -900,47 +690,14 @@ def _detect_rims(
         keep = area >= 0.4 * ref
         if predicted_uv is not None:
             det = track_circle_grid(centres[keep] + (x0, y0), predicted_uv, board, camera, max_rms_px=max_rms_px)
-            if det.ok and edge_check(active_b, det.uv - (x0, y0), board) == REASON_OK:
+            if det.ok:
                 return det
         det = label_circle_grid(
             centres[keep] + (x0, y0), board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px
         )
         if det.ok:
-            reason = edge_check(active_b, det.uv - (x0, y0), board)
-            if reason == REASON_OK:
-                return det
-            det = _fail(n, reason)
+            return det
         result = det if result.reason == REASON_NOT_FOUND else result
-    if not blobs:
-        return result
-    # Small circles (a few pixels across, distant boards) leave no hole inside their rims: find the rims as
-    # blobs of the blurred activity instead, label them, then fit a circle to each labelled rim.
-    sigmas = (1.2, 2.0)
-    if predicted_uv is not None and np.count_nonzero(np.all(np.isfinite(predicted_uv), axis=1)) >= 2:
-        q = predicted_uv[np.all(np.isfinite(predicted_uv), axis=1)]
-        r = 0.5 * board.circle_diameter / (np.sqrt(2.0) * board.square_size) * float(np.median(_neighbour_distance(q)))
-        sigmas = (float(np.clip(0.8 * r, 0.8, 4.0)),)
-    for sigma in sigmas:
-        cand = blob_candidates(active, sigma)
-        if cand.shape[0] < 6:
-            continue
-        cand = cand + (x0, y0)
-        det = None
-        if predicted_uv is not None:
-            det = track_circle_grid(cand, predicted_uv, board, camera, max_rms_px=2.0 * max_rms_px)
-        if det is None or not det.ok:
-            det = label_circle_grid(cand, board, camera, min_points=min_points, max_rms_px=2.0 * max_rms_px)
-        if not det.ok:
-            result = det if result.reason == REASON_NOT_FOUND else result
-            continue
-        seen = np.all(np.isfinite(det.uv), axis=1)
-        uv = det.uv.copy()
-        rad = 0.45 * _neighbour_distance(uv[seen])
-        uv[seen] = fit_circle_centres(active.astype(bool), uv[seen] - (x0, y0), rad) + (x0, y0)
-        reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_rms_px)
-        if reason == REASON_OK:
-            return GridDetection(uv, True, REASON_OK, rms)
-        result = _fail(n, reason, rms)
     return result
 
 

@@ -49,7 +49,7 @@ from ..core.camera import CameraModel
 from ..core.events import EventStream
 from ..core.tracks import CameraTrack, Detections
 from ..errors import InputError, InsufficientDataError
-from . import noise, surfaces
+from . import surfaces
 from .detect import (
     REASON_OK,
     board_is_symmetric,
@@ -109,56 +109,9 @@ def _active_age_s(kind: str, params: dict, window_s: float) -> float:
     return window_s
 
 
-#: Spans tried, as multiples of the nominal rim age (one frame period for counts). Fast motion smears a
-#: circle's rim over its whole inside within a full window (shorter spans: half, quarter, eighth); slow motion
-#: leaves only a few events on each rim (longer spans, up to 16 periods, built from noise-filtered events).
-#: Each window starts with the span that the event rate around the board asks for (see ``_span_order``).
-WINDOW_LADDER = (1.0, 0.5, 0.25, 0.125, 2.0, 4.0, 8.0, 16.0)
-#: At most this many spans are tried per window: the ones closest to the span the event rate asks for.
-MAX_SPANS_PER_WINDOW = 4
-#: Spans longer than a period are searched over the whole image (no region from a previous detection) only
-#: when they hold fewer events than this: slow motion, where they are needed, fires few.
-MAX_LONG_SPAN_EVENTS = 60_000
-#: Windows after the last detection during which the board is still searched for around where it was.
-KEEP_ROI_WINDOWS = 15
-#: Predicted motion per window, in neighbour spacings, beyond which circles are not labelled by prediction.
-MAX_PREDICTED_STEP = 0.4
-#: Per-window outcome codes kept in ``info["window_outcomes"]["code"]`` (int8); index into this tuple.
-OUTCOMES = ("detected", "held_still", "too_few_events", "grid_not_found", "inconsistent_order", "mirrored_order",
-            "ambiguous_labels", "too_few_points", "empty_image", "time_not_increasing")
-_CODE = {name: np.int8(i) for i, name in enumerate(OUTCOMES)}
-#: A board whose surroundings fire fewer (noise-filtered) events than this share of the rate at its last
-#: detection has not moved: the window keeps the last detection (``held_still``) when no span finds the board.
-STILL_RATE_FRACTION = 0.05
-
-
-def _span_order(frac_wanted: float) -> list[int]:
-    """Ladder indices sorted by closeness (in log scale) to the span wanted, shorter first on ties."""
-    lw = np.log2(max(min(frac_wanted, WINDOW_LADDER[-1]), min(WINDOW_LADDER)))
-    return sorted(range(len(WINDOW_LADDER)), key=lambda i: (abs(np.log2(WINDOW_LADDER[i]) - lw), WINDOW_LADDER[i]))
-
-
-def _select(ev: EventStream, keep: np.ndarray) -> EventStream:
-    return EventStream(ev.t[keep], ev.x[keep], ev.y[keep], ev.p[keep], ev.width, ev.height)
-
-
-def _supported_events(ev: EventStream) -> int:
-    """Events whose pixel has two active 8-neighbours in the same span: edges, not isolated noise (an image-level
-    background-activity filter, cheap enough to run on every window)."""
-    if len(ev) == 0:
-        return 0
-    pix = ev.y.astype(np.int64) * ev.width + ev.x.astype(np.int64)
-    img = np.bincount(pix, minlength=ev.width * ev.height).reshape(ev.height, ev.width)
-    active = (img > 0).astype(np.uint8)
-    nb = cv2.boxFilter(active, cv2.CV_16U, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT) - active
-    return int(np.sum(img[nb >= 2]))
-
-
-def _in_roi(ev: EventStream, roi: tuple[int, int, int, int] | None) -> np.ndarray | slice:
-    if roi is None:
-        return slice(None)
-    x0, y0, x1, y1 = roi
-    return (ev.x >= x0) & (ev.x < x1) & (ev.y >= y0) & (ev.y < y1)
+#: Fractions of the nominal rim age tried in turn: fast motion smears a circle's rim over its whole
+#: inside within a full window, so failed windows are retried on the most recent half, quarter and eighth.
+WINDOW_LADDER = (1.0, 0.5, 0.25, 0.125)
 
 
 def _complete_by_homography(uv: np.ndarray, board: Board) -> np.ndarray:
@@ -211,14 +164,10 @@ class _WindowJob:
     """The per-window work (surface, detection, time stamp) over a range of windows."""
 
     def __init__(self, stream, camera, board, kind, params, window_s, min_events, timestamp, tag_layout, border_bits,
-                 tag_blur, noise_mask=None, ba_dt_s=0.005, hold_still=True):
+                 tag_blur):
         self.stream, self.camera, self.board, self.kind, self.params = stream, camera, board, kind, params
         self.window_s, self.min_events, self.timestamp, self.tag_layout = window_s, min_events, timestamp, tag_layout
         self.border_bits, self.tag_blur = border_bits, float(tag_blur)
-        self.noise_mask = noise_mask if noise_mask is not None and np.any(noise_mask) else None
-        self.ba_dt_s, self.hold_still = ba_dt_s, bool(hold_still)
-        self.state: dict | None = None
-        self.period_s = 0.0
 
     def run(self, t_query: np.ndarray, i0s: np.ndarray, i1s: np.ndarray, progress=None):
         # OpenCV's internal threads cost more than they save on images this small (connected components:
@@ -230,187 +179,53 @@ class _WindowJob:
         finally:
             cv2.setNumThreads(threads)
 
-    def _clean(self, ev: EventStream, roi=None, ba: bool = False) -> EventStream:
-        """Events off hot / flickering pixels (and inside ``roi``), optionally background-activity filtered."""
-        keep = None
-        if self.noise_mask is not None:
-            keep = ~self.noise_mask[ev.y, ev.x]
-        if roi is not None:
-            r = _in_roi(ev, roi)
-            keep = r if keep is None else keep & r
-        if keep is not None:
-            ev = _select(ev, keep)
-        if ba and self.ba_dt_s and len(ev):
-            ev = _select(ev, noise.background_activity_filter(ev, self.ba_dt_s))
-        return ev
-
-    def _hold_backwards(self, t_query, t_out, uv_out, k_out, codes, skipped, age0) -> None:
-        """Before the first detection of the recording: windows in which nothing moved around where the board
-        was first found (walking back from it) show the board there too. A recording often starts standing still,
-        and an event camera sees nothing of a still board."""
-        k0 = k_out[0]
-        uv0 = uv_out[0]
-        roi = _roi_around(uv0, self.stream.width, self.stream.height)
-        tq0 = int(t_query[k0])
-        ref = len(self._clean(self.stream.slice_time(tq0 - int(age0 * 1e9), tq0 + 1), roi)) / max(age0, 1e-9)
-        still_n = STILL_RATE_FRACTION * ref * age0
-        ref_all = _supported_events(self._clean(self.stream.slice_time(tq0 - int(age0 * 1e9), tq0 + 1)))
-        held = []
-        for k in range(k0 - 1, -1, -1):
-            if codes[k] == _CODE["too_few_events"] and self.stream.slice_time(
-                    int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1).t.size == 0:
-                break  # a gap in the stream: nothing is known about it
-            near = self._clean(self.stream.slice_time(int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1), roi)
-            whole = self._clean(self.stream.slice_time(int(t_query[k]) - int(age0 * 1e9), int(t_query[k]) + 1))
-            if not (_supported_events(near) < still_n and _supported_events(whole) < STILL_RATE_FRACTION * ref_all):
-                break
-            held.append(k)
-        if not held:
-            return
-        held = held[::-1]
-        period = self.period_s
-        t_new = [t_query[k] * 1e-9 - 0.5 * period for k in held]
-        if t_new[-1] >= t_out[0]:
-            held, t_new = held[:-1], t_new[:-1]
-        for k in held:
-            reason = OUTCOMES[codes[k]]
-            if reason in skipped:
-                skipped[reason] -= 1
-                if skipped[reason] == 0:
-                    del skipped[reason]
-            codes[k] = _CODE["held_still"]
-        t_out[:0] = t_new
-        uv_out[:0] = [uv0] * len(held)
-        k_out[:0] = held
-
-    def _detect(self, img, kind, params, age, roi, predicted):
-        board = self.board
-        as_image = False
-        det = None
-        if kind == "leaky":
-            # The leaky integrator approximates log intensity (circles dark) once the board has moved by more
-            # than a circle within tau; try it as an image first. Such a detection shows the circles where
-            # they are now: it is stamped with the query time.
-            det = detect_circle_grid(img, board, self.camera, foreground="dark")
-            as_image = det.reason == REASON_OK
-        if det is None or det.reason != REASON_OK:
-            rim, level = _rim_image(img, kind, params, age)
-            det = None
-            if roi is not None:
-                # Look where the board was a moment ago first: fewer pixels and less clutter, and the circles
-                # can be labelled by their predicted positions.
-                det = detect_circle_grid(rim, board, self.camera, foreground="rims", rim_threshold=level, roi=roi,
-                                         predicted_uv=predicted)
-            if det is None or det.reason != REASON_OK:
-                det = detect_circle_grid(rim, board, self.camera, foreground="rims", rim_threshold=level)
-        return det, as_image
-
     def _run(self, t_query: np.ndarray, i0s: np.ndarray, i1s: np.ndarray, progress=None):
         stream, board, kind, params = self.stream, self.board, self.kind, self.params
         aruco = make_aruco_detector(self.border_bits) if board.pattern == "aprilgrid" else None
-        circles = board.pattern == "asymmetric_circles"
         skipped: Counter[str] = Counter()
         retries: Counter[int] = Counter()
         secs = {"surfaces": 0.0, "detection": 0.0}
-        t_out, uv_out, k_out = [], [], []
-        codes = np.full(t_query.size, _CODE["too_few_events"], dtype=np.int8)
+        t_out, uv_out = [], []
         n_events = 0
-        # Tracking state, carried over from the previous span of a streamed recording: region of interest,
-        # predicted circles, the last detection (query time, stamp, all circles), the last detection's labels
-        # and the noise-filtered event rate (1/s) around the board when it was last found.
-        st = dict(self.state or {})
-        roi, predicted, prev = st.get("roi"), st.get("predicted"), st.get("prev")
-        last_uv, ref_rate, last_good = st.get("last_uv"), st.get("ref_rate"), st.get("last_good", 0)
-        lost = st.get("lost", 0)  # windows since the last detection
-        ref_all = st.get("ref_all")  # the same as ref_rate over the whole image (supported events only)
+        last_good = 0
+        roi = predicted = prev = None
         as_image = False
-        period_s = self.period_s
-        age0 = _active_age_s(kind, params, self.window_s)
-        decaying = kind in ("time_surface", "leaky")
+        period_s = float(np.median(np.diff(t_query))) * 1e-9 if t_query.size > 1 else 0.0
         for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
             if progress is not None:
                 progress(k, t_query.size)
-            if i1 - i0 < (1 if last_uv is not None else self.min_events):
-                # Not even sensor noise: the stream has a gap here (a still camera keeps firing noise events; while
-                # a board is followed, a quiet window may still be a still board and is judged below).
+            if i1 - i0 < self.min_events:
                 skipped["too_few_events"] += 1
-                roi = predicted = last_uv = None
+                roi = predicted = None
                 continue
             ev = stream.slice_index(int(i0), int(i1))
             n_events += int(i1 - i0)
-            c0 = time.perf_counter()
-            # Event rate around the board (or in the whole image) decides the span to start with.
-            near = self._clean(ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1), roi)
-            rate_now = len(near) / max(age0, 1e-9)
-            secs["surfaces"] += time.perf_counter() - c0
-            if circles:
-                wanted = WINDOW_LADDER[last_good]
-                if ref_rate is not None and rate_now > 0:
-                    wanted = WINDOW_LADDER[last_good] * ref_rate / rate_now
-                order = _span_order(wanted)
-                if wanted <= 1.0:  # events enough for a period or less: long spans (costly to filter) cannot help
-                    order = [j for j in order if WINDOW_LADDER[j] <= 1.0]
-                order = order[:MAX_SPANS_PER_WINDOW]
-            else:
-                order = [0]
-            still_n = STILL_RATE_FRACTION * (ref_rate or 0.0) * age0
-            # Held only straight after a detection or a held window, and only if the whole image is quiet too: a
-            # camera turning the board out of view leaves the board's region quiet when it shows a plain wall.
-            if (self.hold_still and circles and last_uv is not None and ref_rate is not None and roi is not None
-                    and prev is not None and abs(int(tq) - prev[0] - period_s * 1e9) < 0.5 * period_s * 1e9
-                    and _supported_events(near) < still_n
-                    and _supported_events(self._clean(ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1)))
-                    < STILL_RATE_FRACTION * (ref_all or 0.0) * age0):
-                # Nothing moves around the board: it is where it was last seen (an event camera sees no change
-                # without motion). Held detections are marked in the window outcomes.
-                codes[k] = _CODE["held_still"]
-                t_det = tq * 1e-9 - 0.5 * period_s
-                if t_out and t_det <= t_out[-1]:
-                    codes[k] = _CODE["time_not_increasing"]
-                    skipped["time_not_increasing"] += 1
-                    continue
-                t_out.append(t_det)
-                k_out.append(k)
-                uv_out.append(last_uv)
-                prev = (int(tq), t_det, _complete_by_homography(last_uv, board))
-                predicted = prev[2]
-                continue
+            age0 = _active_age_s(kind, params, self.window_s)
+            decaying = kind in ("time_surface", "leaky")
             img = None
             det = None
+            # Start with the span that worked last time: the speed of the board changes slowly.
+            order = sorted(range(len(WINDOW_LADDER)), key=lambda i: (i != last_good, i))
+            if board.pattern != "asymmetric_circles":
+                order = [0]
             for j in order:
                 frac = WINDOW_LADDER[j]
                 age = frac * age0
                 c0 = time.perf_counter()
-                if frac > 1.0:
-                    if decaying:
-                        continue  # a decaying surface's look-back is fixed by tau
-                    # Slow motion: a longer look-back from the whole buffered stream, where background activity
-                    # would otherwise fill the circles' insides (in the board's region when it is known; over the
-                    # whole image only while the event rate is low enough to filter it cheaply).
-                    sub = stream.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
-                    if roi is None and len(sub) > MAX_LONG_SPAN_EVENTS:
-                        continue
-                    sub = self._clean(sub, roi, ba=True)
-                    if len(sub) < self.min_events:
-                        continue
-                    img = surfaces.surface(sub, kind, int(tq), **params)
-                    img_decays = False
-                elif img is None or not decaying or img_decays is False:
-                    # Non-decaying kinds: rebuild the surface from the most recent events only. Decaying kinds are
-                    # built once; the rim level below selects the age. A time surface's rims only show pixels
-                    # whose last event is younger than tau, so older events need not be read at all (the leaky
-                    # integrator sums over its whole look-back and keeps it).
-                    if kind == "time_surface" and circles:
+                if img is None or not decaying:
+                    # Non-decaying kinds: rebuild the surface from the most recent events only. Decaying kinds
+                    # are built once; the rim level below selects the age. A time surface's rims only show
+                    # pixels whose last event is younger than tau, so older events need not be read at all
+                    # (the leaky integrator sums over its whole look-back and keeps it).
+                    if kind == "time_surface" and board.pattern == "asymmetric_circles":
                         sub = ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1)
                     elif frac == 1.0 or decaying:
                         sub = ev
                     else:
                         sub = ev.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
-                    sub = self._clean(sub)
                     if len(sub) < self.min_events:
                         continue  # too short a span to show the board; try the others
                     img = surfaces.surface(sub, kind, int(tq), **params)
-                    img_decays = decaying
                 c1 = time.perf_counter()
                 if board.pattern == "aprilgrid":
                     # A light blur joins the speckled event edges into the solid tag borders aruco looks for.
@@ -420,7 +235,25 @@ class _WindowJob:
                     )
                     as_image = kind == "leaky"  # tags are only read off intensity-like images
                 else:
-                    det, as_image = self._detect(img, kind, params, age, roi, predicted)
+                    det = None
+                    as_image = False
+                    if kind == "leaky":
+                        # The leaky integrator approximates log intensity (circles dark) once the board has
+                        # moved by more than a circle within tau; try it as an image first. Such a detection
+                        # shows the circles where they are now: it is stamped with the query time.
+                        det = detect_circle_grid(img, board, self.camera, foreground="dark")
+                        as_image = det.reason == REASON_OK
+                    if det is None or det.reason != REASON_OK:
+                        rim, level = _rim_image(img, kind, params, age)
+                        det = None
+                        if roi is not None:
+                            # Look where the board was a moment ago first: fewer pixels and less clutter, and
+                            # the circles can be labelled by their predicted positions.
+                            det = detect_circle_grid(rim, board, self.camera, foreground="rims",
+                                                     rim_threshold=level, roi=roi, predicted_uv=predicted)
+                        if det is None or det.reason != REASON_OK:
+                            det = detect_circle_grid(rim, board, self.camera, foreground="rims",
+                                                     rim_threshold=level)
                 secs["surfaces"] += c1 - c0
                 secs["detection"] += time.perf_counter() - c1
                 if det.reason == REASON_OK:
@@ -428,59 +261,28 @@ class _WindowJob:
                     last_good = j
                     break
             if det is None or det.reason != REASON_OK:
-                reason = "too_few_events" if det is None else det.reason
-                skipped[reason] += 1
-                codes[k] = _CODE.get(reason, _CODE["grid_not_found"])
-                # Keep looking where the board was for a while (slow boards are lost for a window or two, when
-                # their rims are too thin); then search the whole image again.
-                lost += 1
-                if lost > KEEP_ROI_WINDOWS:
-                    roi = predicted = None
+                skipped["too_few_events" if det is None else det.reason] += 1
+                roi = predicted = None
                 continue
             t_det = None
-            age = WINDOW_LADDER[last_good] * age0
             if self.timestamp == "query" or (as_image and self.timestamp == "events"):
                 t_det = tq * 1e-9
             elif self.timestamp == "events":
-                src = ev if WINDOW_LADDER[last_good] <= 1.0 else self._clean(
-                    stream.slice_time(int(tq) - int(age * 1e9), int(tq) + 1), roi, ba=True)
-                t_det = _event_time(src, det.uv, int(tq), age)
+                t_det = _event_time(ev, det.uv, int(tq), age)
             if t_det is None:  # "window_centre", or no event near the detection (cannot happen for rims)
                 t_det = tq * 1e-9 - 0.5 * age
-            codes[k] = _CODE["detected"]
-            lost = 0
             # Constant-velocity prediction of all circles for the next window (from the last two windows;
             # circles not seen are filled in by the board's homography).
-            full = _complete_by_homography(det.uv, board) if circles else det.uv
-            if prev is not None and abs(int(tq) - prev[0] - period_s * 1e9) < 0.5 * period_s * 1e9 and t_det > prev[1]:
+            full = _complete_by_homography(det.uv, board) if board.pattern == "asymmetric_circles" else det.uv
+            if prev is not None and prev[0] == k - 1 and t_det > prev[1]:
                 predicted = full + (full - prev[2]) * (period_s / (t_det - prev[1]))
-                ok = np.all(np.isfinite(full), axis=1)
-                if ok.sum() >= 2:
-                    step = np.nanmax(np.linalg.norm(predicted - full, axis=1))
-                    d = np.linalg.norm(full[ok][:, None] - full[ok][None], axis=-1)
-                    np.fill_diagonal(d, np.inf)
-                    if step > MAX_PREDICTED_STEP * float(np.median(d.min(axis=1))):
-                        # A jump of most of a spacing per window: the circles' labels could not be told from their
-                        # predicted positions; the next window is searched without them.
-                        predicted = None
             else:
                 predicted = full
-            prev = (int(tq), t_det, full)
+            prev = (k, t_det, full)
             t_out.append(t_det)
-            k_out.append(k)
             uv_out.append(det.uv)
-            last_uv = det.uv
             roi = _roi_around(det.uv, stream.width, stream.height)
-            n_roi = len(self._clean(ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1), roi))
-            ref_rate = n_roi / max(age0, 1e-9)
-            ref_all = _supported_events(self._clean(ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1))) / max(
-                age0, 1e-9)
-        if self.hold_still and circles and k_out and not st.get("seen_before"):
-            self._hold_backwards(t_query, t_out, uv_out, k_out, codes, skipped, age0)
-        self.state = {"roi": roi, "predicted": predicted, "prev": prev, "last_uv": last_uv, "ref_rate": ref_rate,
-                      "seen_before": bool(k_out) or bool(st.get("seen_before")),
-                      "last_good": last_good, "lost": lost, "ref_all": ref_all}
-        return t_out, uv_out, k_out, skipped, secs, n_events, retries, codes
+        return t_out, uv_out, skipped, secs, n_events, retries
 
 
 # The job of the current parallel run; forked workers inherit it instead of receiving a pickled copy.
@@ -542,10 +344,6 @@ def detect_in_events(
     progress: Callable[[int, int], None] | None = None,
     t_query_ns: np.ndarray | None = None,
     require_detection: bool = True,
-    denoise: bool = True,
-    noise_model: noise.NoiseModel | None = None,
-    hold_still: bool = True,
-    tracking_state: dict | None = None,
 ) -> tuple[Detections, dict]:
     """Board detections in event surfaces at ``rate_hz``; see :func:`camera_track_from_events`.
 
@@ -578,15 +376,10 @@ def detect_in_events(
         t_query = np.asarray(t_query_ns, dtype=np.int64)
     i1s = np.searchsorted(stream.t, t_query, side="right")
     i0s = np.searchsorted(stream.t, t_query - window_ns, side="right")
-    mask = None
-    if denoise:
-        mask = (noise_model if noise_model is not None else noise.NoiseModel.from_stream(stream)).mask
     job = _WindowJob(
         stream, camera, board, kind, params, window_s, min_events, timestamp, tag_layout, tag_border_bits,
-        tag_blur_sigma, noise_mask=mask, ba_dt_s=0.005 if denoise else 0.0, hold_still=hold_still,
+        tag_blur_sigma,
     )
-    job.period_s = period_ns * 1e-9
-    job.state = tracking_state
     workers = max(1, min(int(workers), t_query.size))
     if workers == 1:
         parts = [job.run(t_query, i0s, i1s, progress)]
@@ -598,23 +391,19 @@ def detect_in_events(
     n_events = 0
     last_t = -np.inf
     ladder: Counter[int] = Counter()
-    codes = []
-    for p_t, p_uv, p_k, p_skipped, p_secs, p_n, p_ladder, p_codes in parts:
+    for p_t, p_uv, p_skipped, p_secs, p_n, p_ladder in parts:
         skipped.update(p_skipped)
         ladder.update(p_ladder)
         n_events += p_n
         for key in secs:
             secs[key] += p_secs[key]
-        for t_det, uv, kk in zip(p_t, p_uv, p_k, strict=True):
+        for t_det, uv in zip(p_t, p_uv, strict=True):
             if t_det <= last_t:
                 skipped["time_not_increasing"] += 1
-                p_codes[kk] = _CODE["time_not_increasing"]
                 continue
             last_t = t_det
             t_out.append(t_det)
             uv_out.append(uv)
-        codes.append(p_codes)
-    codes_all = np.concatenate(codes) if codes else np.zeros(0, np.int8)
     if progress is not None:
         progress(t_query.size, t_query.size)
     info = {
@@ -626,11 +415,7 @@ def detect_in_events(
         "board": board.name or board.pattern,
         "windows": int(t_query.size),
         "detected": len(t_out),
-        "held_still": int(np.count_nonzero(codes_all == _CODE["held_still"])),
         "skipped": dict(skipped),
-        # Per window: query time (s, the stream's clock) and outcome (index into OUTCOMES), for coverage plots.
-        "window_outcomes": {"t": t_query * 1e-9, "code": codes_all, "names": OUTCOMES},
-        "tracking_state": job.state if workers == 1 else None,
         "events_used": n_events,
         "detected_at_window_fraction": {str(WINDOW_LADDER[j]): int(c) for j, c in sorted(ladder.items())},
         "seconds": secs,
@@ -710,7 +495,6 @@ def _track_from_detections(
     dets: Detections, info: dict, camera: CameraModel, max_rms_px: float, sigma_px: float | None
 ) -> CameraTrack:
     """PnP on the detections and the front end's bookkeeping merged into the track's info."""
-    info.pop("tracking_state", None)
     c0 = time.perf_counter()
     track = camera_track_from_detections(dets, camera, max_rms_px=max_rms_px, sigma_px=sigma_px)
     info["seconds"]["pnp"] = time.perf_counter() - c0
@@ -755,8 +539,7 @@ def camera_track_from_event_chunks(
     Windows lie on the same grid as in one pass (every 1 / ``rate_hz`` from the first event). Events are
     buffered until they span ``span_s``; the windows ending inside the buffer are detected, then all but the
     last ``history_s`` (longer than any window's look-back) is dropped. Memory therefore follows the span,
-    not the recording's length. Tracking goes on across spans (its state is handed over); hot and flickering
-    pixels are judged on all events seen so far (:class:`plsgraph.frontend.noise.NoiseModel`, updated per span).
+    not the recording's length. The grid tracking restarts at each span (a full search in its first window).
     ``expected_span_ns`` (first, last event time, e.g. from the file's summary) only sizes the progress bar.
     """
     if not (span_s > 0 and history_s > 0 and rate_hz > 0):
@@ -768,13 +551,6 @@ def camera_track_from_event_chunks(
     keep_ns = max(int(history_s * 1e9), int(window_s * 1e9) + period)  # every window's look-back stays buffered
     reorder_ns = 100_000_000  # packets arrive up to this much out of order: their windows wait that long
     buf: EventStream | None = None
-    # Hot and flickering pixels are judged on all the events seen so far (updated once per span).
-    noise_model: noise.NoiseModel | None = None
-    denoise = detect_options.get("denoise", True)
-    outcome_t: list[np.ndarray] = []
-    outcome_code: list[np.ndarray] = []
-    new_from = None  # first event time not yet added to the noise model
-    state = None  # the tracker's state at the end of the previous span
     next_q: int | None = None
     t_parts: list[np.ndarray] = []
     uv_parts: list[np.ndarray] = []
@@ -786,29 +562,17 @@ def camera_track_from_event_chunks(
         total = max(1, int((expected_span_ns[1] - expected_span_ns[0]) // period))
 
     def detect(t_end: int) -> None:
-        nonlocal buf, next_q, info, noise_model, new_from, state
+        nonlocal buf, next_q, info
         q = np.arange(next_q, t_end, period, dtype=np.int64)
         if q.size:
-            if denoise:
-                if noise_model is None:
-                    noise_model = noise.NoiseModel(buf.width, buf.height)
-                fresh = buf.slice_time(buf.t_first if new_from is None else new_from, t_end)
-                if len(fresh):
-                    noise_model.update(fresh)
-                    new_from = int(fresh.t_last) + 1
             dets, part = detect_in_events(buf, camera, board, rate_hz, kind, t_query_ns=q, require_detection=False,
-                                          noise_model=noise_model, tracking_state=state, **detect_options)
-            state = part.pop("tracking_state")
-            wo = part.pop("window_outcomes")
-            outcome_t.append(wo["t"])
-            outcome_code.append(wo["code"])
+                                          **detect_options)
             t_parts.append(dets.t)
             uv_parts.append(dets.uv)
             skipped.update(part["skipped"])
             if info:
                 info["windows"] += part["windows"]
                 info["events_used"] += part["events_used"]
-                info["held_still"] += part["held_still"]
                 for k, v in part["seconds"].items():
                     info["seconds"][k] = info["seconds"].get(k, 0.0) + v
             else:
@@ -848,9 +612,6 @@ def camera_track_from_event_chunks(
         t, uv = t[keep], uv[keep]
     info["skipped"] = dict(skipped)
     info["detected"] = int(t.size)
-    info["window_outcomes"] = {"t": np.concatenate(outcome_t) if outcome_t else np.zeros(0),
-                               "code": np.concatenate(outcome_code) if outcome_code else np.zeros(0, np.int8),
-                               "names": OUTCOMES}
     info["streamed_span_s"] = span_s
     info["late_events"] = late_events  # arrived after their windows were detected (out-of-order packets)
     if t.size == 0:
