@@ -85,6 +85,8 @@ def test_disagreement_only_beyond_the_combined_sigmas():
     assert disagreement_with_seed(T, 0.0, cov, near, 0.0, opt) == {}
     d = disagreement_with_seed(T, 0.0, cov, far, 0.05, opt)
     assert set(d) == {"yaw", "td"} and d["yaw"] > 3
+    # A closed form solved at a wrong time offset (replaced by the turn-angle search) is no reference for rotation.
+    assert set(disagreement_with_seed(T, 0.0, cov, far, 0.05, opt, rotation=False)) == {"td"}
 
 
 def test_unknown_height_is_written_as_zero_with_a_note():

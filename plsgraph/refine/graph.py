@@ -963,7 +963,8 @@ def refine(
         if found is not None and abs(found[0] - td_seed) > opt.td_search_replace_s:
             log.info("refine: td seed %.4f s -> %.4f s (turn-angle search)", td_seed, found[0])
             search_note = (f"the closed form's time offset {1e3 * td_seed:+.1f} ms was a wrong correlation peak: the "
-                           f"turn-angle search found {1e3 * found[0]:+.1f} ms and the refinement started there")
+                           f"turn-angle search found {1e3 * found[0]:+.1f} ms and the refinement started there; the closed-form "
+                           "rotation, solved at the wrong offset, is not used to check the refined one")
             if opt.estimate_odometry_scale:
                 # The seed's odometry scales were fitted at the wrong td: start from nominal speed and this turn scale.
                 scale0 = (1.0, float(np.clip(found[1], 0.3, 3.0)))
@@ -1139,7 +1140,8 @@ def refine(
         seed_T_base_cam=C_seed,
         seed_td=td_given,
         odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
-        disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_seed, opt),
+        disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_seed, opt,
+                                                                          rotation=td_seed == td_given),
         inflation=inflation,
         td_searched=None if td_seed == td_given else float(td_seed),
     )
@@ -1193,12 +1195,15 @@ def correlation_inflation(graph, batch: FrameBatch, values: gtsam.Values, opt: R
 
 
 def disagreement_with_seed(res_T: np.ndarray, res_td: float, cov_base: np.ndarray, seed_T: np.ndarray,
-                           seed_td: float, opt: RefinementOptions, limit: float = 3.0) -> dict[str, float]:
+                           seed_td: float, opt: RefinementOptions, limit: float = 3.0,
+                           rotation: bool = True) -> dict[str, float]:
     """Quantities (roll, pitch, yaw, td) on which the refinement and its seed differ by more than ``limit``
-    combined sigmas (the refinement's and the assumed ``seed_sigma_*`` of the closed form), in those sigmas."""
+    combined sigmas (the refinement's and the assumed ``seed_sigma_*`` of the closed form), in those sigmas.
+    Without ``rotation`` only td is compared (a closed form solved at a wrong time offset is no reference for the
+    rotation)."""
     d = so3_log(res_T[:3, :3] @ seed_T[:3, :3].T)  # base axes
     out = {}
-    for k, ax in enumerate(("roll", "pitch", "yaw")):
+    for k, ax in enumerate(("roll", "pitch", "yaw") if rotation else ()):
         z = abs(float(d[k])) / float(np.sqrt(cov_base[k, k] + opt.seed_sigma_rot**2))
         if z > limit:
             out[ax] = round(z, 2)
