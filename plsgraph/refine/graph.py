@@ -963,8 +963,8 @@ def refine(
         if found is not None and abs(found[0] - td_seed) > opt.td_search_replace_s:
             log.info("refine: td seed %.4f s -> %.4f s (turn-angle search)", td_seed, found[0])
             search_note = (f"the closed form's time offset {1e3 * td_seed:+.1f} ms was a wrong correlation peak: the "
-                           f"turn-angle search found {1e3 * found[0]:+.1f} ms and the refinement started there; the closed-form "
-                           "rotation, solved at the wrong offset, is not used to check the refined one")
+                           f"turn-angle search found {1e3 * found[0]:+.1f} ms and the refinement started there; the "
+                           "closed-form rotation, solved at the wrong offset, is not used to check the refined one")
             if opt.estimate_odometry_scale:
                 # The seed's odometry scales were fitted at the wrong td: start from nominal speed and this turn scale.
                 scale0 = (1.0, float(np.clip(found[1], 0.3, 3.0)))
