@@ -148,6 +148,12 @@ def _errors(run, truth: dict) -> dict:
                 refined["nees_rot"] = float(d_rot @ np.linalg.solve(cov[:3, :3], d_rot))
             except np.linalg.LinAlgError:
                 refined["nees_rot"] = None
+        odo = ref.odometry or {}
+        if odo.get("wheel_radius_m") and truth.get("wheel_radius_true") and truth.get("track_width_effective"):
+            refined["odometry"] = {
+                "wheel_radius_err_pct": 100 * (odo["wheel_radius_m"] / truth["wheel_radius_true"] - 1),
+                "track_width_err_pct": 100 * (odo["track_width_m"] / truth["track_width_effective"] - 1),
+            }
         out["refined"] = refined
     return out
 
@@ -254,6 +260,10 @@ def summarize(runs: list[dict]) -> dict:
         "refined_rot_err_deg_p95": _pct(col("refined.rot_err_deg"), 95),
         "refined_abs_td_err_ms_median": _pct([abs(x) for x in col("refined.td_err_ms") if x is not None], 50),
         "refined_txy_err_m_median": _pct(col("refined.txy_err_m"), 50),
+        "refined_wheel_radius_abs_err_pct_median": _pct([abs(x) for x in col("refined.odometry.wheel_radius_err_pct")
+                                                         if x is not None], 50),
+        "refined_track_width_abs_err_pct_median": _pct([abs(x) for x in col("refined.odometry.track_width_err_pct")
+                                                        if x is not None], 50),
         "refined_not_worse_fraction": (sum(1 for c, f in pairs if f <= c) / len(pairs)) if pairs else None,
         "z_within_3_fraction": float(np.mean(np.abs(z) <= 3)) if z.size else None,
         "z_within_3_fraction_per_axis": {a: float(np.mean(np.abs(z[:, i]) <= 3)) for i, a in enumerate(AXES)}
