@@ -7,30 +7,18 @@ import sqlite3
 
 import numpy as np
 import pytest
+from recordings import random_streams
 
-from plsgraph.core.camera import CameraModel
-from plsgraph.core.events import EventStream
 from plsgraph.errors import RecordingError
-from plsgraph.io import JointStates, OdometryMsgs, inspect_recording, read_events, read_recording, write_recording
+from plsgraph.io import inspect_recording, read_events, read_recording, write_recording
 from plsgraph.io.db3_reader import Db3Source
 from plsgraph.io.mcap_reader import McapSource
 from plsgraph.io.messages import typestore
 from plsgraph.io.source import open_source
 
-T0 = 1_700_000_000_000_000_000
-
 
 def _mcap(tmp_path, event_format="dvs"):
-    rng = np.random.default_rng(3)
-    n, seconds = 3000, 0.5
-    t = np.sort(rng.integers(0, int(seconds * 1e6), n)) * 1000 + T0
-    ev = EventStream.from_arrays(t, rng.integers(0, 346, n), rng.integers(0, 260, n), rng.random(n) < 0.5, 346, 260)
-    tj = T0 + np.arange(0, int(seconds * 1e9), 20_000_000)
-    js = JointStates(tj, ("left_wheel", "right_wheel"), rng.normal(size=(tj.size, 2)), rng.normal(size=(tj.size, 2)))
-    q = np.tile([0.0, 0.0, 0.0, 1.0], (tj.size, 1))
-    v3 = lambda: rng.normal(size=(tj.size, 3))
-    od = OdometryMsgs(tj, v3(), q, v3(), v3())
-    cam = CameraModel(346, 260, np.array([[320.0, 0, 173], [0, 321.0, 130], [0, 0, 1]]), [0.1, -0.01, 0, 0, 0])
+    ev, js, od, cam = random_streams(3000, 0.5, 3, fy=321.0, dist=[0.1, -0.01, 0, 0, 0])
     p = tmp_path / f"rec_{event_format}.mcap"
     write_recording(p, ev, js, od, cam, event_format=event_format)
     return p

@@ -14,26 +14,14 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 from realdata import SHARED_REAL_DIR
+from recordings import random_streams
 
-from plsgraph.core.camera import CameraModel
-from plsgraph.core.events import EventStream
 from plsgraph.errors import RecordingError
-from plsgraph.io import JointStates, OdometryMsgs, inspect_recording, read_events, read_recording, write_recording
-
-T0 = 1_700_000_000_000_000_000
+from plsgraph.io import inspect_recording, read_events, read_recording, write_recording
 
 
 def _sim(n: int, seconds: float, seed: int):
-    rng = np.random.default_rng(seed)
-    t = np.sort(rng.integers(0, int(seconds * 1e6), n)) * 1000 + T0
-    ev = EventStream.from_arrays(t, rng.integers(0, 346, n), rng.integers(0, 260, n), rng.random(n) < 0.5, 346, 260)
-    tj = T0 + np.arange(0, int(seconds * 1e9), 20_000_000)
-    js = JointStates(tj, ("left_wheel", "right_wheel"), rng.normal(size=(tj.size, 2)), rng.normal(size=(tj.size, 2)))
-    q = np.tile([0.0, 0.0, 0.0, 1.0], (tj.size, 1))
-    v3 = lambda: rng.normal(size=(tj.size, 3))
-    od = OdometryMsgs(tj, v3(), q, v3(), v3())
-    cam = CameraModel(346, 260, np.array([[320.0, 0, 173], [0, 320.0, 130], [0, 0, 1]]), np.zeros(5))
-    return ev, js, od, cam
+    return random_streams(n, seconds, seed)
 
 
 @contextmanager

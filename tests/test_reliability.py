@@ -70,13 +70,18 @@ def _right_or_flagged(r, s, what: str) -> None:
         assert any(what in p for p in r.problems), r.problems
 
 
-@pytest.mark.parametrize("radius", [1.15, 1.05])
-def test_a_wrong_wheel_radius_is_estimated_or_flagged(sim, radius):
-    # Before: exit 0 with yaw 7-18 deg off and a sigma of 0.4 deg. The refinement now estimates the effective radius:
-    # a few per cent off is corrected; 15 % (as likely a misprinted board as a wrong radius) is flagged.
-    r = _calibrate(sim, radius=radius)
-    _right_or_flagged(r, sim[0], "wheel-radius")
-    if radius > 1.1:
+@pytest.mark.parametrize("setting, factor, mention, flagged", [
+    ("radius", 1.15, "wheel-radius", True),  # as likely a misprinted board as a wrong radius
+    ("radius", 1.05, "wheel-radius", False),  # a few per cent: estimated and applied
+    ("track", 2.0, "track-width", True),  # a nominal track twice the effective one: no robot's
+    ("track", 0.5, "track-width", False),  # half: what a skid-steer robot shows
+])
+def test_wrong_odometry_geometry_is_estimated_or_flagged(sim, setting, factor, mention, flagged):
+    # Before: exit 0 with yaw 7-18 deg (radius) or x/y 0.5-0.7 m (track) off and a confident sigma. The refinement
+    # now estimates the effective radius and track: plausible errors are corrected, implausible ones flagged.
+    r = _calibrate(sim, **{setting: factor})
+    _right_or_flagged(r, sim[0], mention)
+    if flagged:
         assert not r.ok
 
 
@@ -84,16 +89,6 @@ def test_a_wrong_wheel_radius_names_the_likely_one(sim):
     r = _calibrate(sim, radius=1.15)
     text = " ".join(r.problems)
     assert "suggests 0.09" in text  # the nominal 0.098 m, as the closed form estimates it
-
-
-@pytest.mark.parametrize("track", [2.0, 0.5])
-def test_a_wrong_track_width_is_estimated_or_flagged(sim, track):
-    # Before: exit 0 with x/y 0.5-0.7 m off; the turn-rate ratio only a warning. A nominal track twice the effective
-    # one is implausible (flagged); half of it is what a skid-steer robot shows (estimated and applied).
-    r = _calibrate(sim, track=track)
-    _right_or_flagged(r, sim[0], "track-width")
-    if track > 1:
-        assert not r.ok
 
 
 def test_swapped_wheels_never_pass(sim):

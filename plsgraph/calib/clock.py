@@ -43,6 +43,7 @@ from .time_offset import (
     _window_half,
     base_velocities_on_grid,
     camera_velocities_on_grid,
+    main_lobe,
 )
 
 log = logging.getLogger(__name__)
@@ -247,12 +248,8 @@ def alignment_from_curve(offsets: np.ndarray, values: np.ndarray, overlap_s: np.
 
 
 def _second_peak_index(offsets: np.ndarray, values: np.ndarray, i: int) -> int:
-    a = i
-    while a > 0 and values[a - 1] <= values[a]:
-        a -= 1
-    b = i
-    while b < values.size - 1 and values[b + 1] <= values[b]:
-        b += 1
+    """Index of the highest value outside the main lobe around ``i``."""
+    a, b = main_lobe(values, i, i)
     masked = values.copy()
     masked[a : b + 1] = -np.inf
     return int(np.argmax(masked))

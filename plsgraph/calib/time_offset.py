@@ -264,6 +264,18 @@ def _principal_axis(A: np.ndarray) -> tuple[np.ndarray, float]:
     return evecs[:, -1], float(np.sqrt(max(evals[-2], 0.0) / evals[-1]))
 
 
+def main_lobe(values: np.ndarray, lo: int, hi: int) -> tuple[int, int]:
+    """Indices of the minima that bound the lobe holding ``values[lo:hi + 1]``: walk down both flanks while the
+    curve keeps falling. Everything outside is "another peak"."""
+    a = lo
+    while a > 0 and values[a - 1] <= values[a]:
+        a -= 1
+    b = hi
+    while b < values.size - 1 and values[b + 1] <= values[b]:
+        b += 1
+    return a, b
+
+
 def _lobe_stats(shifts: np.ndarray, values: np.ndarray, i_peak: int) -> tuple[float, float]:
     """Width of the main lobe at half height above the median, and the best other local maximum / peak."""
     base = float(np.median(values))
@@ -276,13 +288,7 @@ def _lobe_stats(shifts: np.ndarray, values: np.ndarray, i_peak: int) -> tuple[fl
     while hi < values.size - 1 and values[hi + 1] > half and values[hi + 1] <= values[hi] + 1e-12:
         hi += 1
     width = float(shifts[hi] - shifts[lo])
-    # Walk down the main lobe to its minima; everything beyond is "another peak".
-    a = lo
-    while a > 0 and values[a - 1] <= values[a]:
-        a -= 1
-    b = hi
-    while b < values.size - 1 and values[b + 1] <= values[b]:
-        b += 1
+    a, b = main_lobe(values, lo, hi)
     others = np.r_[values[:a], values[b + 1 :]]
     if others.size == 0 or peak <= 0:
         return width, 0.0 if peak > 0 else 1.0

@@ -326,6 +326,14 @@ def _window_of(kind: str, surface_params: dict | None, window_s: float | None, r
     return params, window_s
 
 
+def _no_board(windows: int, skipped: Counter, board: Board) -> InsufficientDataError:
+    return InsufficientDataError(
+        f"front end: no board detected in any of {windows} windows ({dict(skipped)}); check that the board "
+        f"definition ({board.cols} x {board.rows} {board.pattern}) matches the target, that it is in view and "
+        "moving, and try another surface kind"
+    )
+
+
 def detect_in_events(
     stream: EventStream,
     camera: CameraModel,
@@ -427,11 +435,7 @@ def detect_in_events(
             "cannot be labelled uniquely and are rejected as ambiguous; use a board with an odd number of rows"
         )
     if not t_out and require_detection:
-        raise InsufficientDataError(
-            f"front end: no board detected in any of {t_query.size} windows ({dict(skipped)}); check that the "
-            f"board definition ({board.cols} x {board.rows} {board.pattern}) matches the target, that it is in "
-            "view and moving, and try another surface kind"
-        )
+        raise _no_board(t_query.size, skipped, board)
     dets = Detections(np.asarray(t_out), np.asarray(uv_out).reshape(-1, n, 2), board.points)
     return dets, info
 
@@ -615,11 +619,7 @@ def camera_track_from_event_chunks(
     info["streamed_span_s"] = span_s
     info["late_events"] = late_events  # arrived after their windows were detected (out-of-order packets)
     if t.size == 0:
-        raise InsufficientDataError(
-            f"front end: no board detected in any of {info.get('windows', 0)} windows ({dict(skipped)}); check that "
-            f"the board definition ({board.cols} x {board.rows} {board.pattern}) matches the target, that it is in "
-            "view and moving, and try another surface kind"
-        )
+        raise _no_board(info.get("windows", 0), skipped, board)
     if progress is not None:
         progress(info["windows"], info["windows"])
     return _track_from_detections(Detections(t, uv, board.points), info, camera, max_rms_px, sigma_px)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 from ..errors import RecordingError
 from .base import RawMessage, ReadLog, TopicInfo
-from .messages import normalize_type
+from .messages import FileTypes, normalize_type
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +40,7 @@ class Db3Source:
         self.log = ReadLog()
         self._topics: dict[str, TopicInfo] = {}
         self._defs: dict[str, tuple[str, str]] = {}  # type -> (encoding, definition text)
-        self._ts = None
+        self._types = FileTypes(self.path.name, event_packages=True)
         for f in files:
             self._read_tables(f)
         if not self._topics:
@@ -163,40 +163,8 @@ class Db3Source:
 
     def deserialize(self, m: RawMessage):
         """A message object (rosbags dataclass) from CDR bytes: ROS 2 Humble types plus the bag's own definitions."""
-        if m.serialization != "cdr":
-            raise RecordingError(f"{self.path.name}: topic {m.topic} uses serialization {m.serialization!r}, not cdr")
-        ts = self._typestore()
-        if m.msgtype not in ts.types:
-            self._register(m)
-        return ts.deserialize_cdr(bytes(m.data), m.msgtype)
-
-    def _typestore(self):
-        if self._ts is None:
-            from rosbags.typesys import Stores, get_typestore
-
-            from .messages import typestore
-
-            # A private store (plus the event packages): types registered from this file's definitions must
-            # not leak into other files.
-            self._ts = get_typestore(Stores.ROS2_HUMBLE)
-            self._ts.register({k: v for k, v in typestore().fielddefs.items() if k not in self._ts.fielddefs})
-        return self._ts
-
-    def _register(self, m: RawMessage) -> None:
-        from rosbags.typesys import get_types_from_msg
-
-        from .mcap_reader import split_msgdef
-
-        enc, text = self._defs.get(m.msgtype, ("", ""))
-        if enc != "ros2msg" or not text:
-            raise RecordingError(
-                f"{self.path.name}: topic {m.topic} has type {m.msgtype}, which is not a standard ROS 2 type and "
-                "has no ros2msg definition in the bag"
-            )
-        types = {}
-        for name, part in split_msgdef(m.msgtype, text):
-            types.update(get_types_from_msg(part, name))
-        self._typestore().register(types)
+        return self._types.deserialize(m, self._defs.get(m.msgtype),
+                                       "which is not a standard ROS 2 type and has no ros2msg definition in the bag")
 
     def close(self) -> None:
         pass

@@ -18,7 +18,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 
 from ..errors import RecordingError
 from .base import RawMessage, ReadLog, TopicInfo
-from .messages import normalize_type
+from .messages import FileTypes, normalize_type
 
 log = logging.getLogger(__name__)
 
@@ -197,12 +197,12 @@ class McapSource:
         """
         if m.serialization == "ros1":
             return self._deserialize_ros1(m)
-        if m.serialization != "cdr":
-            raise RecordingError(f"{self.path.name}: topic {m.topic} uses message encoding {m.serialization!r}")
-        ts = self._typestore()
-        if m.msgtype not in ts.types:
-            self._register(m)
-        return ts.deserialize_cdr(bytes(m.data), m.msgtype)
+        if getattr(self, "_types", None) is None:
+            self._types = FileTypes(self.path.name)
+        info = self.topics().get(m.topic)
+        schema = None if info is None else (info.schema_encoding, info.schema_text)
+        enc = info.schema_encoding if info else "missing"
+        return self._types.deserialize(m, schema, f"with a {enc} schema that plsgraph cannot parse")
 
     def _deserialize_ros1(self, m: RawMessage):
         # MCAP with the ros1 profile: the schema is the bag-style concatenated ROS 1 definition.
@@ -216,28 +216,6 @@ class McapSource:
                 raise RecordingError(f"{self.path.name}: topic {m.topic} has no ROS 1 message definition")
             self._ts1.register(get_types_from_msg(info.schema_text, m.msgtype))
         return self._ts1.deserialize_ros1(bytes(m.data), m.msgtype)
-
-    def _typestore(self):
-        if getattr(self, "_ts", None) is None:
-            # A private store: types registered from this file's schemas must not leak into other files.
-            from rosbags.typesys import Stores, get_typestore
-
-            self._ts = get_typestore(Stores.ROS2_HUMBLE)
-        return self._ts
-
-    def _register(self, m: RawMessage) -> None:
-        from rosbags.typesys import get_types_from_msg
-
-        info = self.topics().get(m.topic)
-        if info is None or info.schema_encoding != "ros2msg" or not info.schema_text:
-            raise RecordingError(
-                f"{self.path.name}: topic {m.topic} has type {m.msgtype} with a "
-                f"{info.schema_encoding if info else 'missing'} schema that plsgraph cannot parse"
-            )
-        types = {}
-        for name, text in split_msgdef(m.msgtype, info.schema_text):
-            types.update(get_types_from_msg(text, name))
-        self._typestore().register(types)
 
 
 def _salvage_chunk(path: Path, start: int, size: int, note: list) -> Iterator:
@@ -296,19 +274,3 @@ def _salvage_chunk(path: Path, start: int, size: int, note: list) -> Iterator:
             break
         note.append(op)
         p += 9 + n
-
-
-def split_msgdef(name: str, text: str) -> list[tuple[str, str]]:
-    """Split a concatenated ROS 2 message definition (main type, then '====' / 'MSG: dep' blocks)."""
-    out: list[tuple[str, str]] = []
-    current, lines = name, []
-    for line in text.splitlines():
-        if line.startswith("=" * 10):
-            out.append((current, "\n".join(lines)))
-            current, lines = "", []
-        elif line.startswith("MSG: ") and not lines and not current:
-            current = normalize_type(line[5:].strip())
-        else:
-            lines.append(line)
-    out.append((current, "\n".join(lines)))
-    return [(n, t) for n, t in out if n]

@@ -225,3 +225,57 @@ def parse_imu_cdr(data, log_time: int):
     stamp, frame = r.header()
     a = r.fixed("float64", 4 + 9 + 3 + 9 + 3 + 9)
     return _stamp_or_log(stamp, log_time), frame, np.concatenate([a[13:16], a[25:28]])
+
+
+def split_msgdef(name: str, text: str) -> list[tuple[str, str]]:
+    """Split a concatenated ROS 2 message definition (main type, then '====' / 'MSG: dep' blocks)."""
+    out: list[tuple[str, str]] = []
+    current, lines = name, []
+    for line in text.splitlines():
+        if line.startswith("=" * 10):
+            out.append((current, "\n".join(lines)))
+            current, lines = "", []
+        elif line.startswith("MSG: ") and not lines and not current:
+            current = normalize_type(line[5:].strip())
+        else:
+            lines.append(line)
+    out.append((current, "\n".join(lines)))
+    return [(n, t) for n, t in out if n]
+
+
+class FileTypes:
+    """A ROS 2 type store private to one recording: rosbags' standard (Humble) types, optionally the event packages,
+    and the types the file defines itself (``ros2msg`` text), which must not leak into other files."""
+
+    def __init__(self, file_name: str, event_packages: bool = False):
+        self.file_name = file_name
+        self.event_packages = event_packages
+        self._ts = None
+
+    @property
+    def store(self):
+        if self._ts is None:
+            from rosbags.typesys import Stores, get_typestore
+
+            self._ts = get_typestore(Stores.ROS2_HUMBLE)
+            if self.event_packages:
+                self._ts.register({k: v for k, v in typestore().fielddefs.items() if k not in self._ts.fielddefs})
+        return self._ts
+
+    def deserialize(self, m, schema: tuple[str, str] | None, unknown: str):
+        """The message object of a CDR ``RawMessage``; a type the store lacks is registered from ``schema``
+        (encoding, text), else refused with ``unknown`` (why the file cannot say what the type is)."""
+        if m.serialization != "cdr":
+            raise RecordingError(f"{self.file_name}: topic {m.topic} uses message encoding {m.serialization!r}")
+        ts = self.store
+        if m.msgtype not in ts.types:
+            from rosbags.typesys import get_types_from_msg
+
+            enc, text = schema or ("", "")
+            if enc != "ros2msg" or not text:
+                raise RecordingError(f"{self.file_name}: topic {m.topic} has type {m.msgtype}, {unknown}")
+            types = {}
+            for name, part in split_msgdef(m.msgtype, text):
+                types.update(get_types_from_msg(part, name))
+            ts.register(types)
+        return ts.deserialize_cdr(bytes(m.data), m.msgtype)

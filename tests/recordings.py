@@ -1,0 +1,26 @@
+"""Small random recordings for reader tests: events, wheel joint states, odometry and camera intrinsics."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plsgraph.core.camera import CameraModel
+from plsgraph.core.events import EventStream
+from plsgraph.io import JointStates, OdometryMsgs
+
+T0 = 1_700_000_000_000_000_000  # a live-clock-like stamp origin (ns)
+
+
+def random_streams(n: int, seconds: float, seed: int, fy: float = 320.0, dist=None):
+    """(events, joints, odometry, camera) of ``n`` random events and 50 Hz wheel/odometry messages over ``seconds``."""
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.integers(0, int(seconds * 1e6), n)) * 1000 + T0
+    ev = EventStream.from_arrays(t, rng.integers(0, 346, n), rng.integers(0, 260, n), rng.random(n) < 0.5, 346, 260)
+    tj = T0 + np.arange(0, int(seconds * 1e9), 20_000_000)
+    js = JointStates(tj, ("left_wheel", "right_wheel"), rng.normal(size=(tj.size, 2)), rng.normal(size=(tj.size, 2)))
+    q = np.tile([0.0, 0.0, 0.0, 1.0], (tj.size, 1))
+    v3 = lambda: rng.normal(size=(tj.size, 3))
+    od = OdometryMsgs(tj, v3(), q, v3(), v3())
+    cam = CameraModel(346, 260, np.array([[320.0, 0, 173], [0, fy, 130], [0, 0, 1]]),
+                      np.zeros(5) if dist is None else dist)
+    return ev, js, od, cam
