@@ -58,16 +58,8 @@ def _closed_form_problems(cf: Any, refinement: Any = None) -> list[str]:
     if _estimated_scales(refinement) is not None:
         speed = None  # estimated jointly and applied by the refinement: judged there (see _odometry_problems)
         turn = turn if turn is not None and turn <= 0 else None
-    if speed is not None and abs(speed - 1.0) > SPEED_SCALE_LIMIT:
-        # Rotations do not care about scale, distances do: a board printed at another size than its YAML says, or
-        # a wrong wheel radius, shows up as the camera and the wheels disagreeing on how far the robot went.
-        r = scale.get("wheel_radius_m")
-        problems.append(
-            f"the camera sees the robot travel {speed:.2f} x as far as the wheel odometry says (more than "
-            f"{SPEED_SCALE_LIMIT:.0%} off): the wheel radius (--wheel-radius"
-            + (f"; the motion suggests {r:.4f} m" if r else "") + ") or the board's size (square_size) is wrong; "
-            "the result cannot be trusted"
-        )
+    if speed is not None:
+        problems += _distance_scale_problems(speed, scale.get("wheel_radius_m"))
     if turn is not None and turn <= 0:
         problems.append(
             "the camera turns the other way than the odometry: the wheels are swapped or one is reversed; check "
@@ -190,16 +182,24 @@ def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
     return problems
 
 
+def _distance_scale_problems(scale: float, radius: float | None) -> list[str]:
+    """The camera and the wheels disagreeing on how far the robot went (closed-form or refined distance scale).
+
+    Rotations do not care about scale, distances do: a board printed at another size than its YAML says and a wrong
+    wheel radius look alike."""
+    if abs(scale - 1.0) <= SPEED_SCALE_LIMIT:
+        return []
+    return [
+        f"the camera and the wheel odometry disagree on distances by x{scale:.3f} (more than {SPEED_SCALE_LIMIT:.0%}): "
+        "a wheel radius (--wheel-radius" + (f"; the motion suggests {radius:.4f} m" if radius else "") + ") that far "
+        "off, or a board printed at another size than its YAML says (square_size); the two cannot be told apart, so "
+        "the translation cannot be trusted"
+    ]
+
+
 def _odometry_problems(s_v: float, s_w: float, radius: float | None = None, track: float | None = None) -> list[str]:
     """Estimated odometry scales that no plausible robot explains (``radius``/``track``: the effective values)."""
-    problems = []
-    if abs(s_v - 1.0) > SPEED_SCALE_LIMIT:
-        problems.append(
-            f"the wheel odometry's distances had to be scaled by x{s_v:.3f} to match the camera (more than "
-            f"{SPEED_SCALE_LIMIT:.0%}): a wheel radius (--wheel-radius"
-            + (f"; the motion suggests {radius:.4f} m" if radius else "") + ") that far off, or a board printed at "
-            "another size than its YAML says; the two cannot be told apart, so the translation cannot be trusted"
-        )
+    problems = _distance_scale_problems(s_v, radius)
     ratio = s_v / s_w if s_w > 0 else float("inf")  # effective / nominal track width
     if not TRACK_RATIO_RANGE[0] <= ratio <= TRACK_RATIO_RANGE[1]:
         problems.append(
