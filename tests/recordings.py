@@ -24,3 +24,29 @@ def random_streams(n: int, seconds: float, seed: int, fy: float = 320.0, dist=No
     cam = CameraModel(346, 260, np.array([[320.0, 0, 173], [0, fy, 130], [0, 0, 1]]),
                       np.zeros(5) if dist is None else dist)
     return ev, js, od, cam
+
+
+def damage(rng, data: bytes) -> tuple[bytes, str]:
+    """A damaged copy of ``data`` (truncated, bit flips, or both) and how it was damaged."""
+    b = bytearray(data)
+    mode = int(rng.integers(0, 3))
+    if mode == 0:
+        return bytes(b[: int(rng.integers(0, len(b)))]), "truncated"
+    if mode == 1:
+        for _ in range(int(rng.integers(1, 4))):
+            j = int(rng.integers(0, len(b)))
+            b[j] ^= 1 << int(rng.integers(0, 8))
+        return bytes(b), "bit flips"
+    b = b[: int(rng.integers(len(b) // 2, len(b)))]
+    b[int(rng.integers(0, len(b)))] ^= 0xFF
+    return bytes(b), "truncated and flipped"
+
+
+def damaged_copies(tmp_path, data: bytes, seed: int, n: int, suffix: str):
+    """(path, how) of ``n`` randomly damaged copies of ``data``, reproducible from ``seed``."""
+    rng = np.random.default_rng(seed)
+    for i in range(n):
+        bad, how = damage(rng, data)
+        p = tmp_path / f"bad{i}{suffix}"
+        p.write_bytes(bad)
+        yield p, how

@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 import pytest
+from recordings import damaged_copies
 
 from plsgraph.errors import RecordingError
 from plsgraph.io import (
@@ -130,16 +131,7 @@ def test_damaged_raw_files(tmp_path):
     assert 0 < n < truth[0].size
     np.testing.assert_array_equal(res.events.t, truth[0][:n])
     # Random damage: a RecordingError or a result (sorted, inside the sensor), never another exception.
-    rng = np.random.default_rng(11)
-    for i in range(20):
-        b = bytearray(data)
-        for _ in range(int(rng.integers(1, 6))):
-            j = int(rng.integers(0, len(b)))
-            b[j] ^= 1 << int(rng.integers(0, 8))
-        if i % 3 == 0:
-            b = b[: int(rng.integers(0, len(b)))]
-        q = tmp_path / f"bad{i}.raw"
-        q.write_bytes(bytes(b))
+    for q, _ in damaged_copies(tmp_path, data, seed=11, n=20, suffix=".raw"):
         try:
             info = inspect_recording(q)
             ev = read_events(q)
@@ -212,16 +204,7 @@ def test_aedat4_damaged_copies(tmp_path):
     p.write_bytes(b"#!AER-DAT3.1\r\n" + data[14:])
     with pytest.raises(RecordingError, match="AEDAT 2/3"):
         read_events(p)
-    rng = np.random.default_rng(5)
-    for i in range(12):
-        b = bytearray(data)
-        for _ in range(int(rng.integers(1, 4))):
-            j = int(rng.integers(0, len(b)))
-            b[j] ^= 1 << int(rng.integers(0, 8))
-        if i % 2:
-            b = b[: int(rng.integers(14, len(b)))]
-        q = tmp_path / f"bad{i}.aedat4"
-        q.write_bytes(bytes(b))
+    for q, _ in damaged_copies(tmp_path, data, seed=5, n=12, suffix=".aedat4"):
         try:
             ev = read_events(q)
         except RecordingError:

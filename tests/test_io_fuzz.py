@@ -14,7 +14,7 @@ from contextlib import contextmanager
 import numpy as np
 import pytest
 from realdata import SHARED_REAL_DIR
-from recordings import random_streams
+from recordings import damaged_copies, random_streams
 
 from plsgraph.errors import RecordingError
 from plsgraph.io import inspect_recording, read_events, read_recording, write_recording
@@ -38,31 +38,6 @@ def _deadline(seconds: int):
         signal.signal(signal.SIGALRM, old)
 
 
-def _damage(rng, data: bytes) -> tuple[bytes, str]:
-    b = bytearray(data)
-    mode = int(rng.integers(0, 3))
-    if mode == 0:
-        return bytes(b[: int(rng.integers(0, len(b)))]), "truncated"
-    if mode == 1:
-        for _ in range(int(rng.integers(1, 4))):
-            j = int(rng.integers(0, len(b)))
-            b[j] ^= 1 << int(rng.integers(0, 8))
-        return bytes(b), "bit flips"
-    b = b[: int(rng.integers(len(b) // 2, len(b)))]
-    b[int(rng.integers(0, len(b)))] ^= 0xFF
-    return bytes(b), "truncated and flipped"
-
-
-def _damaged_copies(tmp_path, data: bytes, seed: int, n: int, suffix: str):
-    """(path, how) of ``n`` randomly damaged copies of ``data``, reproducible from ``seed``."""
-    rng = np.random.default_rng(seed)
-    for i in range(n):
-        bad, how = _damage(rng, data)
-        p = tmp_path / f"bad{i}{suffix}"
-        p.write_bytes(bad)
-        yield p, how
-
-
 def _same(a, b) -> bool:
     if (a.events is None) != (b.events is None) or (a.joints is None) != (b.joints is None):
         return False
@@ -83,7 +58,7 @@ def test_fuzz_written_recordings(tmp_path, fmt, caplog):
     clean = read_recording(src)
     data = src.read_bytes()
     outcomes = {"error": 0, "warned": 0, "same": 0}
-    for p, how in _damaged_copies(tmp_path, data, {"dvs": 1, "libcaer_cmp": 2, "evt3": 3}[fmt], 20, ".mcap"):
+    for p, how in damaged_copies(tmp_path, data, {"dvs": 1, "libcaer_cmp": 2, "evt3": 3}[fmt], 20, ".mcap"):
         with _deadline(20):
             try:
                 rec = read_recording(p)
@@ -136,7 +111,7 @@ def test_corrupt_chunk_is_skipped_and_reported(tmp_path, caplog):
 def test_fuzz_real_davis_no_crash(tmp_path, caplog):
     caplog.set_level(logging.ERROR)
     data = (SHARED_REAL_DIR / "davis346_tagboard.mcap").read_bytes()
-    for p, _ in _damaged_copies(tmp_path, data, 11, 8, ".mcap"):
+    for p, _ in damaged_copies(tmp_path, data, 11, 8, ".mcap"):
         with _deadline(20):
             try:
                 ev = read_events(p)
@@ -149,7 +124,7 @@ def test_fuzz_real_davis_no_crash(tmp_path, caplog):
 def test_damaged_ros1_bag(tmp_path, caplog):
     caplog.set_level(logging.ERROR)
     data = (SHARED_REAL_DIR / "jackal_odometry.bag").read_bytes()
-    for p, _ in _damaged_copies(tmp_path, data, 12, 6, ".bag"):
+    for p, _ in damaged_copies(tmp_path, data, 12, 6, ".bag"):
         with _deadline(20):
             try:
                 rec = read_recording(p)
