@@ -37,6 +37,13 @@ REASON_ORDER = "inconsistent_order"
 REASON_MIRRORED = "mirrored_order"
 REASON_TOO_FEW = "too_few_points"
 REASON_AMBIGUOUS = "ambiguous_labels"
+REASON_TOO_SMALL = "circles_too_small_for_rims"
+
+#: Rims are only trusted while the circles are this many pixels apart (nearest neighbours, diagonal on the
+#: asymmetric grid). Closer, the circles are under ~6 px across (diameter / spacing is 0.57 on the bundled
+#: boards): the thickened rims close their insides, the holes left are the gaps between circles, and a lattice
+#: of those labels the board wrongly. Such boards are found as blobs of events instead.
+MIN_RIM_SPACING_PX = 10.0
 
 #: Hole-area ratio between the two parity classes of a grown lattice above which it is taken for the
 #: lattice of circles and gaps (see :func:`label_circle_grid`).
@@ -680,25 +687,33 @@ def _detect_rims(
     # breaks; k = 3 helps slow motion (wide breaks), k = 1 small, distant circles (small holes).
     result = _fail(n, REASON_NOT_FOUND)
     for k in (2, 3, 1):
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1))
-        centres, area = rim_holes(cv2.dilate(active, kernel).astype(bool))
-        if centres.shape[0] < 6:
-            continue
-        # Circle insides are the largest compact holes; gaps between touching rims and texture leave
-        # smaller ones. Reference: the median of the n largest.
-        ref = float(np.median(np.sort(area)[-n:]))
-        keep = area >= 0.4 * ref
-        if predicted_uv is not None:
-            det = track_circle_grid(centres[keep] + (x0, y0), predicted_uv, board, camera, max_rms_px=max_rms_px)
-            if det.ok:
-                return det
-        det = label_circle_grid(
-            centres[keep] + (x0, y0), board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px
-        )
+        det = _rims_at(active, k, n, board, camera, x0, y0, max_rms_px, min_points, predicted_uv)
         if det.ok:
+            seen = det.uv[np.all(np.isfinite(det.uv), axis=1)]
+            if float(np.median(_neighbour_distance(seen))) < MIN_RIM_SPACING_PX:
+                return _fail(n, REASON_TOO_SMALL, det.homography_rms_px)
             return det
         result = det if result.reason == REASON_NOT_FOUND else result
     return result
+
+
+def _rims_at(active, k, n, board, camera, x0, y0, max_rms_px, min_points, predicted_uv) -> GridDetection:
+    """Rims thickened by ``k`` px, their holes labelled as the board (see :func:`_detect_rims`)."""
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1))
+    centres, area = rim_holes(cv2.dilate(active, kernel).astype(bool))
+    if centres.shape[0] < 6:
+        return _fail(n, REASON_NOT_FOUND)
+    # Circle insides are the largest compact holes; gaps between touching rims and texture leave
+    # smaller ones. Reference: the median of the n largest.
+    ref = float(np.median(np.sort(area)[-n:]))
+    keep = area >= 0.4 * ref
+    if predicted_uv is not None:
+        det = track_circle_grid(centres[keep] + (x0, y0), predicted_uv, board, camera, max_rms_px=max_rms_px)
+        if det.ok:
+            return det
+    return label_circle_grid(
+        centres[keep] + (x0, y0), board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px
+    )
 
 
 # --- AprilGrid -------------------------------------------------------------------------------------

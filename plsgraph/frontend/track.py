@@ -112,6 +112,10 @@ def _active_age_s(kind: str, params: dict, window_s: float) -> float:
 #: Fractions of the nominal rim age tried in turn: fast motion smears a circle's rim over its whole
 #: inside within a full window, so failed windows are retried on the most recent half, quarter and eighth.
 WINDOW_LADDER = (1.0, 0.5, 0.25, 0.125)
+#: Spans (multiples of the window) over which circles are looked for as blobs of events when the rims fail, and
+#: the blur that merges a small circle's events into one blob.
+BLOB_SPANS = (1.0, 2.0, 4.0)
+BLOB_BLUR_PX = 0.8
 
 
 def _complete_by_homography(uv: np.ndarray, board: Board) -> np.ndarray:
@@ -169,6 +173,21 @@ class _WindowJob:
         self.window_s, self.min_events, self.timestamp, self.tag_layout = window_s, min_events, timestamp, tag_layout
         self.border_bits, self.tag_blur = border_bits, float(tag_blur)
 
+    def _blobs(self, tq: int, first: float):
+        """The board as blobs of events (:func:`detect_circle_grid` on a count image) over the spans of
+        :data:`BLOB_SPANS` (multiples of the window; the one that worked last first): (detection, span s,
+        multiple) or None."""
+        for mult in sorted(BLOB_SPANS, key=lambda m: m != first):
+            age = mult * self.window_s
+            sub = self.stream.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
+            if len(sub) < self.min_events:
+                continue
+            img = surfaces.count_image(sub)
+            det = detect_circle_grid(img, self.board, self.camera, foreground="bright", blur_sigma=BLOB_BLUR_PX)
+            if det.reason == REASON_OK:
+                return det, age, mult
+        return None
+
     def run(self, t_query: np.ndarray, i0s: np.ndarray, i1s: np.ndarray, progress=None):
         # OpenCV's internal threads cost more than they save on images this small (connected components:
         # 3x the CPU time with 2 threads); parallelism comes from ``workers`` instead.
@@ -185,11 +204,12 @@ class _WindowJob:
         skipped: Counter[str] = Counter()
         retries: Counter[int] = Counter()
         secs = {"surfaces": 0.0, "detection": 0.0}
-        t_out, uv_out = [], []
+        t_out, uv_out, src_out = [], [], []
         n_events = 0
         last_good = 0
         roi = predicted = prev = None
         as_image = False
+        last_blob = BLOB_SPANS[0]
         period_s = float(np.median(np.diff(t_query))) * 1e-9 if t_query.size > 1 else 0.0
         for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
             if progress is not None:
@@ -257,9 +277,22 @@ class _WindowJob:
                 secs["surfaces"] += c1 - c0
                 secs["detection"] += time.perf_counter() - c1
                 if det.reason == REASON_OK:
-                    retries[j] += 1
+                    retries[("rims", WINDOW_LADDER[j])] += 1
                     last_good = j
                     break
+            blob = None
+            if (det is None or det.reason != REASON_OK) and board.pattern == "asymmetric_circles":
+                # Circles a few pixels wide have no inside left between their rims, and slow motion leaves a
+                # window too sparse for rims: look for the circles as blobs of events over this and longer spans.
+                c0 = time.perf_counter()
+                blob = self._blobs(tq, last_blob)
+                secs["blobs"] = secs.get("blobs", 0.0) + time.perf_counter() - c0
+                if blob is not None:
+                    det, age, mult = blob
+                    ev = self.stream.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
+                    as_image = False
+                    last_blob = mult
+                    retries[("blob", mult)] += 1
             if det is None or det.reason != REASON_OK:
                 skipped["too_few_events" if det is None else det.reason] += 1
                 roi = predicted = None
@@ -281,8 +314,9 @@ class _WindowJob:
             prev = (k, t_det, full)
             t_out.append(t_det)
             uv_out.append(det.uv)
+            src_out.append("blobs" if blob is not None else ("image" if as_image else "rims"))
             roi = _roi_around(det.uv, stream.width, stream.height)
-        return t_out, uv_out, skipped, secs, n_events, retries
+        return t_out, uv_out, skipped, secs, n_events, retries, src_out
 
 
 # The job of the current parallel run; forked workers inherit it instead of receiving a pickled copy.
@@ -394,24 +428,25 @@ def detect_in_events(
     else:
         parts = _run_parallel(job, t_query, i0s, i1s, workers, progress)
     skipped: Counter[str] = Counter()
-    secs = {"surfaces": 0.0, "detection": 0.0}
-    t_out, uv_out = [], []
+    secs = {"surfaces": 0.0, "detection": 0.0, "blobs": 0.0}
+    t_out, uv_out, src_out = [], [], []
     n_events = 0
     last_t = -np.inf
-    ladder: Counter[int] = Counter()
-    for p_t, p_uv, p_skipped, p_secs, p_n, p_ladder in parts:
+    ladder: Counter[tuple] = Counter()
+    for p_t, p_uv, p_skipped, p_secs, p_n, p_ladder, p_src in parts:
         skipped.update(p_skipped)
         ladder.update(p_ladder)
         n_events += p_n
         for key in secs:
-            secs[key] += p_secs[key]
-        for t_det, uv in zip(p_t, p_uv, strict=True):
+            secs[key] += p_secs.get(key, 0.0)
+        for t_det, uv, src in zip(p_t, p_uv, p_src, strict=True):
             if t_det <= last_t:
                 skipped["time_not_increasing"] += 1
                 continue
             last_t = t_det
             t_out.append(t_det)
             uv_out.append(uv)
+            src_out.append(src)
     if progress is not None:
         progress(t_query.size, t_query.size)
     info = {
@@ -423,9 +458,10 @@ def detect_in_events(
         "board": board.name or board.pattern,
         "windows": int(t_query.size),
         "detected": len(t_out),
+        "detector": src_out,
         "skipped": dict(skipped),
         "events_used": n_events,
-        "detected_at_window_fraction": {str(WINDOW_LADDER[j]): int(c) for j, c in sorted(ladder.items())},
+        "detected_at_window_fraction": {f"{m}:{f:g}": int(c) for (m, f), c in sorted(ladder.items())},
         "seconds": secs,
         "warnings": [],
     }
@@ -558,6 +594,7 @@ def camera_track_from_event_chunks(
     next_q: int | None = None
     t_parts: list[np.ndarray] = []
     uv_parts: list[np.ndarray] = []
+    src_parts: list[str] = []
     info: dict = {}
     skipped: Counter[str] = Counter()
     late_events = 0
@@ -573,6 +610,7 @@ def camera_track_from_event_chunks(
                                           **detect_options)
             t_parts.append(dets.t)
             uv_parts.append(dets.uv)
+            src_parts.extend(part["detector"])
             skipped.update(part["skipped"])
             if info:
                 info["windows"] += part["windows"]
@@ -609,11 +647,13 @@ def camera_track_from_event_chunks(
     detect(buf.t_last + period)
     t = np.concatenate(t_parts) if t_parts else np.zeros(0)
     uv = np.concatenate(uv_parts) if uv_parts else np.zeros((0, board.n_points, 2))
+    src = np.asarray(src_parts, dtype=object)
     if t.size > 1:  # a detection stamped before its predecessor (across spans) would break the time order
         keep = later_than_all_before(t)
         if not keep.all():
             skipped["time_not_increasing"] += int(np.count_nonzero(~keep))
-        t, uv = t[keep], uv[keep]
+        t, uv, src = t[keep], uv[keep], src[keep]
+    info["detector"] = src.tolist()
     info["skipped"] = dict(skipped)
     info["detected"] = int(t.size)
     info["streamed_span_s"] = span_s
