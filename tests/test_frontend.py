@@ -113,3 +113,28 @@ def test_worker_processes_give_the_same_track(sim):
     assert np.all(rotation_error_deg(one.T_board_cam[:, :3, :3], two.T_board_cam[:, :3, :3]) < 0.2)
     np.testing.assert_allclose(one.T_board_cam[:, :3, 3], two.T_board_cam[:, :3, 3], atol=2e-3)
     assert sum(one.info["skipped"].values()) == sum(two.info["skipped"].values())
+
+
+FAR_BOARD = load_board("acircles_4x11_a2")
+
+
+@pytest.fixture(scope="module")
+def far_sim():
+    """The A2 board 2.4 m away: circles ~4 px across, 7 px apart, sliding across the image at ~40 px/s."""
+    t = np.arange(0.0, 1.0 + 1e-9, 0.004)
+    p = np.stack([0.4 * t - 0.2, 0.05 * np.sin(2 * t), 0.1 * t], axis=1)
+    R = so3_exp(np.array([0.02, -0.03, 0.04]))
+    poses = make_T(np.repeat(R[None], t.size, axis=0), FAR_BOARD.points.mean(axis=0) + np.array([0, 0, -2.4]) + p)
+    return t, poses, simulate_events(t, poses, CAM, FAR_BOARD, seed=1)
+
+
+def test_small_circles_found_as_blobs_and_never_mislabelled(far_sim):
+    t, poses, ev = far_sim
+    track = camera_track_from_events(ev, CAM, FAR_BOARD, rate_hz=30, kind="count")
+    T_true = interpolate_poses(np.clip(track.t, t[0], t[-1]), t, poses)
+    uv_true = np.stack([CAM.project(transform_points(inv_T(T), FAR_BOARD.points)) for T in T_true])
+    err = np.nanmedian(np.linalg.norm(track.detections.uv - uv_true, axis=2), axis=1)
+    assert track.info["windows"] == 30
+    assert len(track) >= 20  # rims alone find (almost) none of these windows
+    assert set(track.info["detector"]) == {"blobs"}  # rims are refused for circles this small
+    assert err.max() < 1.0 and np.median(err) < 0.3  # no wrong correspondence, centres to a fraction of a pixel
