@@ -42,6 +42,8 @@ import numpy as np
 BOARD = "acircles_4x11_a2"
 AXES = ("roll", "pitch", "yaw", "x", "y", "td")
 WRONG_PX = 5.0  # a detection whose median point error exceeds this is a wrong correspondence
+MOVING_PX_S = 5.0  # a board moving slower than this across the image makes (almost) no events
+LAG_PX_S = 40.0  # detections of a board at least this fast measure the detection lag
 
 
 def _realism(kind: str, effect: str | None, rng: np.random.Generator):
@@ -102,6 +104,29 @@ def _frontend_metrics(rec, run, rate_hz: float = 30.0) -> dict:
     med = np.nanmedian(err, axis=1)
     wrong = med > WRONG_PX
     good_err = err[~wrong]
+    # Windows in which the board moves: a still board makes no events, and no detector can find it there.
+    uv_grid = _true_pixels(sim, t_grid)
+    speed = np.r_[0.0, np.median(np.linalg.norm(np.diff(uv_grid, axis=0), axis=-1), axis=1) * rate_hz]
+    moving = in_view & (speed >= MOVING_PX_S)
+    out["windows_in_view_moving"] = int(moving.sum())
+    out["detected_fraction_moving"] = float((detected & moving).sum() / max(1, moving.sum()))
+    # Detection lag: the shift of the true board's time that best fits each detection (median over the
+    # detections of a board moving fast enough to show it). Pixel latency makes it negative: the events show
+    # the board where it was a moment before their stamps.
+    tb = sim.truth_base.t
+    lo, hi = tb[0] - sim.td + 0.031, tb[-1] - sim.td - 0.031  # camera times with truth 30 ms either side
+    shifts = np.arange(-0.03, 0.0301, 0.0005)
+    inside = ~wrong & (t_det_s > lo) & (t_det_s < hi)
+    t_in = t_det_s[inside]
+    v_det = np.median(np.linalg.norm(_true_pixels(sim, t_in + 0.01) - _true_pixels(sim, t_in - 0.01), axis=-1),
+                      axis=1) / 0.02 if t_in.size else np.zeros(0)
+    fast = v_det >= LAG_PX_S
+    out["detection_lag_ms"] = None
+    if fast.sum() >= 5:
+        uv_u, t_u = np.asarray(det.uv)[inside][fast], t_in[fast]
+        cost = np.stack([np.nanmedian(np.linalg.norm(uv_u - _true_pixels(sim, t_u + s), axis=-1), axis=1)
+                         for s in shifts])
+        out["detection_lag_ms"] = float(1e3 * np.median(shifts[np.argmin(cost, axis=0)]))
     out.update(
         detections=int(len(det)),
         detected_fraction=float((detected & in_view).sum() / max(1, in_view.sum())),
@@ -250,6 +275,9 @@ def summarize(runs: list[dict]) -> dict:
         "visible_fraction_median": _pct(col("visible_fraction"), 50),
         "detected_fraction_median": _pct(det_frac, 50),
         "detected_fraction_p10": _pct(det_frac, 10),
+        "detected_fraction_moving_median": _pct([x for x in col("detected_fraction_moving") if x is not None], 50),
+        "detected_fraction_moving_p10": _pct([x for x in col("detected_fraction_moving") if x is not None], 10),
+        "detection_lag_ms_median": _pct([x for x in col("detection_lag_ms") if x is not None], 50),
         "wrong_detection_rate": wrong / dets if dets else None,
         "centre_err_px_median": _pct(col("centre_err_px_median"), 50),
         "closed_form_rot_err_deg_median": _pct(col("closed_form.rot_err_deg"), 50),
@@ -259,6 +287,9 @@ def summarize(runs: list[dict]) -> dict:
         "refined_rot_err_deg_median": _pct(col("refined.rot_err_deg"), 50),
         "refined_rot_err_deg_p95": _pct(col("refined.rot_err_deg"), 95),
         "refined_abs_td_err_ms_median": _pct([abs(x) for x in col("refined.td_err_ms") if x is not None], 50),
+        "refined_abs_td_err_minus_lag_ms_median": _pct(
+            [abs(r["refined"]["td_err_ms"] - r["detection_lag_ms"]) for r in runs
+             if (r.get("refined") or {}).get("td_err_ms") is not None and r.get("detection_lag_ms") is not None], 50),
         "refined_txy_err_m_median": _pct(col("refined.txy_err_m"), 50),
         "refined_wheel_radius_abs_err_pct_median": _pct([abs(x) for x in col("refined.odometry.wheel_radius_err_pct")
                                                          if x is not None], 50),

@@ -146,7 +146,7 @@ def _fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
     return H / H[2, 2] if abs(H[2, 2]) > 1e-12 else None
 
 
-def _neighbour_distance(uv: np.ndarray) -> np.ndarray:
+def neighbour_distance(uv: np.ndarray) -> np.ndarray:
     """Distance from each point to its nearest other point (n,)."""
     d = np.linalg.norm(uv[:, None, :] - uv[None, :, :], axis=-1)
     np.fill_diagonal(d, np.inf)
@@ -222,7 +222,7 @@ def check_grid_order(
     pred = ph[:, :2] / ph[:, 2:]
     err = np.linalg.norm(pred - q, axis=1)
     rms = float(np.sqrt(np.mean(err**2)))
-    spacing = _neighbour_distance(pred) if len(pred) > 1 else np.full(1, np.inf)
+    spacing = neighbour_distance(pred) if len(pred) > 1 else np.full(1, np.inf)
     if rms > max_rms_px or np.any(err > max_point_frac * spacing):
         return REASON_ORDER, rms
     # Orientation: sign of the Jacobian determinant of the homography at the board centroid.
@@ -522,7 +522,7 @@ def detect_circle_grid(
             continue
         tried.add(key)
         if refine:
-            uv = refine_centroids(weight if blob_color == 255 else smooth, uv, 0.5 * _neighbour_distance(uv))
+            uv = refine_centroids(weight if blob_color == 255 else smooth, uv, 0.5 * neighbour_distance(uv))
         reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_homography_rms_px)
         if reason == REASON_OK:
             return GridDetection(uv, True, REASON_OK, rms)
@@ -539,7 +539,7 @@ def detect_circle_grid(
             if refine:
                 seen = np.all(np.isfinite(uv), axis=1)
                 uv = uv.copy()
-                uv[seen] = refine_centroids(weight, uv[seen], 0.5 * _neighbour_distance(uv[seen]))
+                uv[seen] = refine_centroids(weight, uv[seen], 0.5 * neighbour_distance(uv[seen]))
             reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_homography_rms_px)
             if reason == REASON_OK:
                 return GridDetection(uv, True, REASON_OK, rms)
@@ -602,7 +602,7 @@ def track_circle_grid(
     if np.count_nonzero(ok_pred) < min_points or pts.shape[0] < min_points:
         return _fail(n, REASON_NOT_FOUND)
     spacing = np.full(n, np.nan)
-    spacing[ok_pred] = _neighbour_distance(pred[ok_pred])
+    spacing[ok_pred] = neighbour_distance(pred[ok_pred])
     d = np.linalg.norm(pred[:, None, :] - pts[None, :, :], axis=-1)  # (N, k)
     # Take out the common part of the prediction error first (the median offset to the nearest candidates).
     # If the prediction was off by half a spacing or more this may shift every label; the shift test below
@@ -631,7 +631,7 @@ def track_circle_grid(
         return _fail(n, REASON_ORDER)
     ph = np.c_[board.points[:, :2], np.ones(n)] @ H.T
     proj = ph[:, :2] / ph[:, 2:]
-    sp = _neighbour_distance(proj)
+    sp = neighbour_distance(proj)
     if np.count_nonzero(~hit):
         d2 = np.linalg.norm(proj[:, None, :] - pts[None, :, :], axis=-1)
         j2 = np.argmin(d2, axis=1)
@@ -690,7 +690,7 @@ def _detect_rims(
         det = _rims_at(active, k, n, board, camera, x0, y0, max_rms_px, min_points, predicted_uv)
         if det.ok:
             seen = det.uv[np.all(np.isfinite(det.uv), axis=1)]
-            if float(np.median(_neighbour_distance(seen))) < MIN_RIM_SPACING_PX:
+            if float(np.median(neighbour_distance(seen))) < MIN_RIM_SPACING_PX:
                 return _fail(n, REASON_TOO_SMALL, det.homography_rms_px)
             return det
         result = det if result.reason == REASON_NOT_FOUND else result

@@ -51,11 +51,14 @@ from ..core.tracks import CameraTrack, Detections
 from ..errors import InputError, InsufficientDataError
 from . import surfaces
 from .detect import (
+    MIN_RIM_SPACING_PX,
+    REASON_NOT_FOUND,
     REASON_OK,
     board_is_symmetric,
     detect_aprilgrid,
     detect_circle_grid,
     make_aruco_detector,
+    neighbour_distance,
 )
 from .pose import camera_track_from_detections
 
@@ -116,6 +119,8 @@ WINDOW_LADDER = (1.0, 0.5, 0.25, 0.125)
 #: the blur that merges a small circle's events into one blob.
 BLOB_SPANS = (1.0, 2.0, 4.0)
 BLOB_BLUR_PX = 0.8
+#: A detection this many windows back still says how large the circles are.
+RECENT_WINDOWS = 15
 
 
 def _complete_by_homography(uv: np.ndarray, board: Board) -> np.ndarray:
@@ -210,6 +215,7 @@ class _WindowJob:
         roi = predicted = prev = None
         as_image = False
         last_blob = BLOB_SPANS[0]
+        small_circles = None  # index of the last window whose detection had circles too small for rims
         period_s = float(np.median(np.diff(t_query))) * 1e-9 if t_query.size > 1 else 0.0
         for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
             if progress is not None:
@@ -228,6 +234,8 @@ class _WindowJob:
             order = sorted(range(len(WINDOW_LADDER)), key=lambda i: (i != last_good, i))
             if board.pattern != "asymmetric_circles":
                 order = [0]
+            elif small_circles is not None and k - small_circles <= RECENT_WINDOWS:
+                order = []  # the board was just seen with circles too small for rims: straight to the blobs
             for j in order:
                 frac = WINDOW_LADDER[j]
                 age = frac * age0
@@ -281,7 +289,9 @@ class _WindowJob:
                     last_good = j
                     break
             blob = None
+            blob_tried = False
             if (det is None or det.reason != REASON_OK) and board.pattern == "asymmetric_circles":
+                blob_tried = True
                 # Circles a few pixels wide have no inside left between their rims, and slow motion leaves a
                 # window too sparse for rims: look for the circles as blobs of events over this and longer spans.
                 c0 = time.perf_counter()
@@ -294,9 +304,14 @@ class _WindowJob:
                     last_blob = mult
                     retries[("blob", mult)] += 1
             if det is None or det.reason != REASON_OK:
-                skipped["too_few_events" if det is None else det.reason] += 1
+                reason = det.reason if det is not None else (REASON_NOT_FOUND if blob_tried else "too_few_events")
+                skipped[reason] += 1
                 roi = predicted = None
                 continue
+            if board.pattern == "asymmetric_circles":
+                seen = det.uv[np.all(np.isfinite(det.uv), axis=1)]
+                small = float(np.median(neighbour_distance(seen))) < MIN_RIM_SPACING_PX if len(seen) > 1 else False
+                small_circles = k if small else None
             t_det = None
             if self.timestamp == "query" or (as_image and self.timestamp == "events"):
                 t_det = tq * 1e-9
