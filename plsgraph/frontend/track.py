@@ -178,19 +178,26 @@ class _WindowJob:
         self.window_s, self.min_events, self.timestamp, self.tag_layout = window_s, min_events, timestamp, tag_layout
         self.border_bits, self.tag_blur = border_bits, float(tag_blur)
 
-    def _blobs(self, tq: int, first: float):
+    def _blobs(self, tq: int, first: float, roi: tuple[int, int, int, int] | None):
         """The board as blobs of events (:func:`detect_circle_grid` on a count image) over the spans of
         :data:`BLOB_SPANS` (multiples of the window; the one that worked last first): (detection, span s,
-        multiple) or None."""
+        multiple) or None. With ``roi`` (where the board was a moment ago) that part of the image is searched
+        first, then the whole image."""
         for mult in sorted(BLOB_SPANS, key=lambda m: m != first):
             age = mult * self.window_s
             sub = self.stream.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
             if len(sub) < self.min_events:
                 continue
             img = surfaces.count_image(sub)
-            det = detect_circle_grid(img, self.board, self.camera, foreground="bright", blur_sigma=BLOB_BLUR_PX)
-            if det.reason == REASON_OK:
-                return det, age, mult
+            for box in ([roi] if roi is not None else []) + [None]:
+                view = img
+                if box is not None:  # only the events around the board: fewer blobs, less clutter
+                    x0, y0, x1, y1 = box
+                    view = np.zeros_like(img)
+                    view[y0:y1, x0:x1] = img[y0:y1, x0:x1]
+                det = detect_circle_grid(view, self.board, self.camera, foreground="bright", blur_sigma=BLOB_BLUR_PX)
+                if det.reason == REASON_OK:
+                    return det, age, mult
         return None
 
     def run(self, t_query: np.ndarray, i0s: np.ndarray, i1s: np.ndarray, progress=None):
@@ -295,7 +302,7 @@ class _WindowJob:
                 # Circles a few pixels wide have no inside left between their rims, and slow motion leaves a
                 # window too sparse for rims: look for the circles as blobs of events over this and longer spans.
                 c0 = time.perf_counter()
-                blob = self._blobs(tq, last_blob)
+                blob = self._blobs(tq, last_blob, roi)
                 secs["blobs"] = secs.get("blobs", 0.0) + time.perf_counter() - c0
                 if blob is not None:
                     det, age, mult = blob
