@@ -185,7 +185,7 @@ def _errors(run, truth: dict) -> dict:
 
 def run_one(args: tuple) -> dict:
     """One study run in a worker process: draw, simulate, write, calibrate, measure."""
-    index, base_seed, kind, effect, duration, keep_dir = args
+    index, base_seed, kind, effect, duration, keep_dir, surface = args
     from plsgraph.api import simulate_recording
     from plsgraph.errors import DegenerateMotionError, InsufficientDataError
     from plsgraph.io.writer import write_recording, write_truth
@@ -216,7 +216,8 @@ def run_one(args: tuple) -> dict:
         t1 = time.perf_counter()
         # The library's calibrate, step by step, so that a run refused late still shows its front end.
         opts = CalibrationOptions.build(board=BOARD, wheel_radius=rec.truth["wheel_radius_nominal"],
-                                        track_width=rec.truth["track_width_nominal"], truth=truth_file)
+                                        track_width=rec.truth["track_width_nominal"], truth=truth_file,
+                                        surface=surface)
         run = Run(path, opts)
         run.truth = load_truth(opts.truth)
         try:
@@ -353,6 +354,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--duration", type=float, default=20.0, help="seconds per recording (default 20)")
+    ap.add_argument("--surface", default="count", help="front-end surface kind (plsgraph calibrate --surface)")
     ap.add_argument("--keep", action="store_true", help="keep the recordings in OUT/recordings")
     ap.add_argument("--force", action="store_true", help="overwrite OUT/study.json")
     a = ap.parse_args(argv)
@@ -374,12 +376,12 @@ def main(argv: list[str] | None = None) -> int:
         Path(keep_dir).mkdir(exist_ok=True)
     jobs = []
     if a.ablation:
-        jobs += [(i, a.seed, "ideal", None, a.duration, keep_dir) for i in range(a.n)]
+        jobs += [(i, a.seed, "ideal", None, a.duration, keep_dir, a.surface) for i in range(a.n)]
         for j, eff in enumerate(EFFECTS):
-            jobs += [((j + 1) * 1000 + i, a.seed, "only", eff, a.duration, keep_dir) for i in range(a.n)]
+            jobs += [((j + 1) * 1000 + i, a.seed, "only", eff, a.duration, keep_dir, a.surface) for i in range(a.n)]
     else:
         kind = "only" if a.only else "ideal" if a.ideal else "drawn"
-        jobs = [(i, a.seed, kind, a.only, a.duration, keep_dir) for i in range(a.n)]
+        jobs = [(i, a.seed, kind, a.only, a.duration, keep_dir, a.surface) for i in range(a.n)]
     t0 = time.perf_counter()
     runs = []
     with ProcessPoolExecutor(max_workers=a.workers) as pool:
