@@ -1,6 +1,7 @@
 """End to end through the command: simulate a recording to MCAP, calibrate it, batch it (local and Dask)."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -185,3 +186,17 @@ def test_too_short_a_recording_gets_a_diagnosis(tmp_path, capsys):
     assert code == 1 and "NO CALIBRATION" in capsys.readouterr().out
     assert not (out / "calibration.yaml").exists()
     assert json.loads((out / "report.json").read_text())["ok"] is False
+
+
+def test_report_shows_detection_coverage_and_event_frames(calibrated):
+    _, out, _ = calibrated
+    rep = json.loads((out / "report.json").read_text())
+    page = (out / "report.html").read_text()
+    assert (out / "coverage.png").stat().st_size > 1000 and "coverage.png" in page
+    frames = sorted(out.glob("event_frame_*.png"))
+    assert 1 <= len(frames) <= 3 and all(f.name in page for f in frames)
+    # The table's counts are the front end's: every window once, found or with its reason.
+    windows = rep["discarded"]["frontend_windows"]
+    found = re.search(r"found in (\d+) of (\d+) windows", page)
+    assert found and int(found.group(2)) == windows
+    assert int(found.group(1)) >= rep["counts"]["camera_frames"]

@@ -138,3 +138,15 @@ def test_small_circles_found_as_blobs_and_never_mislabelled(far_sim):
     assert len(track) >= 20  # rims alone find (almost) none of these windows
     assert set(track.info["detector"]) == {"blobs"}  # rims are refused for circles this small
     assert err.max() < 1.0 and np.median(err) < 0.3  # no wrong correspondence, centres to a fraction of a pixel
+
+
+def test_every_window_has_one_outcome(sim):
+    t, poses, ev = sim
+    track = camera_track_from_events(ev, CAM, BOARD, rate_hz=30, kind="count")
+    wo = track.info["window_outcomes"]
+    assert len(wo["t"]) == len(wo["outcome"]) == track.info["windows"]
+    found = [o for o in wo["outcome"] if o in ("rims", "blobs", "image")]
+    assert len(found) == track.info["detected"] + track.info["skipped"].get("time_not_increasing", 0)
+    for reason, n in track.info["skipped"].items():
+        if reason != "time_not_increasing":
+            assert wo["outcome"].count(reason) == n

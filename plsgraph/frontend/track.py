@@ -217,6 +217,7 @@ class _WindowJob:
         retries: Counter[int] = Counter()
         secs = {"surfaces": 0.0, "detection": 0.0}
         t_out, uv_out, src_out = [], [], []
+        outcome: list[str] = []  # per window: the detector that found the board, or why nothing was found
         n_events = 0
         last_good = 0
         roi = predicted = prev = None
@@ -229,6 +230,7 @@ class _WindowJob:
                 progress(k, t_query.size)
             if i1 - i0 < self.min_events:
                 skipped["too_few_events"] += 1
+                outcome.append("too_few_events")
                 roi = predicted = None
                 continue
             ev = stream.slice_index(int(i0), int(i1))
@@ -313,6 +315,7 @@ class _WindowJob:
             if det is None or det.reason != REASON_OK:
                 reason = det.reason if det is not None else (REASON_NOT_FOUND if blob_tried else "too_few_events")
                 skipped[reason] += 1
+                outcome.append(reason)
                 roi = predicted = None
                 continue
             if board.pattern == "asymmetric_circles":
@@ -337,8 +340,9 @@ class _WindowJob:
             t_out.append(t_det)
             uv_out.append(det.uv)
             src_out.append("blobs" if blob is not None else ("image" if as_image else "rims"))
+            outcome.append(src_out[-1])
             roi = _roi_around(det.uv, stream.width, stream.height)
-        return t_out, uv_out, skipped, secs, n_events, retries, src_out
+        return t_out, uv_out, skipped, secs, n_events, retries, src_out, outcome
 
 
 # The job of the current parallel run; forked workers inherit it instead of receiving a pickled copy.
@@ -455,7 +459,9 @@ def detect_in_events(
     n_events = 0
     last_t = -np.inf
     ladder: Counter[tuple] = Counter()
-    for p_t, p_uv, p_skipped, p_secs, p_n, p_ladder, p_src in parts:
+    outcomes: list[str] = []
+    for p_t, p_uv, p_skipped, p_secs, p_n, p_ladder, p_src, p_outcome in parts:
+        outcomes += p_outcome
         skipped.update(p_skipped)
         ladder.update(p_ladder)
         n_events += p_n
@@ -481,6 +487,7 @@ def detect_in_events(
         "windows": int(t_query.size),
         "detected": len(t_out),
         "detector": src_out,
+        "window_outcomes": {"t": (t_query * 1e-9).tolist(), "outcome": outcomes},
         "skipped": dict(skipped),
         "events_used": n_events,
         "detected_at_window_fraction": {f"{m}:{f:g}": int(c) for (m, f), c in sorted(ladder.items())},
@@ -617,6 +624,8 @@ def camera_track_from_event_chunks(
     t_parts: list[np.ndarray] = []
     uv_parts: list[np.ndarray] = []
     src_parts: list[str] = []
+    wo_t: list[float] = []
+    wo_o: list[str] = []
     info: dict = {}
     skipped: Counter[str] = Counter()
     late_events = 0
@@ -633,6 +642,8 @@ def camera_track_from_event_chunks(
             t_parts.append(dets.t)
             uv_parts.append(dets.uv)
             src_parts.extend(part["detector"])
+            wo_t.extend(part["window_outcomes"]["t"])
+            wo_o.extend(part["window_outcomes"]["outcome"])
             skipped.update(part["skipped"])
             if info:
                 info["windows"] += part["windows"]
@@ -676,6 +687,7 @@ def camera_track_from_event_chunks(
             skipped["time_not_increasing"] += int(np.count_nonzero(~keep))
         t, uv, src = t[keep], uv[keep], src[keep]
     info["detector"] = src.tolist()
+    info["window_outcomes"] = {"t": wo_t, "outcome": wo_o}
     info["skipped"] = dict(skipped)
     info["detected"] = int(t.size)
     info["streamed_span_s"] = span_s

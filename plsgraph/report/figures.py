@@ -193,6 +193,11 @@ def write_html_report(out: Path, run: Any, report: dict) -> Path:
     if "truth_errors" in report:
         tail.append(("Errors against truth", html_table(
             [{"quantity": k, "value": v} for k, v in report["truth_errors"].items()], ["quantity", "value"])))
+    try:  # detection coverage and event frames (plsgraph.report.coverage)
+        from .coverage import coverage_sections
+        sections += coverage_sections(run, out)
+    except Exception as exc:  # a picture must never cost the user the numbers
+        log.warning("coverage figures failed: %s", exc)
     if report["discarded"]:
         tail.append(("Discarded", "<pre>" + html.escape(_pretty(report["discarded"])) + "</pre>"))
     page = html_report(f"plsgraph calibration of {Path(report['recording']).name}", sections, images, tail)
