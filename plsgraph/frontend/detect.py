@@ -506,7 +506,10 @@ def detect_circle_grid(
         return _fail(n, REASON_EMPTY)
     smooth = cv2.GaussianBlur(weight, (0, 0), blur_sigma) if blur_sigma > 0 else weight
     img8 = np.clip(smooth * (255.0 / max(float(smooth.max()), 1e-6)), 0, 255).astype(np.uint8)
-    attempts = [(255, True), (255, False)] + ([(0, True), (0, False)] if exhaustive else [])
+    # The blobs once: OpenCV's grid finders need every circle among them, the lattice labelling at least six.
+    kp = _blob_detector(img8.shape, 255).detect(img8)
+    attempts = ([(255, True), (255, False)] if len(kp) >= n else []) + (
+        [(0, True), (0, False)] if exhaustive else [])
     last_reason, last_rms = REASON_NOT_FOUND, float("nan")
     tried: set[tuple] = set()
     for blob_color, clustering in attempts:
@@ -530,8 +533,7 @@ def detect_circle_grid(
         log.debug("circle grid rejected (%s, homography rms %.2f px)", reason, rms)
     # OpenCV's grid finder needs every circle. For a board partly out of view (or partly hidden) label the
     # blobs with the lattice method instead, which allows missing circles but never guesses an order.
-    kp = _blob_detector(img8.shape, 255).detect(img8) if lattice_fallback else []
-    if len(kp) >= 6:
+    if lattice_fallback and len(kp) >= 6:
         pts = np.array([k.pt for k in kp], dtype=float)
         det = label_circle_grid(pts, board, camera, min_points=min_points, max_rms_px=max_homography_rms_px)
         if det.ok:
