@@ -127,6 +127,10 @@ def _frontend_metrics(rec, run, rate_hz: float = 30.0) -> dict:
         cost = np.stack([np.nanmedian(np.linalg.norm(uv_u - _true_pixels(sim, t_u + s), axis=-1), axis=1)
                          for s in shifts])
         out["detection_lag_ms"] = float(1e3 * np.median(shifts[np.argmin(cost, axis=0)]))
+    src = np.asarray(run.camera_track.info.get("detector") or [], dtype=str)
+    if src.size == len(det):
+        out["detections_by_detector"] = {str(k): [int((src == k).sum()), int((wrong & (src == k)).sum())]
+                                         for k in np.unique(src)}  # detector: [detections, wrong]
     out.update(
         detections=int(len(det)),
         detected_fraction=float((detected & in_view).sum() / max(1, in_view.sum())),
@@ -280,6 +284,9 @@ def summarize(runs: list[dict]) -> dict:
         "detected_fraction_moving_p10": _pct([x for x in col("detected_fraction_moving") if x is not None], 10),
         "detection_lag_ms_median": _pct([x for x in col("detection_lag_ms") if x is not None], 50),
         "wrong_detection_rate": wrong / dets if dets else None,
+        "detections_by_detector": {k: [sum((r.get("detections_by_detector") or {}).get(k, [0, 0])[i] for r in runs)
+                                       for i in (0, 1)]
+                                   for k in sorted({k for r in runs for k in (r.get("detections_by_detector") or {})})},
         "centre_err_px_median": _pct(col("centre_err_px_median"), 50),
         "closed_form_rot_err_deg_median": _pct(col("closed_form.rot_err_deg"), 50),
         "closed_form_rot_err_deg_p95": _pct(col("closed_form.rot_err_deg"), 95),

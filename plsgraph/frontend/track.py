@@ -571,6 +571,9 @@ def _track_from_detections(
     skipped.update(track.info.get("rejected", {}))
     info["skipped"] = dict(skipped)
     info["poses"] = len(track)
+    if len(info.get("detector", ())) == len(dets):  # per kept frame, as the track's detections
+        kept = np.isin(np.asarray(dets.t), np.asarray(track.t))
+        info["detector"] = [d for d, k in zip(info["detector"], kept, strict=True) if k]
     info["median_rms_px"] = track.info.get("median_rms_px")
     for w in info["warnings"]:
         log.warning(w)
