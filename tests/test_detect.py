@@ -242,3 +242,47 @@ def test_aprilgrid_index_is_a_permutation():
     # Tag 0's Kalibr corner 0 (board origin) is point 0; on a 4 x 3 grid tag 5 sits in row 1, column 1.
     assert 0 in aprilgrid_corner_index(np.array([0]), 4)[0]
     assert set(aprilgrid_corner_index(np.array([5]), 4)[0]) == {18, 19, 26, 27}
+
+
+def _board_view(board: Board, distance: float = 1.2) -> np.ndarray:
+    """Image points of ``board`` seen straight on from ``distance`` (slightly turned)."""
+    cam = davis346_default()
+    T_cam_board = make_T(so3_exp(np.array([0.05, -0.08, 0.03])), np.array([0.0, 0.0, distance]) - board.points.mean(0))
+    return cam.project(transform_points(T_cam_board, board.points))
+
+
+def test_a_labelling_a_lattice_step_off_is_refused_when_the_image_allows_it():
+    from plsgraph.frontend.detect import _shift_explains, _unused
+
+    board = load_board("acircles_4x11_a2")
+    uv = _board_view(board)
+    assert not _shift_explains(uv, np.zeros((0, 2)), board)  # every circle seen, nothing beyond: unique
+    two = 2 * board.cols  # two rows: the grid repeats itself every second row
+    one_row_cut = uv.copy()
+    one_row_cut[: board.cols] = np.nan  # one row missing: the alternating rows still fix the labels
+    assert not _shift_explains(one_row_cut, np.zeros((0, 2)), board)
+    # The board cut by the image border above its third row: a labelling two rows off fits as well.
+    cut = uv.copy()
+    cut[:two] = np.nan
+    assert _shift_explains(cut, np.zeros((0, 2)), board)
+    # Candidates two rows beyond an edge (e.g. holes between rims and the paper's edge): a labelling shifted
+    # onto them would explain as many points, so the labelling does not stand.
+    beyond = uv[:two] - (uv[two: 2 * two] - uv[:two])
+    assert len(_unused(np.vstack([uv, beyond]), uv)) == two
+    assert _shift_explains(uv, _unused(np.vstack([uv, beyond]), uv), board)
+
+
+def test_a_detection_that_jumps_from_the_tracked_board_is_refused():
+    from plsgraph.frontend.detect import neighbour_distance
+    from plsgraph.frontend.track import _jumped
+
+    board = load_board("acircles_4x11_a2")
+    uv = _board_view(board)
+    spacing = float(np.median(neighbour_distance(uv)))
+    assert not _jumped(uv + 0.2 * spacing, uv)  # a board that moved a little more than predicted
+    # The same circles labelled one row-step off (two lattice steps along a row: two circles apart).
+    shifted = np.full_like(uv, np.nan)
+    shifted[1:] = uv[:-1]
+    rows = np.arange(board.n_points) // board.cols
+    shifted[np.r_[False, rows[1:] != rows[:-1]]] = np.nan
+    assert _jumped(shifted, uv)

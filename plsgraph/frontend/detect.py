@@ -573,6 +573,42 @@ def _shift_tables(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return out
 
 
+def _shift_explains(uv: np.ndarray, free: np.ndarray, board: Board, H: np.ndarray | None = None,
+                    spacing: float | None = None) -> bool:
+    """True when a labelling shifted by a lattice step (one or two circles, 8 directions) could explain the
+    candidates as well as ``uv`` does: a shift pushes the seen circles on one edge off the board and can only
+    gain ``free`` candidates (not used by ``uv``) just beyond the opposite edge. ``uv`` stands only if, for
+    every shift, the seen edge circles outnumber such candidates by two or more. A board cut by the image
+    border, whose outline does not show which circles are missing, therefore never stands. ``H``: the
+    board-plane -> image homography (fitted to ``uv`` when None); ``spacing``: the circles' image spacing."""
+    seen = np.all(np.isfinite(uv), axis=1)
+    if H is None:
+        H, _ = cv2.findHomography(board.points[seen, :2], uv[seen], 0)
+        if H is None:
+            return True
+    if spacing is None:
+        spacing = float(np.median(neighbour_distance(uv[seen])))
+    stays, beyond, which = _shift_tables(board)
+    edge = np.count_nonzero(seen[None, :] & ~stays, axis=1)  # (S,) seen circles a shift pushes off
+    gained = np.zeros(stays.shape[0], dtype=int)  # (S,) free candidates a shift could claim
+    if free.shape[0]:
+        bh = np.c_[beyond, np.ones(beyond.shape[0])] @ H.T
+        ok = bh[:, 2] > 1e-9
+        bp = bh[ok, :2] / bh[ok, 2:]
+        occupied_site = np.linalg.norm(bp[:, None, :] - free[None, :, :], axis=-1).min(axis=1) < 0.3 * spacing
+        gained = np.bincount(which[ok][occupied_site], minlength=stays.shape[0])
+    return bool(np.any(edge < gained + 2))
+
+
+def _unused(candidates: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """The candidates farther than a quarter spacing from every labelled point (not used by the labelling)."""
+    q = uv[np.all(np.isfinite(uv), axis=1)]
+    if candidates.shape[0] == 0 or q.shape[0] < 2:
+        return candidates
+    near = 0.25 * float(np.median(neighbour_distance(q)))
+    return candidates[np.linalg.norm(candidates[:, None, :] - q[None, :, :], axis=-1).min(axis=1) >= near]
+
+
 def track_circle_grid(
     points: np.ndarray,
     predicted_uv: np.ndarray,
@@ -642,18 +678,7 @@ def track_circle_grid(
         add[np.flatnonzero(add)[cnt2[inv2] > 1]] = False
         uv[add] = pts[j2[add]]
         taken[j2[add]] = True
-    seen = np.all(np.isfinite(uv), axis=1)
-    stays, beyond, which = _shift_tables(board)
-    edge = np.count_nonzero(seen[None, :] & ~stays, axis=1)  # (S,) matched circles a shift pushes off
-    gained = np.zeros(stays.shape[0], dtype=int)  # (S,) free candidates a shift could claim
-    free = pts[~taken]
-    if free.shape[0]:
-        bh = np.c_[beyond, np.ones(beyond.shape[0])] @ H.T
-        ok = bh[:, 2] > 1e-9
-        bp = bh[ok, :2] / bh[ok, 2:]
-        occupied_site = np.linalg.norm(bp[:, None, :] - free[None, :, :], axis=-1).min(axis=1) < 0.3 * np.median(sp)
-        gained = np.bincount(which[ok][occupied_site], minlength=stays.shape[0])
-    if np.any(edge < gained + 2):
+    if _shift_explains(uv, pts[~taken], board, H, float(np.median(sp))):
         return _fail(n, REASON_AMBIGUOUS)
     reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_rms_px)
     if reason != REASON_OK:
@@ -713,9 +738,11 @@ def _rims_at(active, k, n, board, camera, x0, y0, max_rms_px, min_points, predic
         det = track_circle_grid(centres[keep] + (x0, y0), predicted_uv, board, camera, max_rms_px=max_rms_px)
         if det.ok:
             return det
-    return label_circle_grid(
-        centres[keep] + (x0, y0), board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px
-    )
+    cand = centres[keep] + (x0, y0)
+    det = label_circle_grid(cand, board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px)
+    if det.ok and _shift_explains(det.uv, _unused(cand, det.uv), board):
+        return _fail(n, REASON_AMBIGUOUS, det.homography_rms_px)
+    return det
 
 
 # --- AprilGrid -------------------------------------------------------------------------------------

@@ -137,6 +137,20 @@ def _complete_by_homography(uv: np.ndarray, board: Board) -> np.ndarray:
     return out
 
 
+#: A detection whose circles lie this many spacings (median) from the previous window's board carried forward
+#: is refused: no board accelerates that much in one frame period, a labelling shifted by a lattice step does.
+JUMP_SPACINGS = 0.5
+REASON_JUMP = "jumped_from_track"
+
+
+def _jumped(uv: np.ndarray, predicted: np.ndarray) -> bool:
+    both = np.all(np.isfinite(uv), axis=1) & np.all(np.isfinite(predicted), axis=1)
+    if np.count_nonzero(both) < 6:
+        return False
+    spacing = float(np.median(neighbour_distance(predicted[np.all(np.isfinite(predicted), axis=1)])))
+    return float(np.median(np.linalg.norm(uv[both] - predicted[both], axis=1))) > JUMP_SPACINGS * spacing
+
+
 def _roi_around(uv: np.ndarray, width: int, height: int) -> tuple[int, int, int, int] | None:
     """Search region for the next window: the detection's bounding box grown by half its size (the board
     moves less than that in one frame period at any speed the rim detector can follow)."""
@@ -316,6 +330,13 @@ class _WindowJob:
                 reason = det.reason if det is not None else (REASON_NOT_FOUND if blob_tried else "too_few_events")
                 skipped[reason] += 1
                 outcome.append(reason)
+                roi = predicted = None
+                continue
+            if board.pattern == "asymmetric_circles" and predicted is not None and _jumped(det.uv, predicted):
+                # The previous window's board, carried forward at its speed, lies half a spacing or more away:
+                # one of the two labellings is shifted. Refuse this one; the search starts afresh next window.
+                skipped[REASON_JUMP] += 1
+                outcome.append(REASON_JUMP)
                 roi = predicted = None
                 continue
             if board.pattern == "asymmetric_circles":
