@@ -190,13 +190,13 @@ def figure_inputs(run: Any) -> SimpleNamespace:
                            clock_offset_s=getattr(run, "clock_offset_s", 0.0))
 
 
-def render_figures(out: Path, run: Any) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
-    """Draw every figure into ``out``: the (caption, PNG name) of those drawn and the (caption, error) of those
-    that failed. A figure that fails never stops the others."""
+def render_figures(out: Path, run: Any, which: Any = None) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
+    """Draw the figures (all, or those of :data:`FIGURES` at the indices ``which``) into ``out``: the (caption, PNG
+    name) of those drawn and the (caption, error) of those that failed. A figure that fails never stops the others."""
     truth_T = None if run.truth is None else np.asarray(run.truth["T_base_cam"], dtype=float)
     images: list[tuple[str, str]] = []
     failures: list[tuple[str, str]] = []
-    for caption, make in FIGURES:
+    for caption, make in FIGURES if which is None else [FIGURES[i] for i in which]:
         try:
             f = make(run, out, truth_T)
         except Exception as exc:  # a picture must never cost the user the numbers
