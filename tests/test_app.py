@@ -12,6 +12,7 @@ from plsgraph.errors import InputError
 from plsgraph.frontend.pose import camera_track_from_detections
 from plsgraph.odometry.wheels import base_track_from_wheels
 from plsgraph.options import CalibrationOptions, FrontendOptions, OdometryOptions
+from plsgraph.report import figure_worker
 from plsgraph.report.figure_worker import FigureWorker
 from plsgraph.report.files import prepare_output_dir
 from plsgraph.report.output import write_calibration
@@ -106,6 +107,16 @@ def test_a_worker_that_died_costs_no_figure(sim_run, tmp_path):
     worker.send(out, result.run)
     worker.proc.kill()  # dies before it answers
     assert worker.result() is None and worker.proc is None
+
+
+def test_the_worker_is_used_only_when_a_processor_is_free(monkeypatch):
+    monkeypatch.setattr(figure_worker.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    for load, free in ((0.3, True), (0.9, True), (1.2, False), (3.0, False)):
+        monkeypatch.setattr(figure_worker.os, "getloadavg", lambda load=load: (load, load, load))
+        assert figure_worker.processor_free() is free
+    monkeypatch.setattr(figure_worker.os, "sched_getaffinity", lambda pid: {0})
+    monkeypatch.setattr(figure_worker.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    assert not figure_worker.processor_free()  # one processor: the calibration has it
 
 
 def test_a_worker_without_a_job_just_ends(tmp_path):

@@ -2,12 +2,13 @@
 
 Importing matplotlib and drawing the first figure take about a second, the figures themselves as much again: all of
 it after the refinement, when nothing else is left to do. :class:`FigureWorker` starts a process when a calibration
-starts; it loads matplotlib and draws a throw-away figure (fonts, caches) while the calibration runs, then waits.
-When the result is known, :meth:`FigureWorker.send` hands it the few arrays the figures show
-(:func:`plsgraph.report.figures.figure_inputs`) and the folder to draw into, and returns what it drew while the
-calling process writes calibration.yaml and the robot files. The folder is the run's staging folder, so the
-whole-folder semantics of :mod:`plsgraph.report.output` hold: the figures are there before the folder is moved into
-place, or the folder is not moved at all.
+starts (when a processor is free for it: :func:`processor_free`); it loads matplotlib and draws a throw-away figure
+(fonts, caches) while the calibration runs, then waits. When the result is known, :meth:`FigureWorker.send` hands it
+the few arrays the figures show (:func:`plsgraph.report.figures.figure_inputs`) and the folder to draw into; the
+worker forks, so that two processes draw half of the figures each, while the calling process writes
+calibration.yaml and the robot files. The folder is the run's staging folder, so the whole-folder semantics of
+:mod:`plsgraph.report.output` hold: the figures are there before the folder is moved into place, or the folder is
+not moved at all.
 
 Anything wrong with the worker (it cannot start, dies, hangs, answers nonsense) makes :meth:`FigureWorker.result`
 return None, and the caller draws the figures itself as before: the worker can cost time, never figures or numbers.
@@ -49,6 +50,25 @@ def _env() -> dict[str, str]:
     if root not in installed:
         env["PYTHONPATH"] = os.pathsep.join([root, *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
     return env
+
+
+def processor_free() -> bool:
+    """Is a processor free for the figure worker? The worker trades a second start-up (about a second of processor
+    time: Python, numpy, matplotlib, a warm-up figure) for taking the figures off the calibration's critical path.
+    That pays when a processor would otherwise idle beside the calibration, and costs time when every processor is
+    already busy. Judged from the load average of the last minute against the processors this process may use: one
+    runs the calibration, and a processor's worth must be left unused by everything else."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        n = os.cpu_count() or 1
+    if n < 2:
+        return False
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return True
+    return n - load >= 1.0
 
 
 class FigureWorker:
