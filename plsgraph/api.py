@@ -161,9 +161,16 @@ def calibrate_to_dir(
     refine: bool = True,
     force: bool = False,
     progress: ProgressFactory = no_progress,
+    figure_worker: bool | None = None,
 ) -> dict:
     """Calibrate and write calibration.yaml, report.json, report.html (+ PNGs) into ``out_dir``; a recording
-    that cannot determine the extrinsic gets a diagnosis (report.json only). Returns ``{ok, text, report}``."""
+    that cannot determine the extrinsic gets a diagnosis (report.json only). Returns ``{ok, text, report}``.
+
+    ``figure_worker``: True draws the figures in a second process that loads matplotlib while the calibration runs
+    (:mod:`plsgraph.report.figure_worker`; the same figures, sooner), False in this process (e.g. when many
+    recordings already share the processors); None (default) uses the second process when a processor is free for it
+    (:func:`~plsgraph.report.figure_worker.processor_free`)."""
+    from .report.figure_worker import FigureWorker, processor_free
     from .report.files import prepare_output_dir
     from .report.output import write_calibration, write_diagnosis_only, write_result_folder
     from .report.text import calibration_text
@@ -171,17 +178,20 @@ def calibrate_to_dir(
     out = prepare_output_dir(out_dir, force=force, create=False)  # refuse before hours of work, not after
 
     def work(stage: Path) -> dict:
-        try:
-            result = calibrate(recording, options=options, refine=refine, progress=progress)
-        except (DegenerateMotionError, InsufficientDataError) as exc:
-            # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
-            return write_diagnosis_only(stage, recording, str(exc))
-        written = write_calibration(stage, result)
+        use_worker = processor_free() if figure_worker is None else figure_worker
+        with (FigureWorker.start() if use_worker else FigureWorker()) as figures:
+            try:
+                result = calibrate(recording, options=options, refine=refine, progress=progress)
+            except (DegenerateMotionError, InsufficientDataError) as exc:
+                # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
+                return write_diagnosis_only(stage, recording, str(exc))
+            written = write_calibration(stage, result, figures)
         text = calibration_text(result.report) + "\n\nwritten: " + ", ".join(str(out / p.name) for p in written)
         return {"ok": result.ok, "text": text, "report": result.report, "result": result}
 
     # The whole folder is written at once: under a lock (a second run on it fails at once), into a staging folder
     # that replaces it at the end (no file of an earlier run survives; an interrupt leaves the old one intact).
+    # The figure worker has ended (drawn, or stopped) before the folder is moved into place or removed.
     return write_result_folder(out, work)
 
 

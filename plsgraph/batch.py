@@ -46,7 +46,8 @@ def _batch_item(item: tuple[str, str, CalibrationOptions, bool], seed: int = 0) 
     log_path, out_dir, opts, force = item
     t0 = time.perf_counter()
     try:
-        res = calibrate_to_dir(log_path, out_dir, opts, force=force)
+        # The recordings already share the processors: the figures are drawn in this process.
+        res = calibrate_to_dir(log_path, out_dir, opts, force=force, figure_worker=False)
         rep = res["report"]
         c = rep["calibration"] or {}  # None when the motion only allowed a diagnosis
         row = {"recording": log_path, "status": "ok" if res["ok"] else "flagged", "source": c.get("source"),

@@ -12,6 +12,8 @@ from plsgraph.errors import InputError
 from plsgraph.frontend.pose import camera_track_from_detections
 from plsgraph.odometry.wheels import base_track_from_wheels
 from plsgraph.options import CalibrationOptions, FrontendOptions, OdometryOptions
+from plsgraph.report import figure_worker
+from plsgraph.report.figure_worker import FigureWorker
 from plsgraph.report.files import prepare_output_dir
 from plsgraph.report.output import write_calibration
 from plsgraph.report.text import calibration_text
@@ -71,6 +73,57 @@ def test_report_files_are_complete_and_parse(sim_run, tmp_path):
     for png in ("trajectories.png", "residuals.png", "time_offset.png", "observability.png", "methods.png"):
         assert (out / png).stat().st_size > 1000 and png in page
     assert "refined" in calibration_text(report)
+
+
+FIGURE_FILES = ("trajectories.png", "residuals.png", "time_offset.png", "observability.png", "methods.png")
+
+
+def test_figures_drawn_by_the_worker_are_those_drawn_in_process(sim_run, tmp_path):
+    _, result = sim_run
+    here, there = prepare_output_dir(tmp_path / "here"), prepare_output_dir(tmp_path / "there")
+    write_calibration(here, result)
+    with FigureWorker.start() as worker:
+        assert worker.available
+        write_calibration(there, result, worker)
+        assert not worker.available  # it ends once it has answered
+    for f in FIGURE_FILES:  # the same drawing code on the same arrays: the same pictures
+        assert (there / f).read_bytes() == (here / f).read_bytes()
+    for f in ("calibration.yaml", "report.html"):
+        assert (there / f).read_text() == (here / f).read_text()
+    rep = json.loads((there / "report.json").read_text())
+    assert rep["timing_s"]["figures"] >= 0 and not any("figure" in w for w in rep["warnings"])
+
+
+def test_a_worker_that_died_costs_no_figure(sim_run, tmp_path):
+    _, result = sim_run
+    out = prepare_output_dir(tmp_path / "calib")
+    worker = FigureWorker.start()
+    worker.proc.kill()
+    worker.proc.wait()
+    write_calibration(out, result, worker)  # drawn in this process instead
+    for f in FIGURE_FILES:
+        assert (out / f).stat().st_size > 1000
+    worker = FigureWorker.start()
+    worker.send(out, result.run)
+    worker.proc.kill()  # dies before it answers
+    assert worker.result() is None and worker.proc is None
+
+
+def test_the_worker_is_used_only_when_a_processor_is_free(monkeypatch):
+    monkeypatch.setattr(figure_worker.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    for load, free in ((0.3, True), (0.9, True), (1.2, False), (3.0, False)):
+        monkeypatch.setattr(figure_worker.os, "getloadavg", lambda load=load: (load, load, load))
+        assert figure_worker.processor_free() is free
+    monkeypatch.setattr(figure_worker.os, "sched_getaffinity", lambda pid: {0})
+    monkeypatch.setattr(figure_worker.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    assert not figure_worker.processor_free()  # one processor: the calibration has it
+
+
+def test_a_worker_without_a_job_just_ends(tmp_path):
+    worker = FigureWorker.start()
+    proc = worker.proc
+    worker.close()
+    assert proc.returncode is not None and worker.result() is None
 
 
 def test_options_reject_nonsense():

@@ -1,10 +1,15 @@
 """The command's user-facing behaviour: exit codes, messages, refusal to overwrite, machine-readable output."""
 
 import json
+import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
-from realdata import SHARED_REAL_DIR
+from realdata import SAMPLE, SHARED_REAL_DIR
 
+import plsgraph
 from plsgraph.cli.main import main
 
 DAVIS = SHARED_REAL_DIR / "davis346_tagboard.mcap"
@@ -22,6 +27,30 @@ def test_help_and_bad_flags_exit_cleanly(capsys):
     with pytest.raises(SystemExit) as e:
         main(["simulate", "--motion", "sideways", "--out", "x.mcap"])
     assert e.value.code == 2
+
+
+def _command(*args: str, shell_tail: str = "") -> subprocess.CompletedProcess:
+    """The console script's entry point (run) in a fresh process, importing this tree's plsgraph."""
+    env = {**os.environ, "PYTHONPATH": str(Path(plsgraph.__file__).resolve().parent.parent)}
+    cmd = [sys.executable, "-c", "from plsgraph.cli.main import run; run()", *args]
+    if shell_tail:
+        return subprocess.run(" ".join(f"'{a}'" for a in cmd) + shell_tail, shell=True, capture_output=True,
+                              text=True, env=env, executable="/bin/bash")
+    return subprocess.run(cmd, capture_output=True, text=True, env=env)
+
+
+@pytest.mark.skipif(not SAMPLE.exists(), reason="the sample recording is not in this checkout")
+def test_the_command_ends_at_once_with_all_its_output(tmp_path):
+    # inspect, simulate, calibrate, diagnose and compare end the process without the interpreter's teardown: what
+    # they print must all arrive, through a pipe too, with their exit code.
+    r = _command("-v", "inspect", str(SAMPLE), "--json")
+    assert r.returncode == 0 and json.loads(r.stdout)["topics"], r.stderr
+    r = _command("inspect", str(tmp_path / "nosuch.mcap"))
+    assert r.returncode == 2 and "plsgraph: error:" in r.stderr
+    r = _command("inspect", str(SAMPLE), shell_tail=" | head -c 10; exit ${PIPESTATUS[0]}")
+    assert r.returncode == 0 and len(r.stdout) == 10 and "Traceback" not in r.stderr
+    r = _command("--help")  # no command: the ordinary exit
+    assert r.returncode == 0 and "calibrate" in r.stdout
 
 
 def test_missing_recording_is_a_user_error(tmp_path, capsys):

@@ -7,6 +7,7 @@ import pytest
 
 from plsgraph.errors import RecordingError
 from plsgraph.io.event_codecs import (
+    Evt2Decoder,
     Evt3Decoder,
     LibcaerCmpDecoder,
     LibcaerDecoder,
@@ -147,6 +148,78 @@ def test_evt3_matches_slow_reference(seed):
         total += len(ref)
         _check(fast.decode(words.tobytes()), ref)
     assert total > 1000
+
+
+def test_evt3_of_only_event_and_time_words_matches_slow_reference():
+    # What sensors mostly send (no vectors, triggers or unknown words) takes a shorter path; addresses beyond a small
+    # sensor are dropped there too.
+    rng = np.random.default_rng(7)
+    fast, slow = Evt3Decoder(300, 200), SlowEvt3(300, 200)
+    for _ in range(5):
+        words = _random_words(rng, 4000, [0, 2, 6, 8], [0.3, 0.45, 0.2, 0.05])
+        _check(fast.decode(words.tobytes()), slow.decode(words.tolist()))
+    assert fast.stats.outside_sensor > 0 and fast.stats.unknown_codes == 0
+
+
+class SlowEvt2:
+    """EVT 2.0, one word at a time: events wait for a first time-high word; a time-high word more than half the
+    range below its predecessor is a rollover, a smaller step back is counted."""
+
+    def __init__(self, w, h):
+        self.w, self.h, self.high, self.rolls = w, h, -1, 0
+        self.counts = {"before_time": 0, "outside": 0, "triggers": 0, "unknown": 0, "backwards": 0}
+
+    def decode(self, words):
+        out = []
+        for wd in words:
+            typ = wd >> 28
+            if typ == 8:
+                v = wd & 0x0FFFFFFF
+                if self.high >= 0 and v < self.high:
+                    if self.high - v > 1 << 27:
+                        self.rolls += 1
+                    else:
+                        self.counts["backwards"] += 1
+                self.high = v
+            elif typ <= 1:
+                if self.high < 0:
+                    self.counts["before_time"] += 1
+                    continue
+                t = ((((self.rolls << 28) | self.high) << 6) | ((wd >> 22) & 0x3F)) * 1000
+                x, y = (wd >> 11) & 0x7FF, wd & 0x7FF
+                if x < self.w and y < self.h:
+                    out.append((t, x, y, 1 if typ == 1 else -1))
+                else:
+                    self.counts["outside"] += 1
+            elif typ == 10:
+                self.counts["triggers"] += 1
+            elif typ not in (14, 15):
+                self.counts["unknown"] += 1
+        return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_evt2_matches_slow_reference(seed):
+    rng = np.random.default_rng(200 + seed)
+    w, h = 320, 240
+    fast, slow = Evt2Decoder(w, h), SlowEvt2(w, h)
+    high = (1 << 28) - 5000 if seed % 2 else int(rng.integers(0, 1 << 27))  # odd seeds: the 28-bit counter wraps
+    for k in range(4):  # blocks: the time-high state carries over
+        n = 3000
+        typ = rng.choice([0, 1, 8, 10, 14, 3], size=n, p=[0.4, 0.4, 0.1, 0.04, 0.03, 0.03]) if k % 2 else (
+            rng.choice([0, 1, 8], size=n, p=[0.45, 0.45, 0.1]))
+        steps = rng.integers(-3, 60, size=n)
+        highs = (high + np.cumsum(steps)) & 0x0FFFFFFF
+        high = int(highs[-1])
+        cd = (rng.integers(0, 64, size=n) << 22) | (rng.integers(0, 360, size=n) << 11) | rng.integers(0, 270, size=n)
+        words = ((typ.astype(np.uint64) << 28) | np.where(typ == 8, highs, cd).astype(np.uint64)).astype(np.uint32)
+        if seed == 0 and k == 0:
+            words[:5] = cd[:5]  # events before the first time word: dropped
+        _check(fast.decode(words.astype("<u4").tobytes()), slow.decode(words.tolist()))
+    s, c = fast.stats, slow.counts
+    assert (s.before_time, s.outside_sensor, s.triggers, s.unknown_codes, s.time_backwards) == (
+        c["before_time"], c["outside"], c["triggers"], c["unknown"], c["backwards"])
+    assert s.outside_sensor > 0 and s.time_backwards > 0 and slow.rolls == seed % 2
 
 
 def test_libcaer_rollover_within_packet():

@@ -26,7 +26,6 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from ..core.geometry import interpolate_poses, so3_log
 from ..core.tracks import BaseTrack, CameraTrack, gap_indices
@@ -61,6 +60,13 @@ class CameraVelocities:
     v: np.ndarray
     valid: np.ndarray
     info: dict = field(default_factory=dict)
+
+
+def savgol_filter(*args, **kwargs) -> np.ndarray:
+    """scipy.signal.savgol_filter, imported on first use: scipy.signal takes most of a second to import."""
+    from scipy.signal import savgol_filter as f
+
+    return f(*args, **kwargs)
 
 
 def _window_half(window_s: float, rate: float, polyorder: int) -> int:

@@ -14,6 +14,7 @@ import os
 import sys
 import traceback
 from pathlib import Path
+from typing import NoReturn
 
 from .. import __version__
 from ..errors import PlsgraphError
@@ -357,5 +358,34 @@ def main(argv: list[str] | None = None) -> int:
         return 3
 
 
+# Commands that work on one recording in this process and leave nothing running behind: when they are done,
+# run() ends the process at once.
+QUICK_EXIT_COMMANDS = frozenset({"inspect", "simulate", "calibrate", "diagnose", "compare"})
+
+
+def run() -> None:
+    """The ``plsgraph`` command (the console script): :func:`main`, then, for :data:`QUICK_EXIT_COMMANDS`, the
+    process ends at once (:func:`end_process`) instead of tearing the interpreter down, which takes a third of a
+    second after a calibration (gtsam, OpenCV and scipy are loaded) for nothing the user sees."""
+    argv = sys.argv[1:]
+    code = main(argv)
+    if next((a for a in argv if not a.startswith("-")), None) in QUICK_EXIT_COMMANDS:
+        end_process(code)
+    sys.exit(code)
+
+
+def end_process(code: int) -> NoReturn:
+    """End the process with ``code`` now: logging, stdout and stderr are flushed; the interpreter's teardown (freeing
+    every module's objects) is skipped. Only for a process whose files are all written and closed, with no other
+    process or thread of its own still at work."""
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed pipe (| head) or stream: nothing more can reach it
+            pass
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

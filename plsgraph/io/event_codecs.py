@@ -65,7 +65,12 @@ def _state_at(mask: np.ndarray, values: np.ndarray, default: int, at: np.ndarray
     table = np.empty(values.size + 1, np.int64)
     table[0] = default
     table[1:] = values
-    return table[np.cumsum(mask, dtype=np.int64)[at]]
+    return table[np.cumsum(mask, dtype=np.int32 if mask.size < 2**31 else np.int64)[at]]
+
+
+def _masked(w: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``w[mask]``, the same values; np.extract is several times faster than boolean indexing on word arrays."""
+    return np.extract(mask, w)
 
 
 def _empty() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -79,8 +84,10 @@ def _whole_records(blob, size: int, stats: DecodeStats) -> int:
 
 
 def _words16(blob, stats: DecodeStats) -> np.ndarray:
+    """The blob's whole little-endian 16-bit words as native uint16 (a read-only view where byte orders agree)."""
     n = _whole_records(blob, 2, stats)
-    return np.frombuffer(blob, dtype="<u2", count=n).astype(np.uint16)
+    w = np.frombuffer(blob, dtype="<u2", count=n)
+    return w if w.dtype == np.uint16 else w.astype(np.uint16)
 
 
 def _vector_events(
@@ -105,7 +112,7 @@ def _vector_events(
         is_base &= active
         widths[~active] = 0
     vi = np.flatnonzero(widths)
-    bases = w[is_base]
+    bases = _masked(w, is_base)
     base_vals = (bases & 0x7FF).astype(np.int64)
     pol_vals = ((bases >> 11) & 1).astype(np.int64)
     cw = np.cumsum(widths)  # total vector width up to and including each word
@@ -179,7 +186,7 @@ class LibcaerCmpDecoder:
         counts = np.bincount(code, minlength=16)
         self.stats.unknown_codes += int(counts[7:].sum())
         is_hi, is_lo, is_x = code == 0, code == 1, code == 2
-        x_vals = (w[is_x] & 0x7FF).astype(np.int64)
+        x_vals = (_masked(w, is_x) & 0x7FF).astype(np.int64)
         ex0 = self.ex
         if x_vals.size:
             self.ex = int(x_vals[-1])
@@ -191,8 +198,8 @@ class LibcaerCmpDecoder:
         else:
             at = iy
         # The time state restarts at zero in every packet; x carries over from the previous one.
-        t_us = _state_at(is_hi, (w[is_hi] & 0xFFF).astype(np.int64) << 12, 0, at) | _state_at(
-            is_lo, (w[is_lo] & 0xFFF).astype(np.int64), 0, at
+        t_us = _state_at(is_hi, (_masked(w, is_hi) & 0xFFF).astype(np.int64) << 12, 0, at) | _state_at(
+            is_lo, (_masked(w, is_lo) & 0xFFF).astype(np.int64), 0, at
         )
         t_ns = int(time_base_ns) + t_us * 1000
         xs = _state_at(is_x, x_vals, ex0, at)
@@ -288,16 +295,21 @@ class Evt3Decoder:
                 return _empty()
             start = int(hi_idx[0] + lo_after[0] + 1)
             self.valid = True
-        counts = np.bincount(code[start:], minlength=16)
-        self.stats.unknown_codes += int(counts[[1, 9, 11, 12, 13]].sum())
-        self.stats.triggers += int(counts[10])
         is_y = code == 0
+        is_x = code == 2
         if start:
             is_y[:start] = False  # words before the first valid time are skipped, as the reference does
-        ix = np.flatnonzero(code == 2)
-        if start:
-            ix = ix[ix >= start]
-        has_vect = counts[4] or counts[5]
+            is_x[:start] = False
+        # Events, addresses and time words are nearly all of a packet: the other codes are counted (unknown words,
+        # triggers, vectors) only when there are any.
+        n_common = sum(int(np.count_nonzero(m[start:])) for m in (is_y, is_x, is_lo, is_hi))
+        has_vect = False
+        if n_common < w.size - start:
+            counts = np.bincount(code[start:], minlength=16)
+            self.stats.unknown_codes += int(counts[[1, 9, 11, 12, 13]].sum())
+            self.stats.triggers += int(counts[10])
+            has_vect = bool(counts[4] or counts[5])
+        ix = np.flatnonzero(is_x)
         if has_vect:
             active = np.arange(w.size) >= start
             vi, vx, vp, self.base_x, self.pol = _vector_events(w, code, 3, {4: 12, 5: 8}, self.base_x, self.pol, active)
@@ -306,16 +318,23 @@ class Evt3Decoder:
             at = ix
         low_before = self.time_low
         hi_at = self._advance_time(w, is_hi, is_lo, at)
-        t_ns = (hi_at | _state_at(is_lo, (w[is_lo] & 0xFFF).astype(np.int64), low_before, at)) * 1000
-        y_vals = (w[is_y] & 0x7FF).astype(np.int64)
+        t_ns = (hi_at | _state_at(is_lo, (_masked(w, is_lo) & 0xFFF).astype(np.int64), low_before, at)) * 1000
+        y_vals = (_masked(w, is_y) & 0x7FF).astype(np.int64)
         ys = _state_at(is_y, y_vals, self.ey, at)
         if y_vals.size:
             self.ey = int(y_vals[-1])
         wx = w[ix]
+        if not has_vect:
+            # Addresses are 11-bit (never negative): only the sensor's far edges bound them.
+            x1 = wx & 0x7FF
+            inside = (x1 < self.width) & (ys < self.height)
+            p1 = ((wx >> 10) & 2).astype(np.int8) - 1  # polarity bit 11 -> +1 / -1
+            if not inside.all():
+                self.stats.outside_sensor += int(inside.size - np.count_nonzero(inside))
+                t_ns, x1, ys, p1 = t_ns[inside], x1[inside], ys[inside], p1[inside]
+            return t_ns, x1.astype(np.uint16, copy=False), ys.astype(np.uint16), p1
         x1 = (wx & 0x7FF).astype(np.int64)
         p1 = ((wx >> 11) & 1).astype(np.int64)
-        if not has_vect:
-            return _finish(None, t_ns, x1, ys, p1, self.width, self.height, self.stats, False)
         return _finish(
             np.concatenate([ix * 16, vi * 16 + 1]),
             t_ns,
@@ -330,7 +349,7 @@ class Evt3Decoder:
 
     def _advance_time(self, w: np.ndarray, is_hi: np.ndarray, is_lo: np.ndarray, at: np.ndarray) -> np.ndarray:
         """High time bits (with rollovers) at positions ``at``; updates the carried time state."""
-        h = (w[is_hi] & 0xFFF).astype(np.int64)
+        h = (_masked(w, is_hi) & 0xFFF).astype(np.int64)
         if h.size:
             prev = np.empty_like(h)
             prev[0] = (self.time_high >> 12) & 0xFFF
@@ -342,9 +361,9 @@ class Evt3Decoder:
             self.time_high = int(full[-1])
         else:
             hi_at = np.full(at.size, self.time_high, np.int64)
-        lo = w[is_lo]
-        if lo.size:
-            self.time_low = int(lo[-1] & 0xFFF)
+        lo_idx = np.flatnonzero(is_lo)
+        if lo_idx.size:
+            self.time_low = int(w[lo_idx[-1]] & 0xFFF)
         return hi_at
 
 
@@ -368,12 +387,15 @@ class Evt2Decoder:
             return _empty()
         w = np.frombuffer(blob, dtype="<u4", count=n)
         typ = (w >> 28).astype(np.uint8)
-        counts = np.bincount(typ, minlength=16)
-        self.stats.triggers += int(counts[10])
-        self.stats.unknown_codes += int(counts[[2, 3, 4, 5, 6, 7, 9, 11, 12, 13]].sum())
         is_hi = typ == 8
-        cd = np.flatnonzero(typ <= 1)
-        h = (w[is_hi] & 0x0FFFFFFF).astype(np.int64)
+        is_cd = typ <= 1
+        n_cd = int(np.count_nonzero(is_cd))
+        if n_cd + int(np.count_nonzero(is_hi)) < n:  # other words than events and time: count them
+            counts = np.bincount(typ, minlength=16)
+            self.stats.triggers += int(counts[10])
+            self.stats.unknown_codes += int(counts[[2, 3, 4, 5, 6, 7, 9, 11, 12, 13]].sum())
+        cd = np.flatnonzero(is_cd)
+        h = (_masked(w, is_hi) & 0x0FFFFFFF).astype(np.int64)
         hi_at = np.full(cd.size, self.time_high, np.int64)
         if h.size:
             prev = np.empty_like(h)
@@ -390,12 +412,17 @@ class Evt2Decoder:
         if not np.all(valid):
             self.stats.before_time += int(np.count_nonzero(~valid))
             cd, hi_at = cd[valid], hi_at[valid]
-        wc = w[cd].astype(np.int64)
-        t_ns = ((hi_at << 6) | ((wc >> 22) & 0x3F)) * 1000
-        return _finish(
-            None, t_ns, (wc >> 11) & 0x7FF, wc & 0x7FF, typ[cd].astype(np.int64), self.width, self.height,
-            self.stats, False,
-        )
+        wc = w[cd]
+        t_ns = ((hi_at << 6) | ((wc >> 22) & 0x3F).astype(np.int64)) * 1000
+        # 11-bit addresses (never negative): only the sensor's far edges bound them; the type is the polarity.
+        x = ((wc >> 11) & 0x7FF).astype(np.uint16)
+        y = (wc & 0x7FF).astype(np.uint16)
+        p = typ[cd].astype(np.int8) * 2 - 1
+        inside = (x < self.width) & (y < self.height)
+        if not inside.all():
+            self.stats.outside_sensor += int(inside.size - np.count_nonzero(inside))
+            t_ns, x, y, p = t_ns[inside], x[inside], y[inside], p[inside]
+        return t_ns, x, y, p
 
 
 def make_decoder(encoding: str, width: int, height: int):

@@ -1,10 +1,15 @@
-"""Pictures for report.html: trajectories, residuals, time-offset curve, observability, method comparison."""
+"""Pictures for report.html: trajectories, residuals, time-offset curve, observability, method comparison.
+
+The figures are drawn from :func:`figure_inputs` (the few arrays of a run they show), either here or in a
+separate process (:mod:`plsgraph.report.figure_worker`) that has matplotlib loaded while the calibration runs.
+"""
 
 from __future__ import annotations
 
 import html
 import logging
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -150,26 +155,71 @@ def _fig_methods(run: Any, out: Path, truth_T: np.ndarray | None) -> str | None:
     return _save(plt, fig, out, "methods.png")
 
 
-def write_html_report(out: Path, run: Any, report: dict) -> Path:
-    """Render the figures (PNG) and report.html into ``out``. A figure that fails is logged, not fatal."""
+FIGURES = (  # (caption, maker(run, out, truth_T)), in the order the page shows them
+    ("aligned trajectories", lambda run, out, truth_T: _fig_trajectories(run, out)),
+    ("reprojection residuals after refinement", lambda run, out, truth_T: _fig_residuals(run, out)),
+    ("time-offset correlation curve", lambda run, out, truth_T: _fig_time_offset(run, out)),
+    ("per-direction sigma with observability colours", lambda run, out, truth_T: _fig_observability(run, out)),
+    ("closed form vs refined", _fig_methods),
+)
+
+
+def figure_inputs(run: Any) -> SimpleNamespace:
+    """What the figures read of a run, and nothing else: plain arrays and the two tracks (it pickles, to be drawn
+    in another process)."""
+    ref, cf = run.refinement, run.closed_form
+    refinement = None
+    if ref is not None:
+        obs = None
+        if ref.observability is not None:
+            obs = SimpleNamespace(axes=[SimpleNamespace(name=a.name, ratio=a.ratio, status=a.status)
+                                        for a in ref.observability.axes])
+        refinement = SimpleNamespace(T_base_cam=ref.T_base_cam, R_base_cam=ref.R_base_cam, td=ref.td,
+                                     T_world_board=ref.T_world_board, observability=obs)
+    closed_form = None
+    if cf is not None:
+        to = cf.time_offset
+        closed_form = SimpleNamespace(
+            time_offset=None if to is None else SimpleNamespace(shifts=to.shifts, values=to.values, td=to.td,
+                                                                method=to.method),
+            methods={name: SimpleNamespace(R_base_cam=m.R_base_cam) for name, m in cf.methods.items()},
+        )
+    truth = None if run.truth is None else {"T_base_cam": np.asarray(run.truth["T_base_cam"], dtype=float)}
+    return SimpleNamespace(camera_track=run.camera_track, base_track=run.base_track, camera=run.camera,
+                           refinement=refinement, closed_form=closed_form, truth=truth,
+                           clock_offset_s=getattr(run, "clock_offset_s", 0.0))
+
+
+def render_figures(out: Path, run: Any, which: Any = None) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
+    """Draw the figures (all, or those of :data:`FIGURES` at the indices ``which``) into ``out``: the (caption, PNG
+    name) of those drawn and the (caption, error) of those that failed. A figure that fails never stops the others."""
     truth_T = None if run.truth is None else np.asarray(run.truth["T_base_cam"], dtype=float)
     images: list[tuple[str, str]] = []
-    makers = [
-        ("aligned trajectories", lambda: _fig_trajectories(run, out)),
-        ("reprojection residuals after refinement", lambda: _fig_residuals(run, out)),
-        ("time-offset correlation curve", lambda: _fig_time_offset(run, out)),
-        ("per-direction sigma with observability colours", lambda: _fig_observability(run, out)),
-        ("closed form vs refined", lambda: _fig_methods(run, out, truth_T)),
-    ]
-    for caption, make in makers:
+    failures: list[tuple[str, str]] = []
+    for caption, make in FIGURES if which is None else [FIGURES[i] for i in which]:
         try:
-            f = make()
+            f = make(run, out, truth_T)
         except Exception as exc:  # a picture must never cost the user the numbers
-            log.warning("figure '%s' failed: %s", caption, exc)
-            report.setdefault("warnings", []).append(f"figure '{caption}' could not be drawn: {exc}")
+            failures.append((caption, str(exc)))
             continue
         if f:
             images.append((caption, f))
+    return images, failures
+
+
+def note_figure_failures(report: dict, failures: list[tuple[str, str]]) -> None:
+    """Log each figure that could not be drawn and add it to the report's warnings."""
+    for caption, err in failures:
+        log.warning("figure '%s' failed: %s", caption, err)
+        report.setdefault("warnings", []).append(f"figure '{caption}' could not be drawn: {err}")
+
+
+def write_html_report(out: Path, run: Any, report: dict,
+                      figures: tuple[list[tuple[str, str]], list[tuple[str, str]]] | None = None) -> Path:
+    """Write report.html into ``out`` with the figures: those already drawn (``figures``, as
+    :func:`render_figures` returns them), else drawn here first. A figure that fails is logged, not fatal."""
+    images, failures = render_figures(out, run) if figures is None else figures
+    note_figure_failures(report, failures)
     c = report["calibration"]
     sections = []  # what a person needs first: the result with its sigmas, then what is wrong, then the pictures
     status = "OK" if report["ok"] else "FLAGGED: do not use this calibration"

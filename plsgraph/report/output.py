@@ -31,18 +31,32 @@ def write_calibration_yaml(path: Path, calib: dict) -> None:
     _atomic_write(Path(path), text.encode())
 
 
-def write_calibration(out: Path, result: Any) -> list[Path]:
-    """Write a :class:`plsgraph.result.CalibrationResult` into the folder ``out`` (made if missing)."""
+def write_calibration(out: Path, result: Any, figures: Any = None) -> list[Path]:
+    """Write a :class:`plsgraph.result.CalibrationResult` into the folder ``out`` (made if missing).
+
+    ``figures``: a started :class:`plsgraph.report.figure_worker.FigureWorker` draws the figures while the other
+    files are written (else, or if it fails, they are drawn here). report.html and report.json come last: a figure
+    that fails adds its warning to them. ``report["timing_s"]["figures"]`` is the time the figures held this
+    process up (drawing them, or waiting for the worker)."""
+    import time
+
     from .figures import write_html_report
+    from .robot_files import write_robot_files
 
     report = result.report
     out.mkdir(parents=True, exist_ok=True)
-    write_html_report(out, result.run, report)  # first: a figure that fails adds its warning to the report
+    t0 = time.perf_counter()
+    pending = figures is not None and figures.available
+    if pending:
+        figures.send(out, result.run)  # drawn in the worker while the files below are written
+    waited = time.perf_counter() - t0
     write_calibration_yaml(out / "calibration.yaml", report["calibration"])
-    write_json(out / "report.json", report)
-    from .robot_files import write_robot_files
-
     robot = write_robot_files(out, result)  # a flagged result gets comment-only files that say why
+    t1 = time.perf_counter()
+    drawn = figures.result() if pending else None
+    write_html_report(out, result.run, report, drawn)  # drawn here when the worker did not (drawn is None)
+    report.setdefault("timing_s", {})["figures"] = round(waited + time.perf_counter() - t1, 4)
+    write_json(out / "report.json", report)
     return [out / "calibration.yaml", out / "report.json", out / "report.html", *robot]
 
 

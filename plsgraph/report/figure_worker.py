@@ -1,0 +1,270 @@
+"""The report's figures drawn in a second Python process, off the calibration's critical path.
+
+Importing matplotlib and drawing the first figure take about a second, the figures themselves as much again: all of
+it after the refinement, when nothing else is left to do. :class:`FigureWorker` starts a process when a calibration
+starts (when a processor is free for it: :func:`processor_free`); it loads matplotlib and draws a throw-away figure
+(fonts, caches) while the calibration runs, then waits. When the result is known, :meth:`FigureWorker.send` hands it
+the few arrays the figures show (:func:`plsgraph.report.figures.figure_inputs`) and the folder to draw into; the
+worker forks, so that two processes draw half of the figures each, while the calling process writes
+calibration.yaml and the robot files. The folder is the run's staging folder, so the whole-folder semantics of
+:mod:`plsgraph.report.output` hold: the figures are there before the folder is moved into place, or the folder is
+not moved at all.
+
+Anything wrong with the worker (it cannot start, dies, hangs, answers nonsense) makes :meth:`FigureWorker.result`
+return None, and the caller draws the figures itself as before: the worker can cost time, never figures or numbers.
+
+Protocol: the parent writes one pickle ``(out_dir, inputs)`` to the worker's stdin and closes it; the worker writes
+one pickle ``(images, failures)`` (as :func:`~plsgraph.report.figures.render_figures` returns them) to its stdout and
+exits. End of input without a job means: nothing to draw, exit.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import pickle
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+# Longest wait for the figures once the job is sent; then they are drawn in the calling process instead.
+RENDER_TIMEOUT_S = 120.0
+# The worker's code: the same plsgraph as the caller's (its folder goes first on the path, see _env).
+_BOOT = "from plsgraph.report.figure_worker import serve; serve()"
+
+
+def _env() -> dict[str, str]:
+    """The caller's environment; when this plsgraph is not an installed one (a checkout on the path, a test tree), its
+    folder goes first on PYTHONPATH so that the worker imports the same code."""
+    import site
+
+    import plsgraph
+
+    env = dict(os.environ)
+    root = str(Path(plsgraph.__file__).resolve().parent.parent)
+    installed = {str(Path(p).resolve()) for p in [*site.getsitepackages(), site.getusersitepackages()]}
+    if root not in installed:
+        env["PYTHONPATH"] = os.pathsep.join([root, *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
+    return env
+
+
+def processor_free() -> bool:
+    """Is a processor free for the figure worker? The worker trades a second start-up (about a second of processor
+    time: Python, numpy, matplotlib, a warm-up figure) for taking the figures off the calibration's critical path.
+    That pays when a processor would otherwise idle beside the calibration, and costs time when every processor is
+    already busy. Judged from the load average of the last minute against the processors this process may use: one
+    runs the calibration, and a processor's worth must be left unused by everything else."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        n = os.cpu_count() or 1
+    if n < 2:
+        return False
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return True
+    return n - load >= 1.0
+
+
+class FigureWorker:
+    """A figure-drawing process: ``start()`` early, ``send(out, run)`` once the result is known, ``result()`` when
+    the figures are needed, ``close()`` always (also a context manager). One job per worker."""
+
+    def __init__(self) -> None:
+        self.proc: subprocess.Popen | None = None
+        self._stderr = None
+        self._thread = None
+        self._reply: bytes | None = None
+        self._error: BaseException | None = None
+
+    @classmethod
+    def start(cls) -> FigureWorker:
+        """Start the process (it warms up on its own); a worker that cannot start is simply unavailable."""
+        w = cls()
+        if not sys.executable:
+            return w
+        try:
+            w._stderr = tempfile.TemporaryFile()
+            w.proc = subprocess.Popen(
+                [sys.executable, "-c", _BOOT], stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=w._stderr,
+                env=_env(), close_fds=True, start_new_session=True,  # a Ctrl-C is the caller's to handle
+            )
+        except (OSError, ValueError) as exc:
+            log.debug("figure worker could not start (%s); figures are drawn in this process", exc)
+            w.close()
+        return w
+
+    @property
+    def available(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def send(self, out: Path, run: Any) -> None:
+        """Hand the worker the figures of ``run`` to draw into ``out``; returns at once (the job is written from a
+        helper thread). Collect them with :meth:`result`."""
+        import threading
+
+        from .figures import figure_inputs
+
+        if not self.available:
+            self.close()
+            return
+        try:
+            job = pickle.dumps((str(out), figure_inputs(run)), protocol=pickle.HIGHEST_PROTOCOL)
+        except Exception as exc:  # something that does not pickle: draw in this process
+            log.debug("figure inputs do not pickle (%s); figures are drawn in this process", exc)
+            self.close()
+            return
+        proc = self.proc
+
+        def talk() -> None:
+            try:
+                self._reply = proc.communicate(job, timeout=RENDER_TIMEOUT_S)[0]
+            except Exception as exc:  # reported by result()
+                self._error = exc
+
+        self._thread = threading.Thread(target=talk, name="plsgraph-figures", daemon=True)
+        self._thread.start()
+
+    def result(self) -> tuple[list[tuple[str, str]], list[tuple[str, str]]] | None:
+        """What the worker drew, ``(images, failures)`` as :func:`~plsgraph.report.figures.render_figures` returns
+        them, or None when it could not (then nothing it wrote is to be trusted: draw them all again)."""
+        try:
+            if self._thread is None:
+                return None
+            self._thread.join(RENDER_TIMEOUT_S + 10)
+            proc = self.proc
+            if self._thread.is_alive() or proc is None:
+                raise RuntimeError("no answer")
+            if self._error is not None:
+                raise self._error
+            if proc.returncode != 0:
+                raise RuntimeError(f"exit {proc.returncode}: {self._last_error()}")
+            images, failures = pickle.loads(self._reply)
+            return [(str(c), str(f)) for c, f in images], [(str(c), str(e)) for c, e in failures]
+        except Exception as exc:  # any trouble: the caller draws the figures itself
+            log.debug("figure worker failed (%s); figures are drawn in this process", exc)
+            return None
+        finally:
+            self.close()
+
+    def _last_error(self) -> str:
+        if self._stderr is None:
+            return "(no message)"
+        self._stderr.seek(0)
+        lines = self._stderr.read().decode(errors="replace").strip().splitlines()
+        return lines[-1] if lines else "(no message)"
+
+    def close(self) -> None:
+        """Stop the worker if it still runs (it then draws nothing more) and wait for it to end."""
+        proc, self.proc = self.proc, None
+        if proc is not None:
+            if proc.poll() is None:
+                proc.kill()
+            if self._thread is not None and self._thread.is_alive():
+                self._thread.join(10)  # its communicate() ends with the process
+            else:
+                for pipe in (proc.stdin, proc.stdout):
+                    if pipe is not None:
+                        try:
+                            pipe.close()
+                        except OSError:
+                            pass
+                try:
+                    proc.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    pass
+        if self._stderr is not None:
+            self._stderr.close()
+            self._stderr = None
+
+    def __enter__(self) -> FigureWorker:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _warm_up(plt) -> None:
+    """Draw and encode one small figure like the report's (text, a log axis, tight layout): loads the fonts and
+    fills matplotlib's caches before the real figures are asked for."""
+    import io
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(3, 2))
+    a.plot([0, 1], [1, 2], ".-", label="x")
+    a.legend(fontsize=7)
+    a.set_title("warm-up")
+    b.bar([0, 1], [0.01, 10.0])
+    b.set_yscale("log")
+    b.set_xticks([0, 1], ["a", "b"], rotation=30, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(io.BytesIO(), format="png", dpi=40)
+    plt.close(fig)
+
+
+# The figures split over two processes when the worker forks (indices into figures.FIGURES, about equal drawing
+# time each): trajectories and observability here, residuals, time offset and methods in the fork.
+_HERE, _FORKED = (0, 3), (1, 2, 4)
+
+
+def _render_in_two(out: Path, inputs: Any) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
+    """render_figures over two processes: the warm worker forks (no second start-up, matplotlib already loaded),
+    each draws its share, the fork's answer comes back through a pipe. Without fork, or if the fork fails to answer,
+    this process draws the rest itself. The result is in the order of figures.FIGURES, as render_figures gives it."""
+    from .figures import FIGURES, render_figures
+
+    if not hasattr(os, "fork"):
+        return render_figures(out, inputs)
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the fork: draw its share, answer, and end without running the parent's cleanup
+        code = 1
+        try:
+            os.close(r)
+            data = pickle.dumps(render_figures(out, inputs, _FORKED), protocol=pickle.HIGHEST_PROTOCOL)
+            with os.fdopen(w, "wb") as f:
+                f.write(data)
+            code = 0
+        finally:
+            os._exit(code)
+    os.close(w)
+    images, failures = render_figures(out, inputs, _HERE)
+    with os.fdopen(r, "rb") as f:
+        data = f.read()
+    _, status = os.waitpid(pid, 0)
+    try:
+        theirs = pickle.loads(data) if status == 0 else None
+    except Exception:
+        theirs = None
+    if theirs is None:
+        theirs = render_figures(out, inputs, _FORKED)
+    images += theirs[0]
+    failures += theirs[1]
+    order = {caption: i for i, (caption, _) in enumerate(FIGURES)}
+    return sorted(images, key=lambda x: order[x[0]]), sorted(failures, key=lambda x: order[x[0]])
+
+
+def serve() -> None:
+    """The worker process: warm up, read one job from stdin, draw it, answer on stdout."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the caller stops the worker; an interrupt is the caller's
+    reply_fd = os.dup(1)
+    os.dup2(2, 1)  # anything printed while drawing goes to stderr, not into the reply
+    from .figures import _plt
+
+    try:
+        _warm_up(_plt())
+    except Exception:  # the real figures will say what is wrong
+        pass
+    data = sys.stdin.buffer.read()
+    if not data:
+        return  # no job: the calibration ended without figures
+    out, inputs = pickle.loads(data)
+    result = _render_in_two(Path(out), inputs)
+    with os.fdopen(reply_fd, "wb") as f:
+        f.write(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
