@@ -193,8 +193,7 @@ def test_report_shows_detection_coverage_and_event_frames(calibrated):
     rep = json.loads((out / "report.json").read_text())
     page = (out / "report.html").read_text()
     assert (out / "coverage.png").stat().st_size > 1000 and "coverage.png" in page
-    frames = sorted(out.glob("event_frame_*.png"))
-    assert 1 <= len(frames) <= 3 and all(f.name in page for f in frames)
+    assert (out / "event_frames.png").stat().st_size > 1000 and "event_frames.png" in page
     # The table's counts are the front end's: every window once, found or with its reason.
     windows = rep["discarded"]["frontend_windows"]
     found = re.search(r"found in (\d+) of (\d+) windows", page)

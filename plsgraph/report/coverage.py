@@ -1,10 +1,11 @@
 """Detection coverage for the HTML report: per-window outcomes over time and event frames with the grid drawn.
 
 The front end keeps every window's outcome (``camera_track.info["window_outcomes"]``: the windows' end times
-and, per window, the detector that found the board or the reason nothing was found). :func:`coverage_sections`
-draws them as a strip over time with a table of counts, and renders a few event frames (count images of one
-window) with the detected circles and their order drawn on them. It returns HTML
-snippets for report.html; PNGs go next to it. A failure is the caller's to log: figures never cost the numbers.
+and, per window, the detector that found the board or the reason nothing was found). :func:`fig_coverage` draws
+them as a strip over time, :func:`fig_event_frames` a few event frames (count images of one window) with the
+detected circles and their order drawn on them; both are figures of :data:`plsgraph.report.figures.FIGURES`
+(drawn with the others, in the figure worker when there is one). :func:`coverage_table` is the HTML table of
+counts, cheap enough for the report page itself.
 """
 
 from __future__ import annotations
@@ -43,7 +44,10 @@ def outcome_counts(info: dict) -> dict[str, int]:
     return {str(n): int(c) for n, c in zip(names, counts, strict=True)}
 
 
-def _fig_coverage(info: dict, out: Path) -> str | None:
+def fig_coverage(run: Any, out: Path, truth_T: Any = None) -> str | None:
+    """coverage.png: every window's outcome as a strip over time."""
+    track = getattr(run, "camera_track", None)
+    info = {} if track is None else track.info
     wo = info.get("window_outcomes")
     if not wo or len(wo["outcome"]) == 0:
         return None
@@ -70,31 +74,33 @@ def _fig_coverage(info: dict, out: Path) -> str | None:
     return _save(plt, fig, out, "coverage.png")
 
 
-def _event_frames(run: Any, out: Path, n_frames: int = 3) -> list[str]:
-    """Count images of a few detected windows with the detected circles drawn, as PNG names."""
+def fig_event_frames(run: Any, out: Path, truth_T: Any = None, n_frames: int = 3) -> str | None:
+    """event_frames.png: the count images of a few detected windows side by side, the detected circles drawn on
+    them and joined in the board's order (the first circle red)."""
     import cv2
 
     from ..io.events_reader import read_events
 
-    track = run.camera_track
-    det = track.detections
-    if det is None or len(det) == 0:
-        return []
+    track = getattr(run, "camera_track", None)
+    log_path = getattr(run, "log_path", None)
+    det = None if track is None else track.detections
+    if det is None or len(det) == 0 or log_path is None or not Path(log_path).is_file():
+        return None  # no detections, or tracks given without their recording
     window_s = float(track.info.get("window_s") or 1.0 / 30.0)
     picks = np.unique(np.linspace(0, len(det) - 1, n_frames).round().astype(int))
-    names = []
-    for j, i in enumerate(picks):
+    tiles = []
+    for i in picks:
         # Detections are on the odometry clock when the camera track was shifted there; events are not.
         t_ns = int(round((float(det.t[i]) - float(getattr(run, "clock_offset_s", 0.0) or 0.0)) * 1e9))
         half = int(window_s * 0.5e9)
-        ev = read_events(run.log_path, None, t_ns - half, t_ns + half)
+        ev = read_events(log_path, None, t_ns - half, t_ns + half)
         if len(ev) == 0:
             continue
         img = np.zeros((ev.height, ev.width), np.float32)
         np.add.at(img, (ev.y.astype(int), ev.x.astype(int)), 1.0)
         hi = max(1.0, float(np.percentile(img[img > 0], 95)))
         g = (np.clip(img / hi, 0, 1) * 255).astype(np.uint8)
-        s = 3
+        s = 2
         big = cv2.resize(cv2.cvtColor(g, cv2.COLOR_GRAY2BGR), None, fx=s, fy=s, interpolation=cv2.INTER_NEAREST)
         uv = np.asarray(det.uv[i], dtype=float)
         seen = np.all(np.isfinite(uv), axis=1)
@@ -102,39 +108,31 @@ def _event_frames(run: Any, out: Path, n_frames: int = 3) -> list[str]:
         for a, b in zip(pts[:-1], pts[1:], strict=False):  # the order, as the board numbers its circles
             cv2.line(big, a, b, (0, 200, 255), 1, cv2.LINE_AA)
         for p in pts:
-            cv2.circle(big, p, 4, (0, 255, 0), 1, cv2.LINE_AA)
+            cv2.circle(big, p, 3, (0, 255, 0), 1, cv2.LINE_AA)
         if pts:
-            cv2.circle(big, pts[0], 6, (0, 0, 255), 2, cv2.LINE_AA)  # the board's first circle
-        name = f"event_frame_{j}.png"
-        cv2.imwrite(str(out / name), big)
-        names.append(name)
-    return names
+            cv2.circle(big, pts[0], 5, (0, 0, 255), 2, cv2.LINE_AA)  # the board's first circle
+        tiles.append(big)
+    if not tiles:
+        return None
+    gap = np.full((tiles[0].shape[0], 6, 3), 255, np.uint8)
+    row = tiles[0]
+    for tile in tiles[1:]:
+        row = np.hstack([row, gap, tile])
+    cv2.imwrite(str(out / "event_frames.png"), row)
+    return "event_frames.png"
 
 
-def coverage_sections(run: Any, out: Path) -> list[tuple[str, str]]:
-    """Report sections (title, HTML) for the front end's coverage; writes coverage.png and event frames."""
-    track = getattr(run, "camera_track", None)
-    if track is None:
-        return []
-    info = track.info
+def coverage_table(info: dict) -> str | None:
+    """HTML: how many windows found the board, by which detector, and why the others did not."""
     counts = outcome_counts(info)
-    parts = []
-    fig = _fig_coverage(info, out)
-    if fig:
-        parts.append(f"<img src='{html.escape(fig)}' alt='detection coverage'>")
-    if counts:
-        total = sum(counts.values())
-        found = sum(v for k, v in counts.items() if k in DETECTED)
-        rows = "".join(f"<tr><td>{'found by ' if k in DETECTED else 'missed: '}{html.escape(k)}</td><td>{v}</td>"
-                       f"<td>{100.0 * v / total:.1f} %</td></tr>"
-                       for k, v in sorted(counts.items(), key=lambda kv: (kv[0] not in DETECTED, -kv[1])))
-        parts.append(f"<p>The board was found in {found} of {total} windows ({100.0 * found / total:.0f} %). "
-                     "Windows without events from the board (a robot standing still) cannot show it.</p>")
-        parts.append(f"<table><tr><th>window outcome</th><th>windows</th><th>share</th></tr>{rows}</table>")
-    sections = [("Detection coverage", "\n".join(parts))] if parts else []
-    frames = _event_frames(run, out)
-    if frames:
-        sections.append(("Event frames with the detected grid", "<p>Events of one window at three detections; "
-                         "green: detected circles, joined in the board's order (red: the first).</p>"
-                         + "".join(f"<img src='{html.escape(f)}' alt='event frame'>" for f in frames)))
-    return sections
+    if not counts:
+        return None
+    total = sum(counts.values())
+    found = sum(v for k, v in counts.items() if k in DETECTED)
+    rows = "".join(f"<tr><td>{'found by ' if k in DETECTED else 'missed: '}{html.escape(k)}</td><td>{v}</td>"
+                   f"<td>{100.0 * v / total:.1f} %</td></tr>"
+                   for k, v in sorted(counts.items(), key=lambda kv: (kv[0] not in DETECTED, -kv[1])))
+    return (f"<p>The board was found in {found} of {total} windows ({100.0 * found / total:.0f} %). "
+            "Windows without events from the board (a robot standing still) cannot show it. The figures "
+            "'detection coverage' and 'event frames' below show when and what the detector saw.</p>"
+            f"<table><tr><th>window outcome</th><th>windows</th><th>share</th></tr>{rows}</table>")

@@ -207,8 +207,15 @@ def _warm_up(plt) -> None:
 
 
 # The figures split over two processes when the worker forks (indices into figures.FIGURES, about equal drawing
-# time each): trajectories and observability here, residuals, time offset and methods in the fork.
-_HERE, _FORKED = (0, 3), (1, 2, 4)
+# time each): trajectories, observability and the event frames here, the others in the fork.
+_HERE = (0, 3, 6)
+
+
+def _split() -> tuple[tuple[int, ...], tuple[int, ...]]:
+    from .figures import FIGURES
+
+    here = tuple(i for i in _HERE if i < len(FIGURES))
+    return here, tuple(i for i in range(len(FIGURES)) if i not in here)
 
 
 def _render_in_two(out: Path, inputs: Any) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
@@ -219,20 +226,21 @@ def _render_in_two(out: Path, inputs: Any) -> tuple[list[tuple[str, str]], list[
 
     if not hasattr(os, "fork"):
         return render_figures(out, inputs)
+    _here, _forked = _split()
     r, w = os.pipe()
     pid = os.fork()
     if pid == 0:  # the fork: draw its share, answer, and end without running the parent's cleanup
         code = 1
         try:
             os.close(r)
-            data = pickle.dumps(render_figures(out, inputs, _FORKED), protocol=pickle.HIGHEST_PROTOCOL)
+            data = pickle.dumps(render_figures(out, inputs, _forked), protocol=pickle.HIGHEST_PROTOCOL)
             with os.fdopen(w, "wb") as f:
                 f.write(data)
             code = 0
         finally:
             os._exit(code)
     os.close(w)
-    images, failures = render_figures(out, inputs, _HERE)
+    images, failures = render_figures(out, inputs, _here)
     with os.fdopen(r, "rb") as f:
         data = f.read()
     _, status = os.waitpid(pid, 0)
@@ -241,7 +249,7 @@ def _render_in_two(out: Path, inputs: Any) -> tuple[list[tuple[str, str]], list[
     except Exception:
         theirs = None
     if theirs is None:
-        theirs = render_figures(out, inputs, _FORKED)
+        theirs = render_figures(out, inputs, _forked)
     images += theirs[0]
     failures += theirs[1]
     order = {caption: i for i, (caption, _) in enumerate(FIGURES)}

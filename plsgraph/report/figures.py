@@ -16,6 +16,7 @@ import numpy as np
 
 from ..core.geometry import rotation_error_deg
 from ..refine.residuals import residuals
+from .coverage import coverage_table
 from .files import html_report, html_table, status_colour, write_text
 
 log = logging.getLogger(__name__)
@@ -161,7 +162,17 @@ FIGURES = (  # (caption, maker(run, out, truth_T)), in the order the page shows 
     ("time-offset correlation curve", lambda run, out, truth_T: _fig_time_offset(run, out)),
     ("per-direction sigma with observability colours", lambda run, out, truth_T: _fig_observability(run, out)),
     ("closed form vs refined", _fig_methods),
+    ("detection coverage: each window's outcome over time", lambda run, out, truth_T: _coverage("fig_coverage", run,
+                                                                                                out)),
+    ("event frames with the detected grid (green circles joined in the board's order, the first red)",
+     lambda run, out, truth_T: _coverage("fig_event_frames", run, out)),
 )
+
+
+def _coverage(name: str, run: Any, out: Path) -> str | None:
+    from . import coverage
+
+    return getattr(coverage, name)(run, out)
 
 
 def figure_inputs(run: Any) -> SimpleNamespace:
@@ -187,7 +198,7 @@ def figure_inputs(run: Any) -> SimpleNamespace:
     truth = None if run.truth is None else {"T_base_cam": np.asarray(run.truth["T_base_cam"], dtype=float)}
     return SimpleNamespace(camera_track=run.camera_track, base_track=run.base_track, camera=run.camera,
                            refinement=refinement, closed_form=closed_form, truth=truth,
-                           clock_offset_s=getattr(run, "clock_offset_s", 0.0))
+                           clock_offset_s=getattr(run, "clock_offset_s", 0.0), log_path=getattr(run, "log_path", None))
 
 
 def render_figures(out: Path, run: Any, which: Any = None) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
@@ -243,11 +254,10 @@ def write_html_report(out: Path, run: Any, report: dict,
     if "truth_errors" in report:
         tail.append(("Errors against truth", html_table(
             [{"quantity": k, "value": v} for k, v in report["truth_errors"].items()], ["quantity", "value"])))
-    try:  # detection coverage and event frames (plsgraph.report.coverage)
-        from .coverage import coverage_sections
-        sections += coverage_sections(run, out)
-    except Exception as exc:  # a picture must never cost the user the numbers
-        log.warning("coverage figures failed: %s", exc)
+    track = getattr(run, "camera_track", None)
+    table = None if track is None else coverage_table(track.info)
+    if table:
+        sections.append(("Detection coverage", table))
     if report["discarded"]:
         tail.append(("Discarded", "<pre>" + html.escape(_pretty(report["discarded"])) + "</pre>"))
     page = html_report(f"plsgraph calibration of {Path(report['recording']).name}", sections, images, tail)
