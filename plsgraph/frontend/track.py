@@ -113,8 +113,13 @@ def _active_age_s(kind: str, params: dict, window_s: float) -> float:
 
 
 #: Fractions of the nominal rim age tried in turn: fast motion smears a circle's rim over its whole
-#: inside within a full window, so failed windows are retried on the most recent half, quarter and eighth.
-WINDOW_LADDER = (1.0, 0.5, 0.25, 0.125)
+#: inside within a full window, so failed windows are retried on the most recent half, quarter and eighth;
+#: slow motion leaves sparse rims, retried on two and four windows.
+WINDOW_LADDER = (1.0, 0.5, 0.25, 0.125, 2.0, 4.0)
+#: The spans longer than the window (2 and 4 times) are for slow motion, whose rims are thin and sparse in one
+#: window: tried only while the board was last seen moving slower than this across the image. (Tried on fast
+#: boards they smear rims into patterns a wrong board definition could be matched to.)
+SLOW_PX_S = 30.0
 #: Spans (multiples of the window) over which circles are looked for as blobs of events when the rims fail, and
 #: the blur that merges a small circle's events into one blob.
 BLOB_SPANS = (1.0, 2.0, 4.0)
@@ -238,6 +243,7 @@ class _WindowJob:
         as_image = False
         last_blob = BLOB_SPANS[0]
         small_circles = None  # index of the last window whose detection had circles too small for rims
+        slow_board = None  # (window, whether the board moved slower than SLOW_PX_S there) from the last two detections
         period_s = float(np.median(np.diff(t_query))) * 1e-9 if t_query.size > 1 else 0.0
         for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
             if progress is not None:
@@ -261,6 +267,9 @@ class _WindowJob:
                 order = []  # the board was just seen with circles too small for rims: straight to the blobs
             for j in order:
                 frac = WINDOW_LADDER[j]
+                if frac > 1.0 and (decaying or board.pattern != "asymmetric_circles" or slow_board is None
+                                   or k - slow_board[0] > RECENT_WINDOWS or not slow_board[1]):
+                    continue  # longer spans: for counts of circle grids just seen moving slowly only
                 age = frac * age0
                 c0 = time.perf_counter()
                 if img is None or not decaying:
@@ -272,6 +281,8 @@ class _WindowJob:
                         sub = ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1)
                     elif frac == 1.0 or decaying:
                         sub = ev
+                    elif frac > 1.0:  # slow motion: thin, sparse rims in one window; look further back
+                        sub = self.stream.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
                     else:
                         sub = ev.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
                     if len(sub) < self.min_events:
@@ -309,6 +320,8 @@ class _WindowJob:
                 secs["detection"] += time.perf_counter() - c1
                 if det.reason == REASON_OK:
                     retries[("rims", WINDOW_LADDER[j])] += 1
+                    if frac > 1.0:
+                        ev = sub  # the events the rims came from, for the time stamp
                     last_good = j
                     break
             blob = None
@@ -353,6 +366,9 @@ class _WindowJob:
             # Constant-velocity prediction of all circles for the next window (from the last two windows;
             # circles not seen are filled in by the board's homography).
             full = _complete_by_homography(det.uv, board) if board.pattern == "asymmetric_circles" else det.uv
+            if prev is not None and k - prev[0] <= RECENT_WINDOWS and t_det > prev[1]:
+                step = np.nanmedian(np.linalg.norm(full - prev[2], axis=1))
+                slow_board = (k, bool(step / (t_det - prev[1]) < SLOW_PX_S))
             if prev is not None and prev[0] == k - 1 and t_det > prev[1]:
                 predicted = full + (full - prev[2]) * (period_s / (t_det - prev[1]))
             else:
