@@ -88,8 +88,13 @@ class FrontendOptions:
 
     surface: str = "count"
     rate_hz: float = 30.0
+    #: processes detecting streamed spans side by side (same result as one); 0: one per processor, at most 2
+    frontend_workers: int = 0
 
     def __post_init__(self) -> None:
+        if isinstance(self.frontend_workers, bool) or not isinstance(self.frontend_workers, int) \
+                or self.frontend_workers < 0:
+            raise InputError(f"frontend_workers must be a whole number >= 0, got {self.frontend_workers!r}")
         if self.surface not in SURFACES:
             raise InputError(f"surface must be one of {', '.join(SURFACES)}, got {self.surface!r}")
         _positive("--rate", "rate_hz", self.rate_hz)

@@ -7,6 +7,7 @@ closed form, the refinement it seeds. Each step fills the run, so a failure late
 from __future__ import annotations
 
 import logging
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -240,6 +241,7 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
             track = camera_track_from_event_chunks(
                 checked(iter_event_chunks(src, topic)), run.camera, run.board, rate_hz=opts.frontend.rate_hz,
                 kind=opts.frontend.surface, expected_span_ns=span, progress=bar,
+                workers=opts.frontend.frontend_workers or min(2, os.cpu_count() or 1),
             )
         finally:
             run.warn(*src.log.warnings)

@@ -221,7 +221,7 @@ def run_one(args: tuple) -> dict:
         # The library's calibrate, step by step, so that a run refused late still shows its front end.
         opts = CalibrationOptions.build(board=BOARD, wheel_radius=rec.truth["wheel_radius_nominal"],
                                         track_width=rec.truth["track_width_nominal"], truth=truth_file,
-                                        surface=surface)
+                                        surface=surface, frontend_workers=1)
         run = Run(path, opts)
         run.truth = load_truth(opts.truth)
         try:

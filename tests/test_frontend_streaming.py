@@ -59,3 +59,22 @@ def test_detections_out_of_order_across_spans_keep_a_strictly_increasing_track()
     keep = later_than_all_before(t)
     assert keep.tolist() == [True, True, False, False, True]
     assert later_than_all_before(np.zeros(0)).size == 0
+
+
+def test_spans_detected_in_parallel_give_the_same_track():
+    board = load_board("acircles_4x11_a2")
+    camera = read_recording(SAMPLE, with_events=False).camera
+    full = read_events(SAMPLE)
+    t_end = full.t_first + 4_000_000_000
+
+    def streamed(workers):
+        chunks = (c.slice_time(0, t_end + 1) for c in iter_event_chunks(SAMPLE, chunk_events=100_000)
+                  if c.t_first < t_end)
+        return camera_track_from_event_chunks(chunks, camera, board, kind="count", span_s=1.0, history_s=0.5,
+                                              workers=workers)
+
+    one, two = streamed(1), streamed(2)
+    assert np.array_equal(one.t, two.t)
+    assert np.array_equal(one.T_board_cam, two.T_board_cam)
+    assert one.info["window_outcomes"] == two.info["window_outcomes"]
+    assert one.info["skipped"] == two.info["skipped"] and one.info["detector"] == two.info["detector"]

@@ -628,6 +628,13 @@ def later_than_all_before(t: np.ndarray) -> np.ndarray:
     return np.r_[True, t[1:] > np.maximum.accumulate(t)[:-1]] if t.size else np.zeros(0, dtype=bool)
 
 
+def _detect_span(args: tuple) -> tuple[Detections, dict]:
+    """One streamed span's windows (in this process or a worker)."""
+    buf, camera, board, rate_hz, kind, q, detect_options = args
+    return detect_in_events(buf, camera, board, rate_hz, kind, t_query_ns=q, require_detection=False,
+                            **detect_options)
+
+
 def camera_track_from_event_chunks(
     chunks: Iterable[EventStream],
     camera: CameraModel,
@@ -641,6 +648,7 @@ def camera_track_from_event_chunks(
     sigma_px: float | None = None,
     expected_span_ns: tuple[int, int] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    workers: int = 1,
     **detect_options,
 ) -> CameraTrack:
     """The front end of :func:`camera_track_from_events` on a stream of event chunks, in bounded memory.
@@ -650,6 +658,7 @@ def camera_track_from_event_chunks(
     last ``history_s`` (longer than any window's look-back) is dropped. Memory therefore follows the span,
     not the recording's length. The grid tracking restarts at each span (a full search in its first window).
     ``expected_span_ns`` (first, last event time, e.g. from the file's summary) only sizes the progress bar.
+    ``workers`` > 1 detects that many spans at once in forked processes (Linux), with the same result as one.
     """
     if not (span_s > 0 and history_s > 0 and rate_hz > 0):
         raise InputError("streaming front end: span_s, history_s and rate_hz must be positive")
@@ -673,29 +682,52 @@ def camera_track_from_event_chunks(
     if expected_span_ns is not None:
         total = max(1, int((expected_span_ns[1] - expected_span_ns[0]) // period))
 
+    def absorb(dets: Detections, part: dict) -> None:
+        nonlocal info
+        t_parts.append(dets.t)
+        uv_parts.append(dets.uv)
+        src_parts.extend(part["detector"])
+        wo_t.extend(part["window_outcomes"]["t"])
+        wo_o.extend(part["window_outcomes"]["outcome"])
+        skipped.update(part["skipped"])
+        if info:
+            info["windows"] += part["windows"]
+            info["events_used"] += part["events_used"]
+            for k, v in part["seconds"].items():
+                info["seconds"][k] = info["seconds"].get(k, 0.0) + v
+        else:
+            info = part
+        if progress is not None:
+            done = info["windows"]
+            progress(done, max(done, total or done))
+
+    pool = None
+    pending: list = []  # spans being detected in worker processes, oldest first
+    if workers > 1:
+        import multiprocessing as mp
+
+        if mp.current_process().daemon:  # e.g. a Dask or multiprocessing pool worker: it may not start processes
+            workers = 1
+
     def detect(t_end: int) -> None:
-        nonlocal buf, next_q, info
+        nonlocal buf, next_q, pool
         q = np.arange(next_q, t_end, period, dtype=np.int64)
         if q.size:
-            dets, part = detect_in_events(buf, camera, board, rate_hz, kind, t_query_ns=q, require_detection=False,
-                                          **detect_options)
-            t_parts.append(dets.t)
-            uv_parts.append(dets.uv)
-            src_parts.extend(part["detector"])
-            wo_t.extend(part["window_outcomes"]["t"])
-            wo_o.extend(part["window_outcomes"]["outcome"])
-            skipped.update(part["skipped"])
-            if info:
-                info["windows"] += part["windows"]
-                info["events_used"] += part["events_used"]
-                for k, v in part["seconds"].items():
-                    info["seconds"][k] = info["seconds"].get(k, 0.0) + v
+            args = (buf, camera, board, rate_hz, kind, q, detect_options)
+            if workers > 1:
+                # Spans are independent (tracking restarts at each), so they can be detected side by side with
+                # the same result; at most ``workers`` spans are held at once, so memory stays bounded.
+                if pool is None:
+                    import multiprocessing as mp
+                    from concurrent.futures import ProcessPoolExecutor
+
+                    pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
+                pending.append(pool.submit(_detect_span, args))
+                while len(pending) >= workers:
+                    absorb(*pending.pop(0).result())
             else:
-                info = part
+                absorb(*_detect_span(args))
             next_q = int(q[-1]) + period
-            if progress is not None:
-                done = info["windows"]
-                progress(done, max(done, total or done))
         buf = buf.slice_time(next_q - keep_ns, np.iinfo(np.int64).max)
 
     for ch in chunks:
@@ -717,7 +749,13 @@ def camera_track_from_event_chunks(
             detect(buf.t_last - reorder_ns)  # windows well before the newest event have all their events
     if buf is None or len(buf) == 0:
         raise InsufficientDataError("front end: the event stream is empty; check the recording's event topic")
-    detect(buf.t_last + period)
+    try:
+        detect(buf.t_last + period)
+        while pending:
+            absorb(*pending.pop(0).result())
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
     t = np.concatenate(t_parts) if t_parts else np.zeros(0)
     uv = np.concatenate(uv_parts) if uv_parts else np.zeros((0, board.n_points, 2))
     src = np.asarray(src_parts, dtype=object)
