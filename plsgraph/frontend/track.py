@@ -658,7 +658,7 @@ def camera_track_from_event_chunks(
     last ``history_s`` (longer than any window's look-back) is dropped. Memory therefore follows the span,
     not the recording's length. The grid tracking restarts at each span (a full search in its first window).
     ``expected_span_ns`` (first, last event time, e.g. from the file's summary) only sizes the progress bar.
-    ``workers`` > 1 detects that many spans at once in forked processes (Linux), with the same result as one.
+    ``workers`` > 1 detects that many spans at once in worker processes, with the same result as one.
     """
     if not (span_s > 0 and history_s > 0 and rate_hz > 0):
         raise InputError("streaming front end: span_s, history_s and rate_hz must be positive")
@@ -721,7 +721,9 @@ def camera_track_from_event_chunks(
                     import multiprocessing as mp
                     from concurrent.futures import ProcessPoolExecutor
 
-                    pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
+                    # Started fresh ("spawn"), not forked: the calibrating process may have threads by now (the
+                    # figure worker's), and a fork taken while one of them holds a lock can hang the child.
+                    pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
                 pending.append(pool.submit(_detect_span, args))
                 while len(pending) >= workers:
                     absorb(*pending.pop(0).result())
