@@ -15,6 +15,7 @@ It takes a few minutes (about 10 s per calibrate of the sample on 2 CPUs); it is
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import shutil
@@ -211,14 +212,9 @@ def _gap_case(w: Path, tag: str, a: float, b: float):
     return o.code, verdict, note
 
 
-@case("1b gap: messages dropped 3.86-5.11 s")
-def _gap(w: Path):
-    return _gap_case(w, "gap", 3.86, 5.11)
-
-
-@case("1c gap: messages dropped 4.0-4.3 s")
-def _gap_short(w: Path):
-    return _gap_case(w, "gap03", 4.0, 4.3)
+for _name, _tag, _t0, _t1 in (("1b gap: messages dropped 3.86-5.11 s", "gap", 3.86, 5.11),
+                               ("1c gap: messages dropped 4.0-4.3 s", "gap03", 4.0, 4.3)):
+    case(_name)(functools.partial(_gap_case, tag=_tag, a=_t0, b=_t1))
 
 
 def _wrong_param(w: Path, tag: str, flag: str, value: str, mention: str, correctable: bool = False):
@@ -227,24 +223,15 @@ def _wrong_param(w: Path, tag: str, flag: str, value: str, mention: str, correct
     return (o.code, *check(o, w / tag, mention))
 
 
-@case("2a --wheel-radius 0.113 (15 % off)")
-def _r15(w):
-    return _wrong_param(w, "r15", "--wheel-radius", "0.113", "wheel radius")
-
-
-@case("2b --wheel-radius 0.103 (5 % off)")
-def _r5(w):
-    return _wrong_param(w, "r5", "--wheel-radius", "0.103", "wheel radius", correctable=True)
-
-
-@case("3a --track-width 0.74 (2x)")
-def _b2(w):
-    return _wrong_param(w, "b2", "--track-width", "0.74", "track")
-
-
-@case("3b --track-width 0.185 (0.5x)")
-def _bh(w):
-    return _wrong_param(w, "bh", "--track-width", "0.185", "track", correctable=True)
+# Wrong nominal odometry: (case, output folder, flag, value, word the message must use, correctable within 3 sigma).
+for _name, _tag, _flag, _value, _mention, _fixable in (
+    ("2a --wheel-radius 0.113 (15 % off)", "r15", "--wheel-radius", "0.113", "wheel radius", False),
+    ("2b --wheel-radius 0.103 (5 % off)", "r5", "--wheel-radius", "0.103", "wheel radius", True),
+    ("3a --track-width 0.74 (2x)", "b2", "--track-width", "0.74", "track", False),
+    ("3b --track-width 0.185 (0.5x)", "bh", "--track-width", "0.185", "track", True),
+):
+    case(_name)(functools.partial(_wrong_param, tag=_tag, flag=_flag, value=_value, mention=_mention,
+                                  correctable=_fixable))
 
 
 @case("4 swapped wheel joints")
