@@ -50,6 +50,7 @@ from ..core.events import EventStream
 from ..core.tracks import CameraTrack, Detections
 from ..errors import InputError, InsufficientDataError
 from . import surfaces
+from .consistency import REASON_INCONSISTENT, inconsistent_frames
 from .detect import (
     MIN_RIM_SPACING_PX,
     REASON_NOT_FOUND,
@@ -602,9 +603,22 @@ def _track_from_detections(
 ) -> CameraTrack:
     """PnP on the detections and the front end's bookkeeping merged into the track's info."""
     c0 = time.perf_counter()
+    skipped = Counter(info["skipped"])
+    bad = inconsistent_frames(dets.t, dets.uv) if len(dets) else np.zeros(0, dtype=bool)
+    if bad.any():
+        # A labelling shifted by a lattice step fits its own pixels (PnP cannot refuse it) but not its neighbours.
+        skipped[REASON_INCONSISTENT] += int(bad.sum())
+        _mark_outcomes(info, np.asarray(dets.t)[bad], REASON_INCONSISTENT)
+        if len(info.get("detector", ())) == len(dets):
+            info["detector"] = [d for d, b in zip(info["detector"], bad, strict=True) if not b]
+        info["detected"] = int(info.get("detected", len(dets))) - int(bad.sum())
+        dets = Detections(np.asarray(dets.t)[~bad], np.asarray(dets.uv)[~bad], dets.board_points)
+        if not len(dets):
+            raise InsufficientDataError("no detection agrees with its neighbours in time; check the board definition")
+    info["seconds"]["consistency"] = time.perf_counter() - c0
+    c0 = time.perf_counter()
     track = camera_track_from_detections(dets, camera, max_rms_px=max_rms_px, sigma_px=sigma_px)
     info["seconds"]["pnp"] = time.perf_counter() - c0
-    skipped = Counter(info["skipped"])
     skipped.update(track.info.get("rejected", {}))
     info["skipped"] = dict(skipped)
     info["poses"] = len(track)
@@ -619,6 +633,20 @@ def _track_from_detections(
         info["kind"], info["windows"], info["detected"], info["poses"], info["skipped"],
     )
     return CameraTrack(track.t, track.T_board_cam, track.cov, track.rms_px, track.detections, info)
+
+
+def _mark_outcomes(info: dict, t_refused: np.ndarray, reason: str) -> None:
+    """The outcome of each refused detection's window (the window that ends nearest its stamp) becomes ``reason``."""
+    wo = info.get("window_outcomes")
+    if not wo or not len(wo["t"]) or not t_refused.size:
+        return
+    tw = np.asarray(wo["t"], dtype=float)
+    k = np.clip(np.searchsorted(tw, t_refused), 1, tw.size - 1)
+    k = np.where(np.abs(tw[k - 1] - t_refused) <= np.abs(tw[k] - t_refused), k - 1, k)
+    outcome = list(wo["outcome"])
+    for j in k:
+        outcome[int(j)] = reason
+    info["window_outcomes"] = {"t": wo["t"], "outcome": outcome}
 
 
 def later_than_all_before(t: np.ndarray) -> np.ndarray:

@@ -1,0 +1,93 @@
+"""Detections that disagree with their neighbours in time: a labelling shifted by a lattice step.
+
+A circle grid labelled one column off, or mirrored, still gives a pose that fits its own pixels well, so PnP's
+residual cannot refuse it; the pose is then centimetres from its neighbours and, for the closed form and the
+factor graph, an outlier with a large pull (three such frames out of 440 moved the refined yaw of one validation
+recording by 8 degrees). The circles' image motion is smooth over a few frame periods, so each detection is
+compared with where its neighbours put the board at its time: every pair of neighbours within ``max_dt_s``
+predicts each point by a line through time (interpolation when they straddle the frame, extrapolation when
+not), and the detection is refused when the median over pairs of the median point distance exceeds
+``spacings`` lattice spacings. The median over pairs keeps one wrong neighbour from condemning a good frame.
+A frame with fewer than two neighbours within ``max_dt_s`` is checked against its two nearest within twice
+that; one without is kept (it cannot be checked).
+"""
+
+from __future__ import annotations
+
+from itertools import combinations
+
+import numpy as np
+
+from .detect import neighbour_distance
+
+#: Reason recorded for a refused detection (window outcome and skipped counts).
+REASON_INCONSISTENT = "inconsistent_with_neighbours"
+#: Neighbours within this time of a frame predict it (s).
+MAX_DT_S = 0.1
+#: A frame whose points lie this many lattice spacings (median) from the neighbours' prediction is refused.
+SPACINGS = 0.5
+#: At most this many neighbours on each side.
+MAX_SIDE = 3
+#: A pair predicts a frame only if the frame lies within this many of the pair's own time apart from the first of
+#: them (|a| in uv_j + a (uv_k - uv_j)): beyond, the pair's detection noise is amplified past the threshold.
+MAX_EXTRAPOLATION = 3.0
+
+
+def _spacing(uv: np.ndarray) -> float:
+    seen = uv[np.all(np.isfinite(uv), axis=1)]
+    return float(np.median(neighbour_distance(seen))) if len(seen) > 1 else float("nan")
+
+
+def _score(i: int, t: np.ndarray, uv: np.ndarray, finite: np.ndarray, alive: np.ndarray, max_dt_s: float,
+           min_points: int) -> float:
+    """Median over neighbour pairs of the median distance of frame i's points from the pair's prediction, in
+    lattice spacings (NaN when it cannot be checked)."""
+    lo = np.searchsorted(t, t[i] - 2 * max_dt_s, side="left")
+    hi = np.searchsorted(t, t[i] + 2 * max_dt_s, side="right")
+    before = [j for j in range(i - 1, lo - 1, -1) if alive[j]][:MAX_SIDE]
+    after = [j for j in range(i + 1, hi) if alive[j]][:MAX_SIDE]
+    near = [j for j in before[::-1] + after if abs(t[j] - t[i]) <= max_dt_s]
+    # Up to MAX_SIDE neighbours each side within max_dt_s; a frame with fewer is checked against its two nearest
+    # within twice that (a detection after a gap is the likeliest to be labelled afresh, and wrongly).
+    nb = near if len(near) >= 2 else sorted(before + after, key=lambda j: abs(t[j] - t[i]))[:2]
+    spacing = _spacing(uv[i])
+    if len(nb) < 2 or not np.isfinite(spacing) or spacing <= 0:
+        return float("nan")
+    errs = []
+    for j, k in combinations(nb, 2):
+        both = finite[i] & finite[j] & finite[k]
+        if np.count_nonzero(both) < min_points:
+            continue
+        a = (t[i] - t[j]) / (t[k] - t[j])
+        if abs(a) > MAX_EXTRAPOLATION:  # two neighbours close together and far from the frame: noise amplified
+            continue
+        pred = uv[j, both] + a * (uv[k, both] - uv[j, both])
+        errs.append(float(np.median(np.linalg.norm(uv[i, both] - pred, axis=1))))
+    return float(np.median(errs)) / spacing if errs else float("nan")
+
+
+def inconsistent_frames(t: np.ndarray, uv: np.ndarray, *, max_dt_s: float = MAX_DT_S,
+                        spacings: float = SPACINGS, min_points: int = 6) -> np.ndarray:
+    """Mask (m,) of the detections ``uv`` (m, N, 2) at times ``t`` (m,, strictly increasing) that their
+    neighbours refuse. The worst frame goes first and its neighbours are scored again without it, so a wrong
+    frame does not take its good neighbours with it."""
+    t = np.asarray(t, dtype=float)
+    uv = np.asarray(uv, dtype=float)
+    m = t.size
+    alive = np.ones(m, dtype=bool)
+    if m < 3:
+        return ~alive
+    finite = np.all(np.isfinite(uv), axis=2)  # (m, N)
+    score = np.array([_score(i, t, uv, finite, alive, max_dt_s, min_points) for i in range(m)])
+    while True:
+        s = np.where(alive & np.isfinite(score), score, -np.inf)
+        i = int(np.argmax(s))
+        if not s[i] > spacings:
+            break
+        alive[i] = False
+        lo = np.searchsorted(t, t[i] - 4 * max_dt_s, side="left")
+        hi = np.searchsorted(t, t[i] + 4 * max_dt_s, side="right")
+        for j in range(lo, hi):
+            if alive[j]:
+                score[j] = _score(j, t, uv, finite, alive, max_dt_s, min_points)
+    return ~alive

@@ -1,0 +1,97 @@
+"""Detections refused by their neighbours in time: labellings shifted by a lattice step (front end)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from refine_cases import rotation_error_base_axes, sim_case
+
+from plsgraph.core.tracks import Detections
+from plsgraph.frontend.consistency import REASON_INCONSISTENT, inconsistent_frames
+from plsgraph.frontend.detect import neighbour_distance
+from plsgraph.frontend.track import _track_from_detections
+from plsgraph.refine.graph import refine
+from plsgraph.sim.robot import simulate_robot
+
+
+def _shift_by_a_step(uv: np.ndarray, k: int, steps: float = 1.0) -> None:
+    """Frame k labelled ``steps`` lattice steps off (every point moved onto where its neighbour is)."""
+    seen = uv[k][np.all(np.isfinite(uv[k]), axis=1)]
+    spacing = float(np.median(neighbour_distance(seen)))
+    d = uv[k, 1] - uv[k, 0]
+    uv[k] += steps * spacing * d / np.linalg.norm(d)
+
+
+def _full_frames(det: Detections) -> np.ndarray:
+    return np.where(np.all(np.isfinite(det.uv), axis=(1, 2)))[0]
+
+
+@pytest.mark.parametrize("motion", ["rich", "spin", "straight"])
+def test_clean_detections_are_all_kept(motion):
+    # Smooth motion, 0.5 px noise, including fast turns in place: nothing is refused.
+    rec = simulate_robot(motion, duration=10.0, seed=5, realism="ideal")
+    det = rec.detections(0.5, seed=6)
+    assert len(det) > 100
+    assert not inconsistent_frames(det.t, det.uv).any()
+
+
+def test_shifted_labellings_are_refused_and_only_they():
+    rec = sim_case("rich").rec
+    det = rec.detections(0.3, seed=13)
+    uv, t = det.uv.copy(), det.t.copy()
+    full = _full_frames(det)
+    wrong = full[[40, 120, 200]]
+    for k in wrong:
+        _shift_by_a_step(uv, k)
+    # One more right after a gap: its nearest neighbours are 0.13-0.2 s away (checked with the two nearest).
+    gap = full[260]
+    keep = np.ones(t.size, dtype=bool)
+    keep[gap - 4:gap] = False
+    keep[gap + 1:gap + 4] = False
+    _shift_by_a_step(uv, gap, steps=0.8)
+    t, uv = t[keep], uv[keep]
+    expected = np.isin(np.arange(keep.size)[keep], np.r_[wrong, gap])
+    bad = inconsistent_frames(t, uv)
+    np.testing.assert_array_equal(bad, expected)
+
+
+def test_two_wrong_frames_in_a_row_do_not_take_good_neighbours():
+    rec = sim_case("rich").rec
+    det = rec.detections(0.3, seed=14)
+    uv = det.uv.copy()
+    k = _full_frames(det)[150]
+    _shift_by_a_step(uv, k)
+    _shift_by_a_step(uv, k + 1)
+    bad = inconsistent_frames(det.t, uv)
+    assert set(np.where(bad)[0]) == {k, k + 1}
+
+
+def test_front_end_records_the_refusal_and_the_refinement_matches_clean_data():
+    case = sim_case("rich")
+    rec = case.rec
+    det = rec.detections(0.3, seed=15)
+    uv = det.uv.copy()
+    wrong = _full_frames(det)[[30, 100, 170, 240]]
+    for k in wrong:
+        _shift_by_a_step(uv, k)
+    n = len(det)
+    info = {"skipped": {}, "seconds": {}, "warnings": [], "kind": "count", "windows": n, "detected": n,
+            "detector": ["rims"] * n,
+            "window_outcomes": {"t": det.t.tolist(), "outcome": ["rims"] * n}}
+    track = _track_from_detections(Detections(det.t, uv, det.board_points), info, rec.camera, 1.5, None)
+    assert len(track) == n - len(wrong)
+    assert track.info["skipped"][REASON_INCONSISTENT] == len(wrong)
+    outcomes = np.asarray(track.info["window_outcomes"]["outcome"])
+    np.testing.assert_array_equal(np.where(outcomes == REASON_INCONSISTENT)[0], wrong)
+    assert len(track.info["detector"]) == len(track) and track.info["detected"] == len(track)
+    assert not np.isin(det.t[wrong], track.t).any()
+    # The refinement on what is left agrees with the one on the clean detections, and with the truth.
+    clean = _track_from_detections(det, {**info, "skipped": {}, "seconds": {}, "detector": ["rims"] * n,
+                                         "window_outcomes": {"t": det.t.tolist(), "outcome": ["rims"] * n}},
+                                   rec.camera, 1.5, None)
+    a = refine(track, case.base, rec.camera, case.seed_T, case.seed_td)
+    b = refine(clean, case.base, rec.camera, case.seed_T, case.seed_td)
+    err = rotation_error_base_axes(a.R_base_cam, rec.T_base_cam[:3, :3])
+    assert np.all(np.abs(err) <= 3 * np.radians(a.sigma_rot_deg))
+    assert np.degrees(np.linalg.norm(rotation_error_base_axes(a.R_base_cam, b.R_base_cam))) < 0.1
+    assert abs(a.td - b.td) < 1e-3
