@@ -68,6 +68,10 @@ KEY_SCALE = gtsam.symbol("s", 0)  # odometry intrinsics (s_v, s_w): arc-length a
 _FREEZE_SIGMA = 1e-3
 
 
+#: An adapted odometry variance factor at or above this gets a warning in the result.
+NOISY_ODOMETRY_FACTOR = 10.0
+
+
 def knot_key(k: int) -> int:
     return gtsam.symbol("x", int(k))
 
@@ -124,7 +128,15 @@ class RefinementOptions:
     lm_lambda_min: float = 1.0  # initial and smallest Levenberg-Marquardt damping (see _optimize)
     relative_tol: float = 1e-6
     absolute_tol: float = 1e-9
-    max_passes: int = 5
+    max_passes: int = 8
+    # The odometry noise model describes good wheels on a hard floor, with independent errors per edge. Skid-steer
+    # robots slip far more, and the slip is correlated over tenths of a second (many edges): a model that trusts
+    # such odometry bends the camera's yaw and lever arm to fit it (docs/refinement.md, "Correlated wheel slip").
+    # After the first solve the odometry's whitened planar residuals say how much more variance it has (their
+    # robust mean square, at least 1, times their autocorrelation time over the edges); the odometry variances are
+    # multiplied by that (at most max_odometry_noise_factor) and the graph is solved again, once.
+    adapt_odometry_noise: bool = True
+    max_odometry_noise_factor: float = 400.0
     freeze_unobservable: bool = True  # hold directions the data does not observe at the seed (see refine)
     freeze_ratio: float = OBSERVABLE_RATIO  # posterior/prior sigma above which a direction is held at the seed
     reject_px: float = 3.0  # a frame whose RMS exceeds max(reject_px, reject_factor * median) is dropped
@@ -985,6 +997,8 @@ def refine(
     t_setup = time.perf_counter() - t_start
 
     total_it = 0
+    odo_var = 1.0  # odometry variance factor (adapt_odometry_noise)
+    adapted = False
     rejected = np.zeros(len(prob.frames), dtype=bool)
     initial_error = rms0 = None
     converged = False
@@ -994,7 +1008,7 @@ def refine(
     t_opt = 0.0
     cov = cov_base = None
     for pas in range(opt.max_passes):
-        graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3])
+        graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3], odo_var=odo_var)
         if initial_error is None:
             initial_error = float(graph.error(values))
             rms0 = _frame_rms(batch, values)[1]
@@ -1035,6 +1049,20 @@ def refine(
                 rescaled = True
         if bad.any() or moved or rescaled:
             continue
+        if converged and opt.adapt_odometry_noise and not adapted:
+            # Once: the factor is measured at the solution under the model's own noise (measured again under the
+            # scaled noise, the residuals' correlation would be counted a second time).
+            adapted = True
+            odo_var = float(np.clip(odometry_noise_factor(graph, values), 1.0, opt.max_odometry_noise_factor))
+            if odo_var >= NOISY_ODOMETRY_FACTOR:
+                warnings.append(
+                    f"the wheel odometry's errors carry {odo_var:.0f}x the variance of good odometry on a hard floor "
+                    "(wheel slip correlated over many samples, as on skid-steer robots); the refinement weighted it "
+                    "down by that factor, so yaw and lever arm rest more on the camera and their sigmas are larger")
+            if odo_var > 1.25:
+                log.info("refine: odometry errors %.1fx the model's variance (magnitude x correlation); solving "
+                         "again with the odometry variances scaled by it", odo_var)
+                continue
         if not (converged and opt.freeze_unobservable and opt.marginals):
             settled = True
             break
@@ -1052,7 +1080,8 @@ def refine(
     if settled:
         final_graph = graph  # same frames and brackets as the last solve
     else:
-        final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3])
+        final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
+                                                odo_var=odo_var)
     final_error = float(final_graph.error(values))
     per, rms, n_pts = _frame_rms(batch, values)
     C = values.atPose3(KEY_CAM).matrix()
@@ -1086,7 +1115,8 @@ def refine(
                 inflation = correlation_inflation(final_graph, batch, values, opt)
                 cov_graph = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
                                          inflation["reprojection_autocorrelation_time"],
-                                         inflation["odometry_autocorrelation_time"])[0]
+                                         # an adapted odometry variance already holds the correlation
+                                         odo_var if odo_var > 1.0 else inflation["odometry_autocorrelation_time"])[0]
                 cov_plain = _calibration_covariance(final_graph, values, C, chi2, opt)[1]
             cov, cov_base, joint = _calibration_covariance(cov_graph, values, C, chi2, opt, with_scale=True)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
@@ -1142,7 +1172,7 @@ def refine(
         odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
         disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_seed, opt,
                                                                           rotation=td_seed == td_given),
-        inflation=inflation,
+        inflation={**inflation, "odometry_variance_factor": odo_var},
         td_searched=None if td_seed == td_given else float(td_seed),
     )
 
@@ -1175,20 +1205,38 @@ def autocorrelation_time(x: np.ndarray, max_lag: int = 60) -> float:
     return float(tau)
 
 
-def correlation_inflation(graph, batch: FrameBatch, values: gtsam.Values, opt: RefinementOptions) -> dict:
-    """Autocorrelation times of the reprojection residuals (over frames) and of the whitened odometry residuals
-    (over edges), each capped at ``max_inflation``: the covariance is that of the graph whose reprojection and
-    odometry variances are multiplied by them (information / effective-sample-size correction per source)."""
-    r = batch.evaluate_all(values, False).residual / opt.sigma_px  # (m, N, 2), frames in time order
-    tau_rep = autocorrelation_time(r.reshape(r.shape[0], -1))
-    odo = []
+def _odometry_factors(graph) -> list:
+    """The odometry between-factors of a graph (plain or with the intrinsics' scale key)."""
+    out = []
     for i in range(graph.size()):
         f = graph.at(i)
         if isinstance(f, gtsam.BetweenFactorPose3) or (
             isinstance(f, gtsam.CustomFactor) and f.dim() == 6 and len(f.keys()) == 3
             and gtsam.Symbol(f.keys()[2]).chr() == ord("s")
         ):
-            odo.append(f.whitenedError(values))
+            out.append(f)
+    return out
+
+
+def odometry_noise_factor(graph, values: gtsam.Values) -> float:
+    """How much more variance the odometry's planar errors (heading, along, across; whitened) have than their model
+    gives them: the median of their squares over the chi-square(1) median 0.455 (robust to a few resets or bumps;
+    at least 1) times their integrated autocorrelation time over the edges (an error correlated over k edges adds
+    up like k times its variance). Measured at a solution under the model's own noise."""
+    w = np.array([f.whitenedError(values)[2:5] for f in _odometry_factors(graph)])
+    if len(w) < 10:
+        return 1.0
+    msq = float(np.median(np.square(w)) / 0.455)
+    return max(msq, 1.0) * autocorrelation_time(w)
+
+
+def correlation_inflation(graph, batch: FrameBatch, values: gtsam.Values, opt: RefinementOptions) -> dict:
+    """Autocorrelation times of the reprojection residuals (over frames) and of the whitened odometry residuals
+    (over edges), each capped at ``max_inflation``: the covariance is that of the graph whose reprojection and
+    odometry variances are multiplied by them (information / effective-sample-size correction per source)."""
+    r = batch.evaluate_all(values, False).residual / opt.sigma_px  # (m, N, 2), frames in time order
+    tau_rep = autocorrelation_time(r.reshape(r.shape[0], -1))
+    odo = [f.whitenedError(values) for f in _odometry_factors(graph)]
     tau_odo = autocorrelation_time(np.array(odo)) if len(odo) >= 4 else 1.0
     return {"reprojection_autocorrelation_time": float(np.clip(tau_rep, 1.0, opt.max_inflation)),
             "odometry_autocorrelation_time": float(np.clip(tau_odo, 1.0, opt.max_inflation))}
