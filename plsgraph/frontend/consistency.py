@@ -66,6 +66,45 @@ def _score(i: int, t: np.ndarray, uv: np.ndarray, finite: np.ndarray, alive: np.
     return float(np.median(errs)) / spacing if errs else float("nan")
 
 
+def _spacings(uv: np.ndarray, chunk: int = 512) -> np.ndarray:
+    """Median nearest-neighbour distance of each frame's points (m,), NaN for fewer than two points."""
+    out = np.full(uv.shape[0], np.nan)
+    for a in range(0, uv.shape[0], chunk):
+        u = uv[a:a + chunk]
+        d = np.sqrt(np.sum(np.square(u[:, :, None, :] - u[:, None, :, :]), axis=-1))
+        n = d.shape[1]
+        d[:, np.arange(n), np.arange(n)] = np.inf
+        d = np.where(np.isnan(d), np.inf, d)
+        nearest = d.min(axis=2)
+        nearest[~np.isfinite(nearest)] = np.nan
+        with np.errstate(all="ignore"):
+            ok = np.count_nonzero(np.isfinite(nearest), axis=1) >= 2
+            out[a:a + chunk][ok] = np.nanmedian(nearest[ok], axis=1)
+    return out
+
+
+def _quick_scores(t: np.ndarray, uv: np.ndarray, finite: np.ndarray, max_dt_s: float,
+                  min_points: int) -> np.ndarray:
+    """Each frame's distance (in spacings) from the line through its two adjacent frames, when both lie within
+    ``max_dt_s``; NaN elsewhere. One numpy pass over all frames."""
+    m = t.size
+    out = np.full(m, np.nan)
+    dt = np.diff(t)
+    idx = np.where(np.r_[False, dt <= max_dt_s] & np.r_[dt <= max_dt_s, False])[0]
+    if idx.size == 0:
+        return out
+    a = ((t[idx] - t[idx - 1]) / (t[idx + 1] - t[idx - 1]))[:, None, None]
+    pred = uv[idx - 1] + a * (uv[idx + 1] - uv[idx - 1])
+    both = finite[idx] & finite[idx - 1] & finite[idx + 1]
+    d = np.where(both, np.linalg.norm(uv[idx] - pred, axis=-1), np.nan)
+    enough = np.count_nonzero(both, axis=1) >= min_points
+    spacing = _spacings(uv[idx])
+    with np.errstate(all="ignore"):
+        med = np.nanmedian(d[enough], axis=1)
+        out[idx[enough]] = med / spacing[enough]
+    return out
+
+
 def inconsistent_frames(t: np.ndarray, uv: np.ndarray, *, max_dt_s: float = MAX_DT_S,
                         spacings: float = SPACINGS, min_points: int = 6) -> np.ndarray:
     """Mask (m,) of the detections ``uv`` (m, N, 2) at times ``t`` (m,, strictly increasing) that their
@@ -78,7 +117,10 @@ def inconsistent_frames(t: np.ndarray, uv: np.ndarray, *, max_dt_s: float = MAX_
     if m < 3:
         return ~alive
     finite = np.all(np.isfinite(uv), axis=2)  # (m, N)
-    score = np.array([_score(i, t, uv, finite, alive, max_dt_s, min_points) for i in range(m)])
+    score = _quick_scores(t, uv, finite, max_dt_s, min_points)
+    # Frames their two adjacent neighbours already agree with (well inside the threshold) need no full check.
+    for i in np.where(~(score < 0.5 * spacings))[0]:
+        score[i] = _score(i, t, uv, finite, alive, max_dt_s, min_points)
     while True:
         s = np.where(alive & np.isfinite(score), score, -np.inf)
         i = int(np.argmax(s))
