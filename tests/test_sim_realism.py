@@ -329,3 +329,43 @@ def test_simulate_command_is_realistic_unless_ideal(tmp_path, capsys):
                 "board_scale", "board_in_view_fraction"} <= set(truth)
     assert truth["track_width_effective"] == truth["track_width_nominal"] == truth["track_width"]
     capsys.readouterr()
+
+
+def test_floor_tilts_the_base_by_its_slope_and_lifts_it_by_its_height():
+    fx = only("floor")
+    fx = dataclasses.replace(fx, scene=dataclasses.replace(fx.scene, floor_slope_deg=0.6, floor_wavelength_m=1.0))
+    rec = simulate_robot("rich", duration=15, seed=4, realism=fx)
+    flat = simulate_robot("rich", duration=15, seed=4, realism="ideal")
+    T, T0 = rec.truth_base.T_world_base, flat.truth_base.T_world_base
+    tilt = np.degrees(np.arccos(np.clip(T[:, 2, 2], -1.0, 1.0)))
+    assert 0.3 < np.sqrt(np.mean(tilt**2)) < 1.2 and tilt.max() < 3.0
+    # Same path and heading seen from above; the wheels (planar odometry) do not change.
+    np.testing.assert_allclose(T[:, :2, 3], T0[:, :2, 3], atol=1e-12)
+    heading = np.arctan2(T[:, 1, 0], T[:, 0, 0])
+    np.testing.assert_allclose(np.unwrap(heading), np.unwrap(np.arctan2(T0[:, 1, 0], T0[:, 0, 0])), atol=0.02)
+    np.testing.assert_array_equal(rec.wheel_left, flat.wheel_left)
+    # The base's z axis is the floor's normal: moving along the base's x axis follows the floor's height.
+    step = np.diff(T[:, :3, 3], axis=0)
+    along = np.einsum("ni,ni->n", step, T[:-1, :3, 0])
+    climb = np.einsum("ni,ni->n", step, T[:-1, :3, 2])
+    moving = np.abs(along) > 1e-4
+    assert np.max(np.abs(climb[moving] / along[moving])) < 0.02  # < 1.2 deg from the base's own plane
+
+
+def test_drawing_the_floor_leaves_every_other_draw_alone():
+    a = np.random.default_rng(11)
+    fx = draw_realism(a)
+    next_a = a.uniform()
+    # The same draws without the floor: every field but the floor's, and the caller's next number, agree.
+    b = np.random.default_rng(11)
+    import plsgraph.sim.realism as R
+
+    values = R._values("ideal")
+    R._switch_on(values, [r for r in R.field_specs() if r["effect"] not in R.LATE_EFFECTS], b)
+    R._lens_fix(values)
+    assert b.uniform() == next_a
+    for g in R.GROUPS:
+        for name, v in values[g].items():
+            if (g, name) not in R.effect_fields("floor"):
+                assert getattr(getattr(fx, g), name) == v, (g, name)
+    assert 0.0 <= fx.scene.floor_slope_deg <= 1.0

@@ -105,6 +105,12 @@ class RefinementOptions:
     planar_sigma_z: float = 0.005
     planar_sigma_tilt: float = 0.005
     anchor_sigma: float = 1e-4
+    # The planar prior likewise: a real floor undulates, and its tilt is alike over many consecutive knots. The
+    # knots' departures from the plane (height; roll and pitch) are measured the same way after the first solve
+    # and the prior's variances scaled by them (docs/refinement.md, "Uneven floors").
+    adapt_planar_prior: bool = True
+    max_planar_prior_factor: float = 400.0
+    anchor_tilt: bool = False  # hold the first knot's roll and pitch too (the floor's plane = its patch of floor)
     # Regularisation (always on, weak): keeps unobservable directions at the seed.
     reg_sigma_rot: float = 0.5
     reg_sigma_trans: float = 1.0
@@ -623,7 +629,7 @@ def _scaled_noise(noise: OdometryNoise, var_factor: float) -> OdometryNoise:
 
 def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: RefinementOptions,
                  C_prior: np.ndarray, td_prior: float, R_prior: np.ndarray, rep_var: float = 1.0,
-                 odo_var: float = 1.0):
+                 odo_var: float = 1.0, planar_var: tuple[float, float] = (1.0, 1.0)):
     """The factor graph; ``rep_var`` / ``odo_var`` multiply the variances of the reprojection / odometry factors
     (used for the covariance under correlated errors, see correlation_inflation)."""
     frames, kidx = _brackets(prob, td_bracket, rows)
@@ -643,9 +649,15 @@ def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: Refin
         for f in make_odometry_factors(keys, prob.T_knots_odo, d, a, noise):
             graph.add(f)
     if opt.planar:
+        sz, st = opt.planar_sigma_z * np.sqrt(planar_var[0]), opt.planar_sigma_tilt * np.sqrt(planar_var[1])
         for k in keys:
-            graph.add(make_planar_factor(int(k), opt.planar_sigma_z, opt.planar_sigma_tilt, 0.0))
-    anchor = gtsam.noiseModel.Isotropic.Sigma(6, opt.anchor_sigma)
+            graph.add(make_planar_factor(int(k), sz, st, 0.0))
+    if opt.anchor_tilt:
+        anchor = gtsam.noiseModel.Isotropic.Sigma(6, opt.anchor_sigma)
+    else:
+        # The first knot fixes the gauge (position, heading), not the floor's plane: its roll and pitch are left to
+        # the planar factors, so that the plane is the one all knots lie on, not the first knot's patch of floor.
+        anchor = gtsam.noiseModel.Diagonal.Sigmas(np.r_[1.0, 1.0, np.full(4, opt.anchor_sigma)])
     graph.add(gtsam.PriorFactorPose3(int(keys[0]), gtsam.Pose3(prob.T_knots_odo[0]), anchor))
     _add_priors(graph, C_prior, td_prior, opt, R_prior)
     return graph, batch, keys
@@ -998,6 +1010,7 @@ def refine(
 
     total_it = 0
     odo_var = 1.0  # odometry variance factor (adapt_odometry_noise)
+    planar_var = (1.0, 1.0)  # planar prior variance factors, height and tilt (adapt_planar_prior)
     adapted = False
     rejected = np.zeros(len(prob.frames), dtype=bool)
     initial_error = rms0 = None
@@ -1008,7 +1021,8 @@ def refine(
     t_opt = 0.0
     cov = cov_base = None
     for pas in range(opt.max_passes):
-        graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3], odo_var=odo_var)
+        graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3], odo_var=odo_var,
+                                          planar_var=planar_var)
         if initial_error is None:
             initial_error = float(graph.error(values))
             rms0 = _frame_rms(batch, values)[1]
@@ -1059,9 +1073,12 @@ def refine(
                     f"the wheel odometry's errors carry {odo_var:.0f}x the variance of good odometry on a hard floor "
                     "(wheel slip correlated over many samples, as on skid-steer robots); the refinement weighted it "
                     "down by that factor, so yaw and lever arm rest more on the camera and their sigmas are larger")
-            if odo_var > 1.25:
+            if opt.planar and opt.adapt_planar_prior:
+                planar_var = tuple(np.clip(planar_noise_factors(graph, values), 1.0, opt.max_planar_prior_factor))
+                log.info("refine: planar prior variance factors (height, tilt) %s", np.round(planar_var, 1))
+            if odo_var > 1.25 or max(planar_var) > 1.25:
                 log.info("refine: odometry errors %.1fx the model's variance (magnitude x correlation); solving "
-                         "again with the odometry variances scaled by it", odo_var)
+                         "again with the odometry and planar variances scaled", odo_var)
                 continue
         if not (converged and opt.freeze_unobservable and opt.marginals):
             settled = True
@@ -1081,7 +1098,7 @@ def refine(
         final_graph = graph  # same frames and brackets as the last solve
     else:
         final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
-                                                odo_var=odo_var)
+                                                odo_var=odo_var, planar_var=planar_var)
     final_error = float(final_graph.error(values))
     per, rms, n_pts = _frame_rms(batch, values)
     C = values.atPose3(KEY_CAM).matrix()
@@ -1116,7 +1133,8 @@ def refine(
                 cov_graph = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
                                          inflation["reprojection_autocorrelation_time"],
                                          # an adapted odometry variance already holds the correlation
-                                         odo_var if odo_var > 1.0 else inflation["odometry_autocorrelation_time"])[0]
+                                         odo_var if odo_var > 1.0 else inflation["odometry_autocorrelation_time"],
+                                         planar_var)[0]
                 cov_plain = _calibration_covariance(final_graph, values, C, chi2, opt)[1]
             cov, cov_base, joint = _calibration_covariance(cov_graph, values, C, chi2, opt, with_scale=True)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
@@ -1172,7 +1190,8 @@ def refine(
         odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
         disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_seed, opt,
                                                                           rotation=td_seed == td_given),
-        inflation={**inflation, "odometry_variance_factor": odo_var},
+        inflation={**inflation, "odometry_variance_factor": odo_var,
+                   "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])}},
         td_searched=None if td_seed == td_given else float(td_seed),
     )
 
@@ -1228,6 +1247,26 @@ def odometry_noise_factor(graph, values: gtsam.Values) -> float:
         return 1.0
     msq = float(np.median(np.square(w)) / 0.455)
     return max(msq, 1.0) * autocorrelation_time(w)
+
+
+def planar_noise_factors(graph, values: gtsam.Values) -> np.ndarray:
+    """As odometry_noise_factor for the planar factors (height; roll and pitch together): how much more variance
+    the knots' departures from the floor plane have than the prior gives them, magnitude x autocorrelation over the
+    knots (a floor's undulation tilts many consecutive knots alike)."""
+    w = []
+    for i in range(graph.size()):
+        f = graph.at(i)
+        if isinstance(f, gtsam.CustomFactor) and f.dim() == 3 and len(f.keys()) == 1:
+            w.append(f.whitenedError(values))
+    if len(w) < 10:
+        return np.ones(2)
+    w = np.array(w)
+    out = []
+    for cols in ([0], [1, 2]):
+        x = w[:, cols]
+        msq = max(float(np.median(np.square(x)) / 0.455), 1.0)
+        out.append(msq * autocorrelation_time(x))
+    return np.array(out)
 
 
 def correlation_inflation(graph, batch: FrameBatch, values: gtsam.Values, opt: RefinementOptions) -> dict:

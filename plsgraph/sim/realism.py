@@ -251,6 +251,16 @@ class SceneEffects:
         doc="overall brightness (1 = ordinary lit room); sets the pixel latency with latency_s",
     )
 
+    floor_slope_deg: float = _fx(
+        0.3, effect="floor", unit="deg", ideal=0.0, range=(0.0, 1.0),
+        doc="RMS slope of the floor the robot drives on (a sum of three random waves): the base rolls and pitches "
+        "by it while the wheel odometry stays planar",
+    )
+    floor_wavelength_m: float = _fx(
+        1.5, effect="floor", unit="m", ideal=1.5, range=(0.5, 3.0), draw="log",
+        doc="typical wavelength of the floor's undulation",
+    )
+
     def render_params(self, base: RenderParams) -> RenderParams:
         """``base`` with this scene's reflectances, texture and lighting (None fields leave ``base`` as it is)."""
         names = ("background", "background_texture", "texture_wavelength_m", "white", "black", "illumination")
@@ -401,11 +411,26 @@ def _lens_fix(values: dict) -> None:
         s["k2"] = invertible_k2(s["k1"], s["k2"])
 
 
+#: Effects added after the study's recordings were first drawn: drawn from a generator of their own (derived from,
+#: but not advancing, the caller's), so that every other effect and whatever the caller draws next stay the same.
+LATE_EFFECTS = ("floor",)
+
+
+def _side_generator(rng: np.random.Generator) -> np.random.Generator:
+    """A generator seeded from ``rng``'s state without drawing from it."""
+    import hashlib
+
+    digest = hashlib.sha256(repr(rng.bit_generator.state).encode()).hexdigest()
+    return np.random.default_rng(int(digest[:16], 16))
+
+
 def draw_realism(rng: np.random.Generator) -> Realism:
     """Every effect drawn from its study range (fields without a range take their default). A drawn k2 is
     raised where needed so that the lens maps the whole image one to one (``invertible_k2``)."""
     values = _values("ideal")
-    _switch_on(values, field_specs(), rng)
+    specs = field_specs()
+    _switch_on(values, [r for r in specs if r["effect"] not in LATE_EFFECTS], rng)
+    _switch_on(values, [r for r in specs if r["effect"] in LATE_EFFECTS], _side_generator(rng))
     _lens_fix(values)
     return _build(values, "drawn")
 

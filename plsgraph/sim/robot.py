@@ -432,6 +432,38 @@ def _ou_gains(
     return 1.0 + sigma * (1.0 + turn_gain * np.abs(omega))[None, :] * z
 
 
+def on_floor(T_world_base: np.ndarray, slope_deg: float, wavelength_m: float, seed: int) -> np.ndarray:
+    """Planar base poses put on an undulating floor: height h(x, y) a sum of three plane waves (random directions,
+    wavelengths 0.7-1.4 ``wavelength_m``, phases) scaled to an RMS slope of ``slope_deg``; each pose is lifted to
+    the floor's height and tilted so that its z axis is the floor's normal (heading kept). The floor is drawn from
+    its own generator (``seed``), so the rest of a simulation's draws do not change."""
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0xF1002])
+    ang = rng.uniform(0.0, 2.0 * np.pi, 3)
+    u = np.stack([np.cos(ang), np.sin(ang)], axis=1)  # (3, 2)
+    k = 2.0 * np.pi / (wavelength_m * rng.uniform(0.7, 1.4, 3))  # wavenumbers
+    phase = rng.uniform(0.0, 2.0 * np.pi, 3)
+    amp = np.tan(np.radians(slope_deg)) / np.sqrt(np.sum(k**2) / 2.0) * np.ones(3)  # equal amplitudes
+    p = T_world_base[:, :2, 3]
+    arg = p @ (u * k[:, None]).T + phase  # (n, 3)
+    h = np.sin(arg) @ amp
+    grad = (np.cos(arg) * (amp * k)) @ u  # (n, 2)
+    normal = np.stack([-grad[:, 0], -grad[:, 1], np.ones(len(p))], axis=1)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    # The smallest rotation taking z to the normal (Rodrigues), then the heading.
+    axis = np.stack([-normal[:, 1], normal[:, 0], np.zeros(len(p))], axis=1)  # z x n
+    s = np.linalg.norm(axis, axis=1)
+    c = normal[:, 2]
+    K = np.zeros((len(p), 3, 3))
+    a = np.divide(axis, s[:, None], out=np.zeros_like(axis), where=s[:, None] > 0)
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 0], K[:, 1, 2], K[:, 2, 0], K[:, 2, 1] = -a[:, 2], a[:, 1], a[:, 2], -a[:, 0], \
+        -a[:, 1], a[:, 0]
+    R_tilt = np.eye(3) + s[:, None, None] * K + (1.0 - c)[:, None, None] * (K @ K)
+    out = T_world_base.copy()
+    out[:, :3, :3] = R_tilt @ T_world_base[:, :3, :3]
+    out[:, 2, 3] = T_world_base[:, 2, 3] + h
+    return out
+
+
 def simulate_robot(
     motion: str = "rich",
     duration: float = 20.0,
@@ -517,6 +549,8 @@ def simulate_robot(
         s = speed.integral(wheel_t)
         th_w = heading.value(wheel_t) - heading.value(np.zeros(1))[0]
     T_world_base = make_T(rot_z(theta), np.stack([x, y, np.zeros_like(x)], axis=1))
+    if scene.floor_slope_deg > 0:
+        T_world_base = on_floor(T_world_base, scene.floor_slope_deg, scene.floor_wavelength_m, seed)
     zeros = np.zeros_like(t)
     # With odometry latency the truth moves into the clock of the odometry stamps (lambda later).
     lam = float(rob.odom_latency_s)
