@@ -106,9 +106,11 @@ class RefinementOptions:
     planar_sigma_tilt: float = 0.005
     anchor_sigma: float = 1e-4
     # The planar prior likewise: a real floor undulates, and its tilt is alike over many consecutive knots. The
-    # knots' departures from the plane (height; roll and pitch) are measured the same way after the first solve
-    # and the prior's variances scaled by them (docs/refinement.md, "Uneven floors").
+    # knots' departures from level (roll and pitch) are measured the same way after the first solve and the prior's
+    # tilt variance scaled by them (docs/refinement.md, "Uneven floors"). The height's departures mostly measure the
+    # camera's depth noise, not the floor, and loosening them cost accuracy on flat floors: off unless asked for.
     adapt_planar_prior: bool = True
+    adapt_planar_height: bool = False
     max_planar_prior_factor: float = 400.0
     anchor_tilt: bool = False  # hold the first knot's roll and pitch too (the floor's plane = its patch of floor)
     # Regularisation (always on, weak): keeps unobservable directions at the seed.
@@ -1074,7 +1076,8 @@ def refine(
                     "(wheel slip correlated over many samples, as on skid-steer robots); the refinement weighted it "
                     "down by that factor, so yaw and lever arm rest more on the camera and their sigmas are larger")
             if opt.planar and opt.adapt_planar_prior:
-                planar_var = tuple(np.clip(planar_noise_factors(graph, values), 1.0, opt.max_planar_prior_factor))
+                f = np.clip(planar_noise_factors(graph, values), 1.0, opt.max_planar_prior_factor)
+                planar_var = (float(f[0]) if opt.adapt_planar_height else 1.0, float(f[1]))
                 log.info("refine: planar prior variance factors (height, tilt) %s", np.round(planar_var, 1))
             if odo_var > 1.25 or max(planar_var) > 1.25:
                 log.info("refine: odometry errors %.1fx the model's variance (magnitude x correlation); solving "
