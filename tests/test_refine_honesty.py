@@ -244,3 +244,21 @@ def test_flat_floor_keeps_the_planar_prior_nearly_as_it_is():
     res = refine(track, base, rec.camera, seed_T, rec.td)
     assert res.inflation["planar_variance_factors"]["tilt"] < 5.0
     assert np.all(res.sigma_rot_deg[:2] < 0.25)
+
+
+def test_what_the_noise_model_adaptation_moved_is_added_to_the_variance():
+    """Second opinion on the covariance: the calibration solved under the model's own noise and under the adapted
+    one differ; that difference, per axis, is an uncertainty of the model: the reported sigma is the larger of the
+    two."""
+    rec, base, track, seed_T = _slip_case(0, 0.04)
+    res = refine(track, base, rec.camera, seed_T, rec.td)
+    bare = refine(track, base, rec.camera, seed_T, rec.td, RefinementOptions(add_noise_model_sensitivity=False))
+    sens = res.inflation["noise_model_sensitivity"]
+    assert sens is not None and bare.inflation["noise_model_sensitivity"] == sens
+    d = np.array([sens[k] for k in ("roll", "pitch", "yaw", "x", "y", "z", "td")])
+    assert d[2] > np.radians(0.5)  # the yaw moved: this recording's odometry slips
+    np.testing.assert_allclose(np.diag(res.cov_base_axes), np.maximum(np.diag(bare.cov_base_axes), d**2), rtol=1e-9)
+    np.testing.assert_allclose(res.T_base_cam, bare.T_base_cam) and np.testing.assert_allclose(res.td, bare.td)
+    # With the model as given (no adaptation) there is nothing to add.
+    held = refine(track, base, rec.camera, seed_T, rec.td, RefinementOptions(adapt_odometry_noise=False))
+    assert held.inflation["noise_model_sensitivity"] is None
