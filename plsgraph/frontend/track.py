@@ -61,6 +61,7 @@ from .detect import (
     make_aruco_detector,
     neighbour_distance,
 )
+from .noise import drop_pixels, hot_pixel_mask
 from .pose import camera_track_from_detections
 
 log = logging.getLogger(__name__)
@@ -121,6 +122,12 @@ WINDOW_LADDER = (1.0, 0.5, 0.25, 0.125, 2.0, 4.0)
 #: window: tried only while the board was last seen moving slower than this across the image. (Tried on fast
 #: boards they smear rims into patterns a wrong board definition could be matched to.)
 SLOW_PX_S = 30.0
+LONG_WHEN_LOST = False
+LOST_STRIDE = 3
+SHORT_BLOB_SPAN = 4.0
+KEEP_ROI = False
+#: Hot pixels (:mod:`.noise`) are masked in each span before detection unless a caller says otherwise.
+MASK_HOT_PIXELS = True
 #: Spans (multiples of the window) over which circles are looked for as blobs of events when the rims fail, and
 #: the blur that merges a small circle's events into one blob.
 BLOB_SPANS = (1.0, 2.0, 4.0)
@@ -198,12 +205,14 @@ class _WindowJob:
         self.window_s, self.min_events, self.timestamp, self.tag_layout = window_s, min_events, timestamp, tag_layout
         self.border_bits, self.tag_blur = border_bits, float(tag_blur)
 
-    def _blobs(self, tq: int, first: float, roi: tuple[int, int, int, int] | None):
+    def _blobs(self, tq: int, first: float, roi: tuple[int, int, int, int] | None, long_spans: bool = False):
         """The board as blobs of events (:func:`detect_circle_grid` on a count image) over the spans of
         :data:`BLOB_SPANS` (multiples of the window; the one that worked last first): (detection, span s,
         multiple) or None. With ``roi`` (where the board was a moment ago) that part of the image is searched
         first, then the whole image."""
         for mult in sorted(BLOB_SPANS, key=lambda m: m != first):
+            if mult > SHORT_BLOB_SPAN and not long_spans:
+                continue
             age = mult * self.window_s
             sub = self.stream.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
             if len(sub) < self.min_events:
@@ -260,6 +269,11 @@ class _WindowJob:
             decaying = kind in ("time_surface", "leaky")
             img = None
             det = None
+            # Spans longer than the window: while the board was last seen moving slowly, or (every LOST_STRIDE-th
+            # window) while it is lost, as when the robot sets off slowly after a stop.
+            stale = slow_board is None or k - slow_board[0] > RECENT_WINDOWS
+            long_spans = not decaying and board.pattern == "asymmetric_circles" and (
+                (not stale and slow_board[1]) or (stale and LONG_WHEN_LOST and k % LOST_STRIDE == 0))
             # Start with the span that worked last time: the speed of the board changes slowly.
             order = sorted(range(len(WINDOW_LADDER)), key=lambda i: (i != last_good, i))
             if board.pattern != "asymmetric_circles":
@@ -268,8 +282,7 @@ class _WindowJob:
                 order = []  # the board was just seen with circles too small for rims: straight to the blobs
             for j in order:
                 frac = WINDOW_LADDER[j]
-                if frac > 1.0 and (decaying or board.pattern != "asymmetric_circles" or slow_board is None
-                                   or k - slow_board[0] > RECENT_WINDOWS or not slow_board[1]):
+                if frac > 1.0 and not long_spans:
                     continue  # longer spans: for counts of circle grids just seen moving slowly only
                 age = frac * age0
                 c0 = time.perf_counter()
@@ -332,7 +345,7 @@ class _WindowJob:
                 # Circles a few pixels wide have no inside left between their rims, and slow motion leaves a
                 # window too sparse for rims: look for the circles as blobs of events over this and longer spans.
                 c0 = time.perf_counter()
-                blob = self._blobs(tq, last_blob, roi)
+                blob = self._blobs(tq, last_blob, roi, long_spans)
                 secs["blobs"] = secs.get("blobs", 0.0) + time.perf_counter() - c0
                 if blob is not None:
                     det, age, mult = blob
@@ -344,7 +357,9 @@ class _WindowJob:
                 reason = det.reason if det is not None else (REASON_NOT_FOUND if blob_tried else "too_few_events")
                 skipped[reason] += 1
                 outcome.append(reason)
-                roi = predicted = None
+                predicted = None
+                if not (KEEP_ROI and prev is not None and k - prev[0] <= RECENT_WINDOWS):
+                    roi = None
                 continue
             if board.pattern == "asymmetric_circles" and predicted is not None and _jumped(det.uv, predicted):
                 # The previous window's board, carried forward at its speed, lies half a spacing or more away:
@@ -450,12 +465,14 @@ def detect_in_events(
     progress: Callable[[int, int], None] | None = None,
     t_query_ns: np.ndarray | None = None,
     require_detection: bool = True,
+    mask_hot_pixels: bool | None = None,
 ) -> tuple[Detections, dict]:
     """Board detections in event surfaces at ``rate_hz``; see :func:`camera_track_from_events`.
 
     ``t_query_ns`` replaces the window grid (every 1 / rate_hz from the first event) by given window end
     times, as the streaming front end does per span. With ``require_detection`` False a stream without any
-    detection gives empty detections instead of an error.
+    detection gives empty detections instead of an error. ``mask_hot_pixels`` (default
+    :data:`MASK_HOT_PIXELS`) drops the events of pixels that fire like hot pixels (:mod:`.noise`) first.
     Returns the detections (board-point order, NaN for unseen points) and the bookkeeping dict.
     """
     kind = resolve_kind(kind)
@@ -476,6 +493,13 @@ def detect_in_events(
     n = board.n_points
     if len(stream) == 0:
         raise InsufficientDataError("front end: the event stream is empty; check the recording's event topic")
+    n_hot = 0
+    if (MASK_HOT_PIXELS if mask_hot_pixels is None else mask_hot_pixels):
+        hot = hot_pixel_mask(stream)
+        n_hot = int(hot.sum())
+        stream = drop_pixels(stream, hot)
+        if len(stream) == 0:
+            raise InsufficientDataError("front end: every event came from a hot pixel")
     if t_query_ns is None:
         t_query = np.arange(stream.t_first + period_ns, stream.t_last + period_ns, period_ns, dtype=np.int64)
     else:
@@ -531,6 +555,7 @@ def detect_in_events(
         "detected_at_window_fraction": {f"{m}:{f:g}": int(c) for (m, f), c in sorted(ladder.items())},
         "seconds": secs,
         "warnings": [],
+        "hot_pixels": n_hot,
     }
     if board.pattern == "asymmetric_circles" and board_is_symmetric(board):
         info["warnings"].append(
@@ -721,6 +746,7 @@ def camera_track_from_event_chunks(
         if info:
             info["windows"] += part["windows"]
             info["events_used"] += part["events_used"]
+            info["hot_pixels"] = max(info.get("hot_pixels", 0), part.get("hot_pixels", 0))
             for k, v in part["seconds"].items():
                 info["seconds"][k] = info["seconds"].get(k, 0.0) + v
         else:

@@ -1,0 +1,109 @@
+"""Hot pixels: found from their rates, masked before detection, and nothing else masked."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from plsgraph.core.events import EventStream
+from plsgraph.errors import InsufficientDataError
+from plsgraph.frontend.noise import drop_pixels, hot_pixel_mask
+
+W, H = 120, 90
+
+
+def _stream(seconds: float, hot: dict[tuple[int, int], float], seed: int = 0) -> EventStream:
+    """Background activity (1 Hz per pixel), a vertical edge sweeping the image twice, a textured strip that
+    is active all the time (rows 40-49, every pixel at 15-40 Hz, as a flickering lamp or a moving texture makes
+    it) and a small rim active all the time, plus ``hot`` pixels (x, y) -> rate in Hz."""
+    rng = np.random.default_rng(seed)
+    parts = []
+    n_bg = rng.poisson(1.0 * W * H * seconds)
+    parts.append((rng.uniform(0, seconds, n_bg), rng.integers(0, W, n_bg), rng.integers(0, H, n_bg)))
+    for sweep in range(2):  # the edge crosses each column in 1/W of the sweep; 6 events per pixel it passes
+        t0 = sweep * seconds / 2
+        for x in range(W):
+            tx = t0 + (x + 0.5) / W * (seconds / 2)
+            n = 6 * H
+            parts.append((tx + rng.uniform(0, 0.01, n), np.full(n, x), np.repeat(np.arange(H), 6)))
+    yy, xx = np.mgrid[40:50, 0:W]
+    rates = rng.uniform(15, 40, yy.size)
+    for x, y, r in zip(xx.ravel(), yy.ravel(), rates, strict=True):
+        parts.append(_steady(rng, x, y, r, seconds))
+    # A small circle's rim (radius 3 px) firing at 100 Hz all the time, as a distant board on an idling robot does.
+    ang = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    for x, y in sorted({(int(round(90 + 3 * np.cos(a))), int(round(20 + 3 * np.sin(a)))) for a in ang}):
+        parts.append(_steady(rng, x, y, 100.0, seconds))
+    for (x, y), r in hot.items():
+        parts.append(_steady(rng, x, y, r, seconds))
+    return _join(parts, W, H, rng)
+
+
+def _steady(rng, x: int, y: int, rate_hz: float, seconds: float) -> tuple:
+    """Poisson events of one pixel."""
+    n = rng.poisson(rate_hz * seconds)
+    return rng.uniform(0, seconds, n), np.full(n, x), np.full(n, y)
+
+
+def _join(parts: list[tuple], width: int, height: int, rng) -> EventStream:
+    t, x, y = (np.concatenate([p[k] for p in parts]) for k in range(3))
+    order = np.argsort(t, kind="stable")
+    return EventStream.from_arrays((t[order] * 1e9).astype(np.int64), x[order], y[order],
+                                   rng.integers(0, 2, t.size), width, height)
+
+
+def _pixels(mask: np.ndarray) -> set[tuple[int, int]]:
+    ys, xs = np.nonzero(mask)
+    return {(int(x), int(y)) for x, y in zip(xs, ys, strict=True)}
+
+
+HOT = {(5, 5): 60.0, (60, 20): 80.0, (61, 20): 300.0, (100, 80): 1000.0, (30, 44): 400.0, (119, 89): 50.0}
+
+
+def test_hot_pixels_found_and_only_they():
+    ev = _stream(3.0, HOT)
+    mask = hot_pixel_mask(ev)
+    found = _pixels(mask)
+    # Every hot pixel, including two side by side, one in the always-active strip and one in the corner; no
+    # pixel of the sweeping edge, of the strip or of the busy rim.
+    assert found == set(HOT)
+
+
+def test_slow_hot_pixels_and_short_spans_are_left_alone():
+    ev = _stream(3.0, {(10, 10): 5.0, (20, 20): 500.0})
+    assert _pixels(hot_pixel_mask(ev)) == {(20, 20)}  # 5 Hz is background activity's range
+    short = ev.slice_time(ev.t_first, ev.t_first + 300_000_000)  # 0.3 s: an edge could look like that
+    assert not hot_pixel_mask(short).any()
+    assert not hot_pixel_mask(EventStream.empty(W, H)).any()
+
+
+def test_dropping_removes_exactly_their_events():
+    ev = _stream(2.0, HOT)
+    mask = hot_pixel_mask(ev)
+    out = drop_pixels(ev, mask)
+    on_hot = mask[ev.y, ev.x]
+    assert len(out) == len(ev) - int(on_hot.sum())
+    assert not mask[out.y, out.x].any()
+    np.testing.assert_array_equal(out.t, ev.t[~on_hot])
+    assert drop_pixels(ev, np.zeros((H, W), dtype=bool)) is ev
+
+
+@pytest.mark.parametrize("mask_hot_pixels", [True, False])
+def test_front_end_reports_the_masked_pixels(mask_hot_pixels):
+    from plsgraph.core.board import load_board
+    from plsgraph.core.camera import davis346_default
+    from plsgraph.frontend.track import detect_in_events
+
+    cam = davis346_default()
+    rng = np.random.default_rng(3)
+    xy = zip(rng.integers(0, cam.width, 12), rng.integers(0, cam.height, 12), rng.uniform(50, 500, 12), strict=True)
+    hot = {(int(x), int(y)): float(r) for x, y, r in xy}
+    ev = _join([_steady(rng, x, y, r, 2.0) for (x, y), r in hot.items()], cam.width, cam.height, rng)
+    if mask_hot_pixels:
+        # Nothing but hot pixels: a clear error rather than windows of nothing.
+        with pytest.raises(InsufficientDataError, match="hot pixel"):
+            detect_in_events(ev, cam, load_board("acircles_4x11"), mask_hot_pixels=True, require_detection=False)
+    else:
+        _, info = detect_in_events(ev, cam, load_board("acircles_4x11"), mask_hot_pixels=False,
+                                   require_detection=False)
+        assert info["hot_pixels"] == 0 and info["detected"] == 0
