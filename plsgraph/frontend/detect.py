@@ -407,26 +407,25 @@ def label_circle_grid(
     span = B.max(axis=0) - bmin + 1
     occupied = np.full(tuple(span), -1, dtype=int)
     occupied[tuple((B - bmin).T)] = np.arange(n)
-    # Score every lattice symmetry and every shift at once: the number of seen points that land on board
-    # circles is the cross-correlation of two small occupancy images (template matching on the lattice).
-    board_img = np.zeros(tuple(span), np.float32)
-    board_img[tuple((B - bmin).T)] = 1.0
-    scored = []  # (hit map, offset to add to a hit-map index to get the shift), per lattice map
+    if MIN_INSIDE_FRACTION * best_idx.size > n:
+        # More lattice points than the board has circles could ever hold (see below): clutter or the denser
+        # lattice of circles and gaps. Decided before scoring any placement.
+        return _fail(n, REASON_ORDER)
+    # Score every lattice symmetry and every shift: the number of seen points that land on board circles under
+    # a shift s is the number of (seen point d, board circle b) pairs with b - d = s, counted over all pairs at
+    # once (the cross-correlation of the two occupancy images, without the images).
+    scored = []  # (shifts (k, 2), hits (k,)), per lattice map
     for M in _LATTICE_MAPS:
         D = best_lat @ M.T
-        dmin = D.min(axis=0)
-        dspan = D.max(axis=0) - dmin + 1
-        tmpl = np.zeros(tuple(dspan), np.float32)
-        tmpl[tuple((D - dmin).T)] = 1.0
-        padded = cv2.copyMakeBorder(board_img, dspan[0] - 1, dspan[0] - 1, dspan[1] - 1, dspan[1] - 1,
-                                    cv2.BORDER_CONSTANT, value=0)
-        scored.append((np.rint(cv2.matchTemplate(padded, tmpl, cv2.TM_CCORR)).astype(int), bmin - dmin - (dspan - 1)))
-    top = max(int(h.max()) for h, _ in scored)
-    placements = [
-        (top, k, np.array([u, v]) + off)
-        for k, (h, off) in enumerate(scored)
-        for u, v in zip(*np.nonzero(h == top), strict=True)
-    ]
+        S = (B[None, :, :] - D[:, None, :]).reshape(-1, 2)
+        lo = S.min(axis=0)
+        width = int(S[:, 1].max() - lo[1]) + 1
+        code = (S[:, 0] - lo[0]) * width + (S[:, 1] - lo[1])
+        hits = np.bincount(code)
+        nz = np.flatnonzero(hits)
+        scored.append((np.stack([nz // width + lo[0], nz % width + lo[1]], axis=-1), hits[nz]))
+    top = max(int(h.max()) for _, h in scored)
+    placements = [(top, k, sh) for k, (shifts, h) in enumerate(scored) for sh in shifts[h == top]]
     if top < min_points:
         return _fail(n, REASON_TOO_FEW)
     if top < MIN_INSIDE_FRACTION * best_idx.size:
