@@ -55,6 +55,7 @@ from .detect import (
     MIN_RIM_SPACING_PX,
     REASON_NOT_FOUND,
     REASON_OK,
+    GridDetection,
     board_is_symmetric,
     detect_aprilgrid,
     detect_circle_grid,
@@ -65,6 +66,13 @@ from .noise import drop_pixels, hot_pixel_mask
 from .pose import camera_track_from_detections
 
 log = logging.getLogger(__name__)
+
+#: Window outcome of a board found on a long span while lost that the half-span-earlier check refused.
+REASON_MOVED = "moved_within_span"
+
+
+def _refused(det: GridDetection) -> GridDetection:
+    return GridDetection(np.full_like(det.uv, np.nan), False, REASON_MOVED, det.homography_rms_px)
 
 #: Short names accepted for ``kind`` in addition to :data:`plsgraph.frontend.surfaces.KINDS`.
 KIND_ALIASES = {"polarity": "polarity_aware", "classic": "time_surface", "ts": "time_surface"}
@@ -116,21 +124,28 @@ def _active_age_s(kind: str, params: dict, window_s: float) -> float:
 
 #: Fractions of the nominal rim age tried in turn: fast motion smears a circle's rim over its whole
 #: inside within a full window, so failed windows are retried on the most recent half, quarter and eighth;
-#: slow motion leaves sparse rims, retried on two and four windows.
-WINDOW_LADDER = (1.0, 0.5, 0.25, 0.125, 2.0, 4.0)
-#: The spans longer than the window (2 and 4 times) are for slow motion, whose rims are thin and sparse in one
-#: window: tried only while the board was last seen moving slower than this across the image. (Tried on fast
-#: boards they smear rims into patterns a wrong board definition could be matched to.)
+#: slow motion leaves sparse rims, retried on 2, 4, 8 and 16 windows (up to about half a second at 30 Hz: a
+#: board crossing the image at a few pixels per second moves by a pixel or two in that time).
+WINDOW_LADDER = (1.0, 0.5, 0.25, 0.125, 2.0, 4.0, 8.0, 16.0)
+#: The spans longer than the window are for slow motion, whose rims are thin and sparse in one window: tried
+#: while the board was last seen moving slower than this across the image, and while it is lost (see
+#: LONG_WHEN_LOST). (Tried on a board seen moving fast they smear rims into patterns a wrong board definition
+#: could be matched to.)
 SLOW_PX_S = 30.0
-LONG_WHEN_LOST = False
-LOST_STRIDE = 3
+#: While the board is lost (no detection in the last RECENT_WINDOWS windows) the longer spans are tried in every
+#: LOST_STRIDE-th window: a robot setting off slowly after a stop shows the board only on them.
+LONG_WHEN_LOST = True
+LOST_STRIDE = 1
+#: Blob spans up to this multiple are tried in every window, the longer ones as the longer rim spans are.
 SHORT_BLOB_SPAN = 4.0
-KEEP_ROI = False
+#: After a window without the board, the next windows still search where it was last seen first (for
+#: RECENT_WINDOWS windows): a slow board is still there, and the whole image holds more clutter.
+KEEP_ROI = True
 #: Hot pixels (:mod:`.noise`) are masked in each span before detection unless a caller says otherwise.
 MASK_HOT_PIXELS = True
 #: Spans (multiples of the window) over which circles are looked for as blobs of events when the rims fail, and
 #: the blur that merges a small circle's events into one blob.
-BLOB_SPANS = (1.0, 2.0, 4.0)
+BLOB_SPANS = (1.0, 2.0, 4.0, 8.0, 16.0)
 BLOB_BLUR_PX = 0.8
 #: A detection this many windows back still says how large the circles are.
 RECENT_WINDOWS = 15
@@ -205,7 +220,37 @@ class _WindowJob:
         self.window_s, self.min_events, self.timestamp, self.tag_layout = window_s, min_events, timestamp, tag_layout
         self.border_bits, self.tag_blur = border_bits, float(tag_blur)
 
-    def _blobs(self, tq: int, first: float, roi: tuple[int, int, int, int] | None, long_spans: bool = False):
+    def _holds_still(self, det: GridDetection, tq: int, age: float, how: str) -> bool:
+        """Whether a board found on a span longer than the window while it was lost is a slow board: found
+        again, within a third of a circle spacing, on the same span length ending half a span earlier. A fast
+        board smears its circles over such a span into patterns a wrong board definition can fit, and the
+        earlier span shows them somewhere else."""
+        t_end = int(tq) - int(0.5 * age * 1e9)
+        sub = self.stream.slice_time(t_end - int(age * 1e9), t_end + 1)
+        if len(sub) < self.min_events:
+            return False
+        box = _roi_around(det.uv, self.stream.width, self.stream.height)
+        if how == "rims":
+            rim, level = _rim_image(surfaces.surface(sub, self.kind, t_end, **self.params), self.kind, self.params,
+                                    age)
+            again = detect_circle_grid(rim, self.board, self.camera, foreground="rims", rim_threshold=level, roi=box)
+        else:
+            img = surfaces.count_image(sub)
+            view = np.zeros_like(img)
+            x0, y0, x1, y1 = box
+            view[y0:y1, x0:x1] = img[y0:y1, x0:x1]
+            again = detect_circle_grid(view, self.board, self.camera, foreground="bright", blur_sigma=BLOB_BLUR_PX)
+        if again.reason != REASON_OK:
+            return False
+        seen = np.all(np.isfinite(det.uv), axis=1)
+        both = seen & np.all(np.isfinite(again.uv), axis=1)
+        if np.count_nonzero(both) < 4:
+            return False
+        spacing = float(np.median(neighbour_distance(det.uv[seen])))
+        return float(np.median(np.linalg.norm(det.uv[both] - again.uv[both], axis=1))) < spacing / 3.0
+
+    def _blobs(self, tq: int, first: float, roi: tuple[int, int, int, int] | None, long_spans: bool = False,
+               lost: bool = False):
         """The board as blobs of events (:func:`detect_circle_grid` on a count image) over the spans of
         :data:`BLOB_SPANS` (multiples of the window; the one that worked last first): (detection, span s,
         multiple) or None. With ``roi`` (where the board was a moment ago) that part of the image is searched
@@ -225,6 +270,9 @@ class _WindowJob:
                     view = np.zeros_like(img)
                     view[y0:y1, x0:x1] = img[y0:y1, x0:x1]
                 det = detect_circle_grid(view, self.board, self.camera, foreground="bright", blur_sigma=BLOB_BLUR_PX)
+                if det.reason == REASON_OK and mult > SHORT_BLOB_SPAN and lost and not self._holds_still(
+                        det, tq, age, "blobs"):
+                    break  # refused: a board smeared over the long span; try the other spans
                 if det.reason == REASON_OK:
                     return det, age, mult
         return None
@@ -330,6 +378,8 @@ class _WindowJob:
                         if det is None or det.reason != REASON_OK:
                             det = detect_circle_grid(rim, board, self.camera, foreground="rims",
                                                      rim_threshold=level)
+                if det.reason == REASON_OK and frac > 1.0 and stale and not self._holds_still(det, tq, age, "rims"):
+                    det = _refused(det)
                 secs["surfaces"] += c1 - c0
                 secs["detection"] += time.perf_counter() - c1
                 if det.reason == REASON_OK:
@@ -345,7 +395,7 @@ class _WindowJob:
                 # Circles a few pixels wide have no inside left between their rims, and slow motion leaves a
                 # window too sparse for rims: look for the circles as blobs of events over this and longer spans.
                 c0 = time.perf_counter()
-                blob = self._blobs(tq, last_blob, roi, long_spans)
+                blob = self._blobs(tq, last_blob, roi, long_spans, stale)
                 secs["blobs"] = secs.get("blobs", 0.0) + time.perf_counter() - c0
                 if blob is not None:
                     det, age, mult = blob
