@@ -286,3 +286,19 @@ def test_a_detection_that_jumps_from_the_tracked_board_is_refused():
     rows = np.arange(board.n_points) // board.cols
     shifted[np.r_[False, rows[1:] != rows[:-1]]] = np.nan
     assert _jumped(shifted, uv)
+
+
+def test_a_failed_detection_never_says_ok(monkeypatch):
+    """When the lattice labelling succeeds but its refined centres fail the order check, the result is a failure
+    with the check's reason (it once carried the labelling's "ok" with no points, which callers took for a find)."""
+    import plsgraph.frontend.detect as detect_module
+
+    T = pose_facing(CIRCLES, 0.7, (0.5, 0.3, 1.0), front_z=-1)
+    img = render_log_intensity(T, CAM, CIRCLES)
+    monkeypatch.setattr(detect_module.cv2, "findCirclesGrid", lambda *a, **k: (False, None))  # the lattice path
+    assert detect_circle_grid(img, CIRCLES, CAM, foreground="dark").ok  # the labelling alone finds it
+    rng = np.random.default_rng(0)
+    monkeypatch.setattr(detect_module, "refine_centroids",
+                        lambda w, uv, r, iterations=4: uv + rng.normal(0.0, 3.0, uv.shape))
+    det = detect_circle_grid(img, CIRCLES, CAM, foreground="dark")
+    assert not det.ok and det.reason == REASON_ORDER and not np.isfinite(det.uv).any()

@@ -544,7 +544,10 @@ def detect_circle_grid(
             reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_homography_rms_px)
             if reason == REASON_OK:
                 return GridDetection(uv, True, REASON_OK, rms)
-        last_reason = det.reason if last_reason == REASON_NOT_FOUND else last_reason
+            # The refined centres no longer fit: that is why (not the labelling's own verdict, which was ok).
+            last_reason, last_rms = reason, rms
+        elif last_reason == REASON_NOT_FOUND:
+            last_reason = det.reason
     return _fail(n, last_reason, last_rms)
 
 

@@ -230,6 +230,8 @@ class _WindowJob:
         if len(sub) < self.min_events:
             return False
         box = _roi_around(det.uv, self.stream.width, self.stream.height)
+        if box is None or box[2] <= box[0] or box[3] <= box[1]:
+            return False
         if how == "rims":
             rim, level = _rim_image(surfaces.surface(sub, self.kind, t_end, **self.params), self.kind, self.params,
                                     age)
