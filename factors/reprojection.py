@@ -388,16 +388,18 @@ def reprojection_noise(n_points: int, sigma_px: float, robust: str | None, robus
 
 def make_reprojection_factors(
     batch: FrameBatch,
-    sigma_px: float = 0.5,
+    sigma_px: float | np.ndarray = 0.5,
     robust: str | None = "huber",
     robust_k: float = 1.5,
 ) -> list[gtsam.CustomFactor]:
-    """One :class:`gtsam.CustomFactor` per frame of ``batch`` (frames without points get none)."""
+    """One :class:`gtsam.CustomFactor` per frame of ``batch`` (frames without points get none); ``sigma_px`` one
+    pixel sigma for all frames or one per frame."""
     out = []
+    sig = np.broadcast_to(np.asarray(sigma_px, dtype=float), (len(batch.frames),))
     for i in range(len(batch.frames)):
         n = batch.n_valid(i)
         if n == 0:
             continue
-        noise = reprojection_noise(n, sigma_px, robust, robust_k)
+        noise = reprojection_noise(n, float(sig[i]), robust, robust_k)
         out.append(gtsam.CustomFactor(noise, batch.keys_of(i), lambda this, v, H, i=i: batch(i, v, H)))
     return out

@@ -295,7 +295,7 @@ class _WindowJob:
         skipped: Counter[str] = Counter()
         retries: Counter[int] = Counter()
         secs = {"surfaces": 0.0, "detection": 0.0}
-        t_out, uv_out, src_out = [], [], []
+        t_out, uv_out, src_out, span_out = [], [], [], []
         outcome: list[str] = []  # per window: the detector that found the board, or why nothing was found
         n_events = 0
         last_good = 0
@@ -445,9 +445,10 @@ class _WindowJob:
             t_out.append(t_det)
             uv_out.append(det.uv)
             src_out.append("blobs" if blob is not None else ("image" if as_image else "rims"))
+            span_out.append(float(last_blob if blob is not None else (1.0 if as_image else WINDOW_LADDER[last_good])))
             outcome.append(src_out[-1])
             roi = _roi_around(det.uv, stream.width, stream.height)
-        return t_out, uv_out, skipped, secs, n_events, retries, src_out, outcome
+        return t_out, uv_out, skipped, secs, n_events, retries, src_out, outcome, span_out
 
 
 # The job of the current parallel run; forked workers inherit it instead of receiving a pickled copy.
@@ -569,19 +570,19 @@ def detect_in_events(
         parts = _run_parallel(job, t_query, i0s, i1s, workers, progress)
     skipped: Counter[str] = Counter()
     secs = {"surfaces": 0.0, "detection": 0.0, "blobs": 0.0}
-    t_out, uv_out, src_out = [], [], []
+    t_out, uv_out, src_out, span_out = [], [], [], []
     n_events = 0
     last_t = -np.inf
     ladder: Counter[tuple] = Counter()
     outcomes: list[str] = []
-    for p_t, p_uv, p_skipped, p_secs, p_n, p_ladder, p_src, p_outcome in parts:
+    for p_t, p_uv, p_skipped, p_secs, p_n, p_ladder, p_src, p_outcome, p_span in parts:
         outcomes += p_outcome
         skipped.update(p_skipped)
         ladder.update(p_ladder)
         n_events += p_n
         for key in secs:
             secs[key] += p_secs.get(key, 0.0)
-        for t_det, uv, src in zip(p_t, p_uv, p_src, strict=True):
+        for t_det, uv, src, span in zip(p_t, p_uv, p_src, p_span, strict=True):
             if t_det <= last_t:
                 skipped["time_not_increasing"] += 1
                 continue
@@ -589,6 +590,7 @@ def detect_in_events(
             t_out.append(t_det)
             uv_out.append(uv)
             src_out.append(src)
+            span_out.append(span)
     if progress is not None:
         progress(t_query.size, t_query.size)
     info = {
@@ -601,6 +603,7 @@ def detect_in_events(
         "windows": int(t_query.size),
         "detected": len(t_out),
         "detector": src_out,
+        "span_windows": span_out,
         "window_outcomes": {"t": (t_query * 1e-9).tolist(), "outcome": outcomes},
         "skipped": dict(skipped),
         "events_used": n_events,
@@ -675,6 +678,17 @@ def camera_track_from_events(
     return _track_from_detections(dets, info, camera, max_rms_px, sigma_px)
 
 
+#: Per-detection lists of the front end's info, kept aligned with the detections: which detector found each,
+#: and the span of events it was found on (multiples of the window).
+PER_FRAME_INFO = ("detector", "span_windows")
+
+
+def _keep_frames(info: dict, n: int, keep: np.ndarray) -> None:
+    for key in PER_FRAME_INFO:
+        if len(info.get(key, ())) == n:
+            info[key] = [v for v, k in zip(info[key], keep, strict=True) if k]
+
+
 def _track_from_detections(
     dets: Detections, info: dict, camera: CameraModel, max_rms_px: float, sigma_px: float | None
 ) -> CameraTrack:
@@ -686,8 +700,7 @@ def _track_from_detections(
         # A labelling shifted by a lattice step fits its own pixels (PnP cannot refuse it) but not its neighbours.
         skipped[REASON_INCONSISTENT] += int(bad.sum())
         _mark_outcomes(info, np.asarray(dets.t)[bad], REASON_INCONSISTENT)
-        if len(info.get("detector", ())) == len(dets):
-            info["detector"] = [d for d, b in zip(info["detector"], bad, strict=True) if not b]
+        _keep_frames(info, len(dets), ~bad)
         info["detected"] = int(info.get("detected", len(dets))) - int(bad.sum())
         dets = Detections(np.asarray(dets.t)[~bad], np.asarray(dets.uv)[~bad], dets.board_points)
         if not len(dets):
@@ -699,9 +712,7 @@ def _track_from_detections(
     skipped.update(track.info.get("rejected", {}))
     info["skipped"] = dict(skipped)
     info["poses"] = len(track)
-    if len(info.get("detector", ())) == len(dets):  # per kept frame, as the track's detections
-        kept = np.isin(np.asarray(dets.t), np.asarray(track.t))
-        info["detector"] = [d for d, k in zip(info["detector"], kept, strict=True) if k]
+    _keep_frames(info, len(dets), np.isin(np.asarray(dets.t), np.asarray(track.t)))  # as the track's detections
     info["median_rms_px"] = track.info.get("median_rms_px")
     for w in info["warnings"]:
         log.warning(w)
@@ -778,6 +789,7 @@ def camera_track_from_event_chunks(
     t_parts: list[np.ndarray] = []
     uv_parts: list[np.ndarray] = []
     src_parts: list[str] = []
+    span_parts: list[float] = []
     wo_t: list[float] = []
     wo_o: list[str] = []
     info: dict = {}
@@ -792,6 +804,7 @@ def camera_track_from_event_chunks(
         t_parts.append(dets.t)
         uv_parts.append(dets.uv)
         src_parts.extend(part["detector"])
+        span_parts.extend(part["span_windows"])
         wo_t.extend(part["window_outcomes"]["t"])
         wo_o.extend(part["window_outcomes"]["outcome"])
         skipped.update(part["skipped"])
@@ -867,12 +880,14 @@ def camera_track_from_event_chunks(
     t = np.concatenate(t_parts) if t_parts else np.zeros(0)
     uv = np.concatenate(uv_parts) if uv_parts else np.zeros((0, board.n_points, 2))
     src = np.asarray(src_parts, dtype=object)
+    spans = np.asarray(span_parts, dtype=float)
     if t.size > 1:  # a detection stamped before its predecessor (across spans) would break the time order
         keep = later_than_all_before(t)
         if not keep.all():
             skipped["time_not_increasing"] += int(np.count_nonzero(~keep))
-        t, uv, src = t[keep], uv[keep], src[keep]
+        t, uv, src, spans = t[keep], uv[keep], src[keep], spans[keep]
     info["detector"] = src.tolist()
+    info["span_windows"] = spans.tolist()
     info["window_outcomes"] = {"t": wo_t, "outcome": wo_o}
     info["skipped"] = dict(skipped)
     info["detected"] = int(t.size)

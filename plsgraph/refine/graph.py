@@ -82,6 +82,9 @@ class RefinementOptions:
 
     knot_rate_hz: float | None = 10.0  # None: one base pose per odometry sample
     sigma_px: float = 0.5
+    # Detections found on spans of m windows (slow boards; front end info["span_windows"]) share most of their
+    # events with their neighbours: their pixel sigma is sigma_px * sqrt(m), so m of them weigh as one.
+    weight_by_span: bool = True
     robust: str | None = "huber"  # "huber", "cauchy" or None
     robust_k: float = 1.5  # threshold relative to a frame's expected whitened norm (see reprojection_noise)
     min_points: int = 6
@@ -300,6 +303,7 @@ class _Problem:
     warnings: tuple[str, ...]
     steps: PlanarSteps | None = None  # the nominal odometry's steps (None: intrinsics not estimated)
     scale: tuple[float, float] = (1.0, 1.0)  # (s_v, s_w) the odometry poses above were rescaled with
+    frame_sigma: np.ndarray | None = None  # per frame: its pixel sigma in units of sigma_px (None: all 1)
 
 
 def scaled_base_track(base_track: BaseTrack, s_v: float, s_w: float, steps: PlanarSteps | None = None,
@@ -499,6 +503,10 @@ def _prepare(
             "points; check td, the recording's topics and the board detections"
         )
     t = det.t[keep]
+    frame_sigma = None
+    spans = camera_track.info.get("span_windows") if opt.weight_by_span else None
+    if spans is not None and len(spans) == len(det):
+        frame_sigma = np.sqrt(np.maximum(1.0, np.asarray(spans, dtype=float)))[keep]
     knot_idx = _select_knots(base_track, t[0] + seed_td - opt.bracket_margin_s, t[-1] + seed_td + opt.bracket_margin_s,
                              opt.knot_rate_hz)
     if knot_idx.size < 2:
@@ -518,6 +526,7 @@ def _prepare(
         n_dropped=int((~keep).sum()),
         warnings=tuple(warnings),
         steps=PlanarSteps.from_poses(base_track.T_world_base) if opt.estimate_odometry_scale else None,
+        frame_sigma=frame_sigma,
     )
     if opt.estimate_odometry_scale and tuple(scale) != (1.0, 1.0):
         prob = _rescaled(prob, scale, opt)
@@ -634,6 +643,13 @@ def _scaled_noise(noise: OdometryNoise, var_factor: float) -> OdometryNoise:
     return dataclasses.replace(noise, **{f.name: getattr(noise, f.name) * k for f in dataclasses.fields(noise)})
 
 
+def _pixel_sigma(prob: _Problem, rows: np.ndarray, opt: RefinementOptions) -> float | np.ndarray:
+    """Pixel sigma of the frames ``rows`` (one value when all frames share it)."""
+    if prob.frame_sigma is None:
+        return opt.sigma_px
+    return opt.sigma_px * prob.frame_sigma[rows]
+
+
 def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: RefinementOptions,
                  C_prior: np.ndarray, td_prior: float, R_prior: np.ndarray, rep_var: float = 1.0,
                  odo_var: float = 1.0, planar_var: tuple[float, float] = (1.0, 1.0)):
@@ -643,7 +659,8 @@ def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: Refin
     keys = np.array([knot_key(k) for k in range(prob.knot_t.size)], dtype=np.int64)
     batch = FrameBatch(frames, keys, kidx, KEY_CAM, KEY_BOARD, KEY_TD)
     graph = gtsam.NonlinearFactorGraph()
-    for f in make_reprojection_factors(batch, opt.sigma_px * np.sqrt(rep_var), opt.robust, opt.robust_k):
+    for f in make_reprojection_factors(batch, _pixel_sigma(prob, rows, opt) * np.sqrt(rep_var), opt.robust,
+                                       opt.robust_k):
         graph.add(f)
     noise = opt.odometry_noise if odo_var == 1.0 else _scaled_noise(opt.odometry_noise, odo_var)
     d, a = path_increments(prob.base_track.t, prob.base_track.T_world_base, prob.knot_idx)
@@ -1116,7 +1133,8 @@ def refine(
     td = float(values.atVector(KEY_TD)[0])
     T_knots = np.stack([values.atPose3(int(k)).matrix() for k in keys])
     dof = max(1, 2 * n_pts - 6 * keys.size - 13)
-    chi2 = float(np.sum(np.nan_to_num(batch.evaluate_all(values, False).residual) ** 2) / opt.sigma_px**2 / dof)
+    sig = np.broadcast_to(np.asarray(_pixel_sigma(prob, rows, opt), dtype=float), (rows.size,))
+    chi2 = float(np.sum((np.nan_to_num(batch.evaluate_all(values, False).residual) / sig[:, None, None]) ** 2) / dof)
     if not np.isfinite(final_error):
         converged = False
         warnings.append("the optimisation produced a non-finite error")
@@ -1139,7 +1157,7 @@ def refine(
         try:
             cov_graph = final_graph
             if opt.inflate_correlated:
-                inflation = correlation_inflation(final_graph, batch, values, opt)
+                inflation = correlation_inflation(final_graph, batch, values, opt, _pixel_sigma(prob, rows, opt))
                 cov_graph = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
                                          inflation["reprojection_autocorrelation_time"],
                                          # an adapted odometry variance already holds the correlation
@@ -1298,11 +1316,13 @@ def planar_noise_factors(graph, values: gtsam.Values) -> np.ndarray:
     return np.array(out)
 
 
-def correlation_inflation(graph, batch: FrameBatch, values: gtsam.Values, opt: RefinementOptions) -> dict:
+def correlation_inflation(graph, batch: FrameBatch, values: gtsam.Values, opt: RefinementOptions,
+                          sigma_px: float | np.ndarray | None = None) -> dict:
     """Autocorrelation times of the reprojection residuals (over frames) and of the whitened odometry residuals
     (over edges), each capped at ``max_inflation``: the covariance is that of the graph whose reprojection and
     odometry variances are multiplied by them (information / effective-sample-size correction per source)."""
-    r = batch.evaluate_all(values, False).residual / opt.sigma_px  # (m, N, 2), frames in time order
+    sig = np.asarray(opt.sigma_px if sigma_px is None else sigma_px, dtype=float)
+    r = batch.evaluate_all(values, False).residual / (sig[:, None, None] if sig.ndim else sig)  # (m, N, 2)
     tau_rep = autocorrelation_time(r.reshape(r.shape[0], -1))
     odo = [f.whitenedError(values) for f in _odometry_factors(graph)]
     tau_odo = autocorrelation_time(np.array(odo)) if len(odo) >= 4 else 1.0
