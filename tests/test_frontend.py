@@ -217,6 +217,8 @@ def test_creeping_board_found_on_half_second_spans(creeping_sim, monkeypatch):
     spans = track.info["detected_at_window_fraction"]
     assert len(track) >= 0.8 * track.info["windows"]
     assert spans.get("rims:8", 0) + spans.get("rims:16", 0) >= 30  # a quarter or half a second of events
+    per_frame = np.asarray(track.info["span_windows"])  # what the refinement weighs each detection by
+    assert per_frame.size == len(track) and np.count_nonzero(per_frame >= 8) >= 30
     assert err.max() < 1.0 and np.median(err) < 0.6  # a slow board's rims are thin: less exact than a fast one's
     # With spans of at most four windows, and those only after the board was seen moving slowly, it never is.
     monkeypatch.setattr(frontend_track, "LONG_WHEN_LOST", False)

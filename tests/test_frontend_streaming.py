@@ -28,6 +28,8 @@ def test_streaming_matches_single_pass_on_the_sample():
     assert streamed.info["windows"] == one.info["windows"]  # the same window grid
     # Tracking restarts at each span, so a window or two may differ; the poses found by both agree.
     assert abs(len(streamed) - len(one)) <= 0.1 * len(one)
+    for track in (one, streamed):  # per detection, as the track's frames
+        assert len(track.info["span_windows"]) == len(track.info["detector"]) == len(track)
     common, i, j = np.intersect1d(one.t, streamed.t, return_indices=True)
     assert common.size >= 0.8 * len(one)
     d = np.abs(one.T_board_cam[i, :3, 3] - streamed.T_board_cam[j, :3, 3]).max(axis=1)
@@ -78,3 +80,4 @@ def test_spans_detected_in_parallel_give_the_same_track():
     assert np.array_equal(one.T_board_cam, two.T_board_cam)
     assert one.info["window_outcomes"] == two.info["window_outcomes"]
     assert one.info["skipped"] == two.info["skipped"] and one.info["detector"] == two.info["detector"]
+    assert one.info["span_windows"] == two.info["span_windows"]

@@ -204,3 +204,32 @@ def test_frames_near_the_odometry_ends_do_not_bias_td(seed):
     res = refine(track, base, rec.camera, rec.T_base_cam, rec.td)
     assert abs(res.td - rec.td) < 0.002
     assert rotation_error_deg(res.R_base_cam, rec.T_base_cam[:3, :3]) < 0.15
+
+
+def test_detections_found_on_long_spans_weigh_less(rich):
+    """A detection the front end found on m windows' events shares most of them with its neighbours: its pixel
+    sigma is sqrt(m) times larger. With every frame at m = 4 the camera carries a quarter of the information:
+    the rotation sigmas grow (the odometry and the planar prior keep part of them), the answer stays within them, and without span
+    weighting (or with spans of one window) the result is the plain one."""
+    import dataclasses
+
+    case, _ = rich
+    opt = RefinementOptions(inflate_correlated=False, scale_covariance=False, add_noise_model_sensitivity=False,
+                            adapt_odometry_noise=False, adapt_planar_prior=False)
+    n = len(case.track)
+
+    def with_spans(m: float) -> CameraTrack:
+        return dataclasses.replace(case.track, info={**case.track.info, "span_windows": [m] * n})
+
+    args = (case.base, case.rec.camera, case.seed_T, case.seed_td)
+    plain = refine(case.track, *args, options=opt)
+    one = refine(with_spans(1.0), *args, options=opt)
+    four = refine(with_spans(4.0), *args, options=opt)
+    ignored = refine(with_spans(4.0), *args, options=dataclasses.replace(opt, weight_by_span=False))
+    np.testing.assert_allclose(one.sigma_rot_deg, plain.sigma_rot_deg, rtol=1e-6)
+    np.testing.assert_allclose(ignored.sigma_rot_deg, plain.sigma_rot_deg, rtol=1e-6)
+    ratio = four.sigma_rot_deg / plain.sigma_rot_deg
+    # Never smaller, at most sqrt(4) larger: the planar prior and the odometry hold roll nearly alone.
+    assert np.all(ratio >= 1.0 - 1e-6) and ratio.max() > 1.2 and np.all(ratio <= 2.0 + 1e-6), ratio
+    d = np.degrees(rotation_error_base_axes(four.R_base_cam, case.rec.T_base_cam[:3, :3]))
+    assert np.all(np.abs(d) < 4 * four.sigma_rot_deg + 0.05)
