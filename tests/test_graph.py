@@ -209,8 +209,8 @@ def test_frames_near_the_odometry_ends_do_not_bias_td(seed):
 def test_detections_found_on_long_spans_weigh_less(rich):
     """A detection the front end found on m windows' events shares most of them with its neighbours: its pixel
     sigma is sqrt(m) times larger. With every frame at m = 4 the camera carries a quarter of the information:
-    the rotation sigmas grow (the odometry and the planar prior keep part of them), the answer stays within them, and without span
-    weighting (or with spans of one window) the result is the plain one."""
+    the rotation sigmas grow (the odometry and the planar prior keep part of them), the answer stays within them,
+    and without span weighting (or with spans of one window) the result is the plain one."""
     import dataclasses
 
     case, _ = rich
