@@ -207,15 +207,16 @@ def test_frames_near_the_odometry_ends_do_not_bias_td(seed):
 
 
 def test_detections_found_on_long_spans_weigh_less(rich):
-    """A detection the front end found on m windows' events shares most of them with its neighbours: its pixel
-    sigma is sqrt(m) times larger. With every frame at m = 4 the camera carries a quarter of the information:
-    the rotation sigmas grow (the odometry and the planar prior keep part of them), the answer stays within them,
-    and without span weighting (or with spans of one window) the result is the plain one."""
+    """A detection the front end found on m windows' events shares most of them with its neighbours: with
+    weight_by_span (off by default, see RefinementOptions) its pixel sigma is sqrt(m) times larger. With every
+    frame at m = 4 the camera carries a quarter of the information: the rotation sigmas grow (the odometry and
+    the planar prior keep part of them), the answer stays within them, and without span weighting (or with spans
+    of one window) the result is the plain one."""
     import dataclasses
 
     case, _ = rich
     opt = RefinementOptions(inflate_correlated=False, scale_covariance=False, add_noise_model_sensitivity=False,
-                            adapt_odometry_noise=False, adapt_planar_prior=False)
+                            adapt_odometry_noise=False, adapt_planar_prior=False, weight_by_span=True)
     n = len(case.track)
 
     def with_spans(m: float) -> CameraTrack:
