@@ -152,21 +152,32 @@ def test_every_window_has_one_outcome(sim):
             assert wo["outcome"].count(reason) == n
 
 
-@pytest.fixture(scope="module")
-def slow_sim():
-    """The A2 board 1.2 m away drifting across the image at ~4 px/s (a tenth of a pixel per window), seen by a
-    realistic sensor (latency, threshold mismatch, noise, hot pixels) in dim light: one window's rims are sparse."""
+def _far_board_drifting(seconds: float, drift: tuple[float, float, float], wobble: float, seed: int):
+    """The A2 board 1.2 m away, the camera drifting by ``drift`` (m/s) with a sideways ``wobble`` (m), seen by a
+    realistic sensor (latency, threshold mismatch, noise, hot pixels) in dim light: (t, poses, events)."""
     import dataclasses
 
     from plsgraph.sim import realism
 
     real = realism.realistic()
     params = dataclasses.replace(real, scene=dataclasses.replace(real.scene, illumination=0.4)).event_params()
-    t = np.arange(0.0, 2.0 + 1e-9, 0.01)
-    p = np.stack([0.02 * t - 0.07, 0.01 * np.sin(1.5 * t), 0.02 * t], axis=1)
+    t = np.arange(0.0, seconds + 1e-9, 0.01)
+    p = np.stack([drift[0] * t - 0.07, wobble * np.sin(1.5 * t), drift[2] * t], axis=1)
     R = so3_exp(np.array([0.03, -0.05, 0.02]))
     poses = make_T(np.repeat(R[None], t.size, axis=0), FAR_BOARD.points.mean(axis=0) + np.array([0, 0, -1.2]) + p)
-    return t, poses, simulate_events(t, poses, CAM, FAR_BOARD, params, seed=2)
+    return t, poses, simulate_events(t, poses, CAM, FAR_BOARD, params, seed=seed)
+
+
+def _median_point_errors(track, t: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    T_true = interpolate_poses(np.clip(track.t, t[0], t[-1]), t, poses)
+    uv_true = np.stack([CAM.project(transform_points(inv_T(T), FAR_BOARD.points)) for T in T_true])
+    return np.nanmedian(np.linalg.norm(track.detections.uv - uv_true, axis=2), axis=1)
+
+
+@pytest.fixture(scope="module")
+def slow_sim():
+    """Drifting across the image at ~4 px/s (a tenth of a pixel per window): one window's rims are sparse."""
+    return _far_board_drifting(2.0, (0.02, 0.0, 0.02), 0.01, seed=2)
 
 
 def test_slow_boards_found_on_longer_spans(slow_sim, monkeypatch):
@@ -181,29 +192,17 @@ def test_slow_boards_found_on_longer_spans(slow_sim, monkeypatch):
     spans = track.info["detected_at_window_fraction"]
     long_spans = sum(v for key, v in spans.items() if key in ("rims:2", "rims:4", "rims:8", "rims:16"))
     assert long_spans >= 20  # found on 2-16 windows' events where one window's rims were too sparse
-    T_true = interpolate_poses(np.clip(track.t, t[0], t[-1]), t, poses)
-    uv_true = np.stack([CAM.project(transform_points(inv_T(T), FAR_BOARD.points)) for T in T_true])
-    err = np.nanmedian(np.linalg.norm(track.detections.uv - uv_true, axis=2), axis=1)
+    err = _median_point_errors(track, t, poses)
     assert len(track) >= 0.8 * track.info["windows"]
     assert err.max() < 1.0 and np.median(err) < 0.3
 
 
 @pytest.fixture(scope="module")
 def creeping_sim():
-    """The A2 board 1.2 m away creeping across the image at ~1.5 px/s (a twentieth of a pixel per window) under a
-    realistic sensor in dim light: no window ever sees the board moving faster, so the tracker never learns that
-    it is slow; only spans of a quarter to half a second show its circles."""
-    import dataclasses
-
-    from plsgraph.sim import realism
-
-    real = realism.realistic()
-    params = dataclasses.replace(real, scene=dataclasses.replace(real.scene, illumination=0.4)).event_params()
-    t = np.arange(0.0, 3.0 + 1e-9, 0.01)
-    p = np.stack([0.0075 * t - 0.07, 0.003 * np.sin(1.0 * t), 0.01 * t], axis=1)
-    R = so3_exp(np.array([0.03, -0.05, 0.02]))
-    poses = make_T(np.repeat(R[None], t.size, axis=0), FAR_BOARD.points.mean(axis=0) + np.array([0, 0, -1.2]) + p)
-    return t, poses, simulate_events(t, poses, CAM, FAR_BOARD, params, seed=4)
+    """Creeping across the image at ~1.5 px/s (a twentieth of a pixel per window): no window ever sees the board
+    moving faster, so the tracker never learns that it is slow; only spans of a quarter to half a second show its
+    circles."""
+    return _far_board_drifting(3.0, (0.0075, 0.0, 0.01), 0.003, seed=4)
 
 
 def test_creeping_board_found_on_half_second_spans(creeping_sim, monkeypatch):
@@ -211,9 +210,7 @@ def test_creeping_board_found_on_half_second_spans(creeping_sim, monkeypatch):
 
     t, poses, ev = creeping_sim
     track = camera_track_from_events(ev, CAM, FAR_BOARD, rate_hz=30, kind="count")
-    T_true = interpolate_poses(np.clip(track.t, t[0], t[-1]), t, poses)
-    uv_true = np.stack([CAM.project(transform_points(inv_T(T), FAR_BOARD.points)) for T in T_true])
-    err = np.nanmedian(np.linalg.norm(track.detections.uv - uv_true, axis=2), axis=1)
+    err = _median_point_errors(track, t, poses)
     spans = track.info["detected_at_window_fraction"]
     assert len(track) >= 0.8 * track.info["windows"]
     assert spans.get("rims:8", 0) + spans.get("rims:16", 0) >= 30  # a quarter or half a second of events
