@@ -57,10 +57,12 @@ from .detect import (
     REASON_OK,
     GridDetection,
     board_is_symmetric,
+    check_grid_order,
     detect_aprilgrid,
     detect_circle_grid,
     make_aruco_detector,
     neighbour_distance,
+    refine_centroids,
 )
 from .noise import drop_pixels, hot_pixel_mask
 from .pose import camera_track_from_detections
@@ -141,6 +143,8 @@ SHORT_BLOB_SPAN = 4.0
 #: After a window without the board, the next windows still search where it was last seen first (for
 #: RECENT_WINDOWS windows): a slow board is still there, and the whole image holds more clutter.
 KEEP_ROI = True
+#: How a find on a long span while lost is checked (see _WindowJob._holds_still): "recentre" or "detect".
+STILL_CHECK = "recentre"
 #: Hot pixels (:mod:`.noise`) are masked in each span before detection unless a caller says otherwise.
 MASK_HOT_PIXELS = True
 #: Spans (multiples of the window) over which circles are looked for as blobs of events when the rims fail, and
@@ -221,10 +225,34 @@ class _WindowJob:
         self.border_bits, self.tag_blur = border_bits, float(tag_blur)
 
     def _holds_still(self, det: GridDetection, tq: int, age: float, how: str) -> bool:
-        """Whether a board found on a span longer than the window while it was lost is a slow board: found
-        again, within a third of a circle spacing, on the same span length ending half a span earlier. A fast
-        board smears its circles over such a span into patterns a wrong board definition can fit, and the
-        earlier span shows them somewhere else."""
+        """Whether a board found on a span longer than the window while it was lost is a slow board: on the same
+        span length ending half a span earlier, the circles' events are centred where it was found (each found
+        centre re-centred on that span's events moves by less than a third of a spacing, and the re-centred points
+        pass the order check). A fast board smears its circles over such a span into patterns a wrong board
+        definition can fit, and the earlier span has its events somewhere else. (Detecting the board afresh on the
+        earlier span refused most slow boards: a slow board's detection is marginal on any one span.)"""
+        if STILL_CHECK == "detect":
+            return self._found_again(det, tq, age, how)
+        t_end = int(tq) - int(0.5 * age * 1e9)
+        sub = self.stream.slice_time(t_end - int(age * 1e9), t_end + 1)
+        if len(sub) < self.min_events:
+            return False
+        seen = np.all(np.isfinite(det.uv), axis=1)
+        if np.count_nonzero(seen) < 4:
+            return False
+        q = det.uv[seen]
+        spacing = neighbour_distance(q)
+        weight = cv2.GaussianBlur(surfaces.count_image(sub), (0, 0), BLOB_BLUR_PX)
+        moved = refine_centroids(weight, q, 0.5 * spacing)
+        if float(np.median(np.linalg.norm(moved - q, axis=1))) >= float(np.median(spacing)) / 3.0:
+            return False
+        uv = np.full_like(det.uv, np.nan)
+        uv[seen] = moved
+        return check_grid_order(uv, self.board, self.camera)[0] == REASON_OK
+
+    def _found_again(self, det: GridDetection, tq: int, age: float, how: str) -> bool:
+        """The stricter check (``STILL_CHECK = "detect"``): the board detected afresh on the earlier span, within a
+        third of a spacing."""
         t_end = int(tq) - int(0.5 * age * 1e9)
         sub = self.stream.slice_time(t_end - int(age * 1e9), t_end + 1)
         if len(sub) < self.min_events:
