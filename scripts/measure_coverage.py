@@ -6,7 +6,8 @@ front end and for variants of its settings, in one run (the figures of docs/fron
 
 Each run index draws the same recording as ``scripts/study.py`` (same seed, realism and td), written once to
 ``--cache`` and reused. A variant is ``label:NAME=VALUE[;NAME=VALUE...]`` with NAME a module constant of
-``plsgraph.frontend.track`` (e.g. ``WINDOW_LADDER=(1.0,0.5,0.25,0.125,2.0,4.0)``); every variant and the
+``plsgraph.frontend.track`` (e.g. ``WINDOW_LADDER=(1.0,0.5,0.25,0.125,2.0,4.0)``) or, prefixed with its module's
+name, of another front-end module (``detect.TRACK_BEFORE_LABEL=False``); every variant and the
 defaults run on each recording in turn, so a busy machine slows all of them alike. Printed per setting: coverage
 (share of the 30 Hz windows with the whole board in view that have a detection; "slow" below 20 px/s), wrong
 labels (median point error over 5 px), median centre error (all detections; those of slow boards), and the
@@ -69,15 +70,13 @@ def parse_variant(text: str) -> tuple[str, dict]:
 
 
 def measure(d: Path, settings: dict) -> dict:
-    import plsgraph.frontend.track as T
     from plsgraph.options import CalibrationOptions
     from plsgraph.pipeline import Run, build_tracks
 
-    saved = {k: getattr(T, k) for k in settings}
+    targets = {k: _setting(k) for k in settings}
+    saved = {k: getattr(m, name) for k, (m, name) in targets.items()}
     for k, v in settings.items():
-        if not hasattr(T, k):
-            raise SystemExit(f"plsgraph.frontend.track has no setting {k}")
-        setattr(T, k, v)
+        setattr(*targets[k], v)
     try:
         with open(d / "sim.pkl", "rb") as f:
             sim, epoch_ns, truth = pickle.load(f)
@@ -89,7 +88,7 @@ def measure(d: Path, settings: dict) -> dict:
         seconds = time.perf_counter() - t0
     finally:
         for k, v in saved.items():
-            setattr(T, k, v)
+            setattr(*targets[k], v)
     ct = run.camera_track
     wo = ct.info["window_outcomes"]
     t = np.asarray(wo["t"]) - epoch_ns * 1e-9
@@ -107,6 +106,18 @@ def measure(d: Path, settings: dict) -> dict:
             "centre_px": float(np.median(err[~wrong])) if (~wrong).any() else None,
             "centre_px_slow": float(np.median(err[~wrong & slow_det])) if (~wrong & slow_det).any() else None,
             "hot_pixels": ct.info.get("hot_pixels")}
+
+
+def _setting(name: str):
+    """(module, constant) of a variant's NAME: a constant of plsgraph.frontend.track, or of another front-end
+    module when prefixed with its name (``detect.TRACK_BEFORE_LABEL``)."""
+    import importlib
+
+    module, _, const = name.rpartition(".")
+    m = importlib.import_module(f"plsgraph.frontend.{module or 'track'}")
+    if not hasattr(m, const):
+        raise SystemExit(f"{m.__name__} has no setting {const}")
+    return m, const
 
 
 def _mean(x: np.ndarray) -> float | None:

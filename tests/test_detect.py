@@ -302,3 +302,47 @@ def test_a_failed_detection_never_says_ok(monkeypatch):
                         lambda w, uv, r, iterations=4: uv + rng.normal(0.0, 3.0, uv.shape))
     det = detect_circle_grid(img, CIRCLES, CAM, foreground="dark")
     assert not det.ok and det.reason == REASON_ORDER and not np.isfinite(det.uv).any()
+
+
+def _broken_rims(uv: np.ndarray, radius: float, gap_deg: np.ndarray, shape=(260, 346)) -> np.ndarray:
+    """Event-activity image of circle rims at ``uv`` with two breaks of ``gap_deg`` (per circle) each, left and
+    right (where a circle's edge runs along a vertical motion it makes no events)."""
+    img = np.zeros(shape, np.float32)
+    for (u, v), g in zip(uv, gap_deg, strict=True):
+        for a0, a1 in ((g / 2, 180 - g / 2), (180 + g / 2, 360 - g / 2)):
+            cv2.ellipse(img, (int(round(u * 16)), int(round(v * 16))), (int(round(radius * 16)),) * 2, 0, a0, a1,
+                        1.0, 1, cv2.LINE_8, 4)
+    return img
+
+
+def test_a_predicted_board_is_tracked_at_every_rim_thickness_before_any_full_labelling(monkeypatch):
+    """Rims with wide breaks leak at the first thickness tried and close at the next: the board the previous
+    windows predict is labelled by tracking at the thicker rims, without the full lattice labelling (which costs
+    several times more) ever running, and the labels are right."""
+    import plsgraph.frontend.detect as detect_module
+
+    board = load_board("acircles_4x11_a2")
+    uv = _board_view(board, 0.75)
+    spacing = float(np.median(detect_module.neighbour_distance(uv)))
+    radius = 0.5 * board.circle_diameter / (np.sqrt(2) * board.square_size) * spacing
+    # Breaks ~6.5 px wide in two circles of three, ~2 px in the others: the first thickness closes a third.
+    gap = np.where(np.arange(board.n_points) % 3 > 0, 3.2, 1.0)
+    rims = _broken_rims(uv, radius, gap_deg=2 * np.degrees(np.arcsin(gap / radius)))
+    calls = []
+    real = detect_module.label_circle_grid
+    monkeypatch.setattr(detect_module, "label_circle_grid", lambda *a, **k: calls.append(1) or real(*a, **k))
+    thick = detect_module.RIM_THICKNESSES
+    assert thick[0] < max(thick)
+    # Too few circles closed at the first thickness for a labelling, but enough to try one.
+    monkeypatch.setattr(detect_module, "RIM_THICKNESSES", thick[:1])
+    assert not detect_circle_grid(rims, board, CAM, foreground="rims", rim_threshold=0.5).ok and calls
+    monkeypatch.setattr(detect_module, "RIM_THICKNESSES", thick)
+    calls.clear()
+    roi = (int(uv[:, 0].min() - 20), int(uv[:, 1].min() - 20), int(uv[:, 0].max() + 20), int(uv[:, 1].max() + 20))
+    det = detect_circle_grid(rims, board, CAM, foreground="rims", rim_threshold=0.5, roi=roi,
+                             predicted_uv=uv + 0.2 * spacing)
+    assert det.ok and np.nanmax(np.linalg.norm(det.uv - uv, axis=1)) < 0.5
+    assert np.isfinite(det.uv).all() and not calls
+    # Without a prediction the full labelling finds the same board.
+    full = detect_circle_grid(rims, board, CAM, foreground="rims", rim_threshold=0.5)
+    assert full.ok and calls and np.nanmax(np.linalg.norm(full.uv - det.uv, axis=1)) < 1e-9

@@ -50,6 +50,10 @@ MIN_RIM_SPACING_PX = 10.0
 FINE_LATTICE_AREA_RATIO = 1.3
 #: Share of the lattice points found that must land on board circles for a labelling to be accepted.
 MIN_INSIDE_FRACTION = 0.85
+#: Rim thicknesses tried, in order (see _detect_rims), and whether a predicted board is looked for at every
+#: thickness before the full lattice labelling is tried at any.
+RIM_THICKNESSES = (2, 3, 1)
+TRACK_BEFORE_LABEL = True
 
 
 @dataclass(frozen=True)
@@ -715,34 +719,63 @@ def _detect_rims(
     # breaks up to 2k + 1 wide and shrinks every hole evenly (its centroid stays). k = 2 closes most
     # breaks; k = 3 helps slow motion (wide breaks), k = 1 small, distant circles (small holes).
     result = _fail(n, REASON_NOT_FOUND)
-    for k in (2, 3, 1):
-        det = _rims_at(active, k, n, board, camera, x0, y0, max_rms_px, min_points, predicted_uv)
+    holes = {}  # rim thickness k -> (candidate centres in full-image coordinates, their areas), or None
+
+    def candidates(k: int):
+        if k not in holes:
+            holes[k] = _rim_candidates(active, k, n, x0, y0)
+        return holes[k]
+
+    def accepted(det: GridDetection) -> GridDetection:
+        seen = det.uv[np.all(np.isfinite(det.uv), axis=1)]
+        if float(np.median(neighbour_distance(seen))) < MIN_RIM_SPACING_PX:
+            return _fail(n, REASON_TOO_SMALL, det.homography_rms_px)
+        return det
+
+    if predicted_uv is not None and TRACK_BEFORE_LABEL:
+        # Labelling by the prediction is cheap and certain when it works: try it at every thickness before the
+        # full lattice labelling at any (which costs several times more, and mostly fails where tracking did).
+        for k in RIM_THICKNESSES:
+            cand = candidates(k)
+            if cand is None:
+                continue
+            det = track_circle_grid(cand[0], predicted_uv, board, camera, max_rms_px=max_rms_px)
+            if det.ok:
+                return accepted(det)
+        predicted_uv = None
+    for k in RIM_THICKNESSES:
+        det = _rims_at(candidates(k), n, board, camera, max_rms_px, min_points, predicted_uv)
         if det.ok:
-            seen = det.uv[np.all(np.isfinite(det.uv), axis=1)]
-            if float(np.median(neighbour_distance(seen))) < MIN_RIM_SPACING_PX:
-                return _fail(n, REASON_TOO_SMALL, det.homography_rms_px)
-            return det
+            return accepted(det)
         result = det if result.reason == REASON_NOT_FOUND else result
     return result
 
 
-def _rims_at(active, k, n, board, camera, x0, y0, max_rms_px, min_points, predicted_uv) -> GridDetection:
-    """Rims thickened by ``k`` px, their holes labelled as the board (see :func:`_detect_rims`)."""
+def _rim_candidates(active, k, n, x0, y0) -> tuple[np.ndarray, np.ndarray] | None:
+    """Holes of the rims thickened by ``k`` px that may be circle insides: (centres (m, 2), areas (m,)),
+    in full-image coordinates; None when fewer than six holes."""
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * k + 1, 2 * k + 1))
     centres, area = rim_holes(cv2.dilate(active, kernel).astype(bool))
     if centres.shape[0] < 6:
-        return _fail(n, REASON_NOT_FOUND)
+        return None
     # Circle insides are the largest compact holes; gaps between touching rims and texture leave
     # smaller ones. Reference: the median of the n largest.
     ref = float(np.median(np.sort(area)[-n:]))
     keep = area >= 0.4 * ref
+    return centres[keep] + (x0, y0), area[keep]
+
+
+def _rims_at(cand, n, board, camera, max_rms_px, min_points, predicted_uv) -> GridDetection:
+    """Rim holes ``cand`` (from :func:`_rim_candidates`) labelled as the board (see :func:`_detect_rims`)."""
+    if cand is None:
+        return _fail(n, REASON_NOT_FOUND)
+    pts, area = cand
     if predicted_uv is not None:
-        det = track_circle_grid(centres[keep] + (x0, y0), predicted_uv, board, camera, max_rms_px=max_rms_px)
+        det = track_circle_grid(pts, predicted_uv, board, camera, max_rms_px=max_rms_px)
         if det.ok:
             return det
-    cand = centres[keep] + (x0, y0)
-    det = label_circle_grid(cand, board, camera, areas=area[keep], min_points=min_points, max_rms_px=max_rms_px)
-    if det.ok and _shift_explains(det.uv, _unused(cand, det.uv), board):
+    det = label_circle_grid(pts, board, camera, areas=area, min_points=min_points, max_rms_px=max_rms_px)
+    if det.ok and _shift_explains(det.uv, _unused(pts, det.uv), board):
         return _fail(n, REASON_AMBIGUOUS, det.homography_rms_px)
     return det
 
