@@ -709,6 +709,9 @@ def camera_track_from_events(
 #: Per-detection lists of the front end's info, kept aligned with the detections: which detector found each,
 #: and the span of events it was found on (multiples of the window).
 PER_FRAME_INFO = ("detector", "span_windows")
+#: Spans handed to the worker processes beyond one per worker, so that a worker finishing a span finds the next
+#: one decoded and waiting (each costs one more span of events in memory).
+QUEUED_SPANS = 1
 
 
 def _keep_frames(info: dict, n: int, keep: np.ndarray) -> None:
@@ -872,7 +875,7 @@ def camera_track_from_event_chunks(
                     # figure worker's), and a fork taken while one of them holds a lock can hang the child.
                     pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
                 pending.append(pool.submit(_detect_span, args))
-                while len(pending) >= workers:
+                while len(pending) >= workers + QUEUED_SPANS:
                     absorb(*pending.pop(0).result())
             else:
                 absorb(*_detect_span(args))
