@@ -76,3 +76,34 @@ def test_too_short_raises():
     t = np.arange(4) / 30.0
     with pytest.raises(InsufficientDataError):
         camera_velocities_on_grid(constant_twist_track(t, np.ones(6) * 0.1), window_s=0.5)
+
+
+@pytest.mark.parametrize("n,window,order,deriv,delta", [
+    (50, 5, 2, 0, 1.0), (50, 5, 2, 1, 0.03), (300, 31, 2, 1, 1 / 30), (40, 7, 3, 2, 0.5), (7, 7, 2, 1, 1.0)])
+def test_savitzky_golay_matches_scipy(n, window, order, deriv, delta):
+    """The project's own Savitzky-Golay filter (scipy.signal costs most of a second to import) gives scipy's
+    default filter, edges included, along either axis."""
+    from scipy.signal import savgol_filter as scipy_savgol
+
+    from plsgraph.calib.time_offset import savgol_filter
+
+    x = np.cumsum(np.random.default_rng(n).standard_normal((n, 3)), axis=0)
+    want = scipy_savgol(x, window, order, deriv=deriv, delta=delta, axis=0)
+    np.testing.assert_allclose(savgol_filter(x, window, order, deriv=deriv, delta=delta), want,
+                               atol=1e-10 * np.abs(want).max())
+    np.testing.assert_allclose(savgol_filter(x.T, window, order, deriv=deriv, delta=delta, axis=1), want.T,
+                               atol=1e-10 * np.abs(want).max())
+    with pytest.raises(ValueError):
+        savgol_filter(x, window + 1, order)
+
+
+def test_velocities_do_not_import_scipy_signal():
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np; from plsgraph.calib.time_offset import body_velocities; "
+            "T = np.broadcast_to(np.eye(4), (40, 4, 4)).copy(); T[:, 0, 3] = np.arange(40) * 0.1; "
+            "w, v = body_velocities(T, 10.0, 3); assert np.allclose(v[:, 0], 1.0); "
+            "print('scipy.signal' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "False"

@@ -62,11 +62,35 @@ class CameraVelocities:
     info: dict = field(default_factory=dict)
 
 
-def savgol_filter(*args, **kwargs) -> np.ndarray:
-    """scipy.signal.savgol_filter, imported on first use: scipy.signal takes most of a second to import."""
-    from scipy.signal import savgol_filter as f
+def savgol_filter(x: np.ndarray, window_length: int, polyorder: int, deriv: int = 0, delta: float = 1.0,
+                  axis: int = 0) -> np.ndarray:
+    """Savitzky-Golay filter of ``x`` along ``axis`` over an odd ``window_length``: each sample becomes the
+    ``deriv``-th derivative (per ``delta`` of sample spacing) at the centre of the least-squares polynomial of order
+    ``polyorder`` fitted to its window; the first and last half windows take the polynomial fitted to the first and
+    last whole window (what scipy.signal.savgol_filter does by default, whose import costs most of a second)."""
+    if window_length % 2 != 1 or not 0 <= polyorder < window_length or x.shape[axis] < window_length:
+        raise ValueError("savgol_filter: window_length must be odd, > polyorder and <= the length of x")
+    y = np.moveaxis(np.asarray(x, dtype=float), axis, 0)
+    n, h = y.shape[0], window_length // 2
+    flat = y.reshape(n, -1)
+    # Least-squares polynomial over the window offsets k = -h..h: coefficients = pinv(V) @ samples, with
+    # V[k, j] = k^j. The deriv-th derivative at offset u is sum_j j!/(j-deriv)! u^(j-deriv) coef_j.
+    k = np.arange(-h, h + 1, dtype=float)
+    pinv = np.linalg.pinv(k[:, None] ** np.arange(polyorder + 1))  # (order + 1, window)
 
-    return f(*args, **kwargs)
+    def derivative_at(u: np.ndarray) -> np.ndarray:  # (len(u), window): weights of the window's samples
+        j = np.arange(polyorder + 1)
+        fac = np.array([np.prod(np.arange(i - deriv + 1, i + 1)) if i >= deriv else 0.0 for i in j])
+        powers = np.where(j >= deriv, u[:, None] ** np.clip(j - deriv, 0, None), 0.0)
+        return (powers * fac) @ pinv / delta ** deriv
+
+    out = np.empty_like(flat)
+    w = derivative_at(np.zeros(1))[0]
+    windows = np.lib.stride_tricks.sliding_window_view(flat, window_length, axis=0)  # (n - 2h, m, window)
+    out[h:n - h] = windows @ w
+    out[:h] = derivative_at(np.arange(-h, 0, dtype=float)) @ flat[:window_length]
+    out[n - h:] = derivative_at(np.arange(1, h + 1, dtype=float)) @ flat[n - window_length:]
+    return np.moveaxis(out.reshape(y.shape), 0, axis)
 
 
 def _window_half(window_s: float, rate: float, polyorder: int) -> int:
