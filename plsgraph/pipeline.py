@@ -254,7 +254,10 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
     })
     if gaps:
         run.recording_info["event_gaps_ns"] = gaps
-    for k in ("windows", "detected", "skipped"):
+    if track.info.get("flicker_hz") is not None:  # the lighting, as the events show it
+        run.recording_info.update({k: track.info[k] for k in ("flicker_hz", "flicker_pixels", "flicker_event_share")})
+    run.warn(*track.info.get("warnings", []))
+    for k in ("windows", "detected", "skipped", "hot_pixels"):
         if k in track.info:
             run.discarded[f"frontend_{k}"] = to_jsonable(track.info[k])
     if len(track) < MIN_CAMERA_FRAMES:

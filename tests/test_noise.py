@@ -107,3 +107,46 @@ def test_front_end_reports_the_masked_pixels(mask_hot_pixels):
         _, info = detect_in_events(ev, cam, load_board("acircles_4x11"), mask_hot_pixels=False,
                                    require_detection=False)
         assert info["hot_pixels"] == 0 and info["detected"] == 0
+
+
+def _board_sweep(seconds: float, **sim):
+    """Events of the A2 board sweeping sideways 1.2 m in front of a DAVIS346, from the event simulator."""
+    from plsgraph.core.board import load_board
+    from plsgraph.core.camera import davis346_default
+    from plsgraph.core.geometry import make_T, so3_exp
+    from plsgraph.sim.events import EventSimParams, simulate_events
+
+    cam, board = davis346_default(), load_board("acircles_4x11_a2")
+    R = so3_exp(np.array([0.1, -0.1, 0.05]))
+    c = board.points.mean(axis=0)
+    s = np.linspace(0.0, seconds, 21)
+    T = np.stack([make_T(R, c + R @ np.array([0.1 * x, 0.0, -1.2])) for x in s])
+    return simulate_events(1000.0 + s, T, cam, board, EventSimParams(**sim)), cam, board
+
+
+@pytest.mark.parametrize("hz", [100.0, 120.0])
+def test_flicker_is_recognised_by_its_frequency(hz):
+    """Lamps on AC mains (the simulator's flicker, depth 0.2 over the whole scene): the flickering pixels and their
+    frequency are found and most of the events are theirs; a moving board under steady light with hot pixels and
+    background activity flickers nowhere."""
+    from plsgraph.frontend.noise import flicker_events
+
+    ev, *_ = _board_sweep(0.6, flicker_depth=0.2, flicker_hz=hz)
+    steady, *_ = _board_sweep(0.6, hot_pixels=30, noise_rate_hz=2.0, contrast_sigma=0.03)
+    flick, f, n_pix = flicker_events(ev)
+    assert f == hz and n_pix > 10_000 and flick.mean() > 0.4
+    assert len(ev) > 10 * len(steady)
+    none, f0, n0 = flicker_events(steady)
+    assert f0 is None and n0 == 0 and not none.any()
+
+
+def test_the_front_end_warns_of_flickering_lights():
+    from plsgraph.frontend.track import camera_track_from_events
+
+    ev, cam, board = _board_sweep(0.6, flicker_depth=0.2, flicker_hz=120.0)
+    info = camera_track_from_events(ev, cam, board).info
+    assert info["flicker_hz"] == 120.0 and info["flicker_event_share"] > 0.4
+    assert any("120 Hz lighting" in w for w in info["warnings"])
+    steady, cam, board = _board_sweep(0.6)
+    info = camera_track_from_events(steady, cam, board).info
+    assert info["flicker_hz"] is None and not any("lighting" in w for w in info["warnings"])

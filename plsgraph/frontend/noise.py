@@ -1,4 +1,4 @@
-"""Sensor noise the detectors should not see: hot pixels.
+"""Sensor noise the detectors should not see: hot pixels and pixels flickering with the lights.
 
 A hot pixel fires on its own, at a steady rate (tens to thousands of events per second), whatever the scene
 does. In a count image it is a single bright point that can outshine a whole circle, and in the blob detector a
@@ -6,6 +6,14 @@ false candidate. It is told apart from scene activity by two things together: it
 around it (a moving edge, a rim or a texture lights up at least two of its neighbours as well), and it fires all
 the time (an edge passes a pixel and moves on). Both are measured on each streamed span, so a pixel that turns
 hot or stops being hot is followed, and memory follows the span.
+
+Lamps on AC mains flicker at twice the mains frequency (100 Hz on 50 Hz grids, 120 Hz on 60 Hz ones); pixels
+that see them, or the bright surfaces they light, fire in step with it, in clusters as large as the lit area, so
+the hot-pixel test (which wants a pixel busier than its neighbours) misses them. What gives them away is their
+timing: a flickering pixel's events of one polarity fall at one phase of the flicker period, cycle after cycle,
+while an edge that passes makes bursts at whatever phases the motion gives. :func:`flicker_mask` measures, per
+pixel and polarity, how strongly the events lock to the phase of each mains harmonic (the length of the mean of
+their phase vectors), and takes the pixels that lock strongly, over enough events, in every part of the span.
 """
 from __future__ import annotations
 
@@ -54,6 +62,75 @@ def hot_pixel_mask(stream: EventStream, min_rate_hz: float = HOT_MIN_RATE_HZ, fa
     seen[pix[sel], part] = True
     mask.ravel()[:] = seen.all(axis=1)
     return mask
+
+
+#: Flicker frequencies looked for (Hz): twice the 50 and 60 Hz mains.
+FLICKER_HZ = (100.0, 120.0)
+#: A flickering pixel's events of one polarity lock to the flicker's phase: their mean phase vector is at least this
+#: long (0..1; 0.9 and more on simulated lamps) ...
+FLICKER_LOCKING = 0.5
+#: ... and its length r over N events passes the Rayleigh test: N r^2 at least this. Events at random phases give
+#: N r^2 about 1, and exceed 12 with probability exp(-12) = 6e-6.
+FLICKER_RAYLEIGH = 12.0
+#: Fewest events of one polarity for a pixel to be judged.
+FLICKER_MIN_EVENTS = 10
+#: Events of a flickering pixel and polarity within this phase (rad) of its mean phase are taken for flicker.
+FLICKER_GATE_RAD = np.pi / 3
+
+
+def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ, locking: float = FLICKER_LOCKING,
+                   segments: int = HOT_SEGMENTS) -> tuple[np.ndarray, float | None, int]:
+    """The events of ``stream`` that flicker with the lights (see the module's text): a bool per event, the flicker
+    frequency (Hz; None when nothing flickers) and the number of flickering pixels.
+
+    A pixel and polarity whose events lock to the flicker's phase loses only the events within
+    ``FLICKER_GATE_RAD`` of that phase: an edge that passes a lamp-lit pixel fires at other phases too, and those
+    events stay (two thirds of them, for an edge at a random phase)."""
+    none = np.zeros(len(stream), dtype=bool)
+    if len(stream) == 0:
+        return none, None, 0
+    h, w = stream.height, stream.width
+    span_s = (int(stream.t_last) - int(stream.t_first)) * 1e-9
+    if span_s < HOT_MIN_SPAN_S:
+        return none, None, 0
+    key = pixel_index(stream) * 2 + (np.asarray(stream.p) > 0)  # one phase sum per pixel and polarity
+    counts = np.bincount(key, minlength=2 * h * w)
+    judged = counts >= FLICKER_MIN_EVENTS
+    if not judged.any():
+        return none, None, 0
+    sel = np.flatnonzero(judged[key])
+    k, t = key[sel], (stream.t[sel] - stream.t_first).astype(np.float64) * 1e-9
+    # Persistence: events in every part of the span (a lamp flickers all the time; an edge passes).
+    part = np.minimum((t * (segments / max(span_s, 1e-9))).astype(np.int64), segments - 1)
+    seen = np.zeros((2 * h * w, segments), dtype=bool)
+    seen[k, part] = True
+    steady = judged & seen.all(axis=1)
+    best = (0, None, None, None)  # (pixels, frequency, locked keys, their mean phase)
+    for f in freqs_hz:
+        ang = (2.0 * np.pi * f) * t
+        c = np.bincount(k, np.cos(ang), minlength=2 * h * w)
+        s = np.bincount(k, np.sin(ang), minlength=2 * h * w)
+        r = np.hypot(c, s) / np.maximum(counts, 1)
+        locked = steady & (r >= locking) & (counts * r * r >= FLICKER_RAYLEIGH)
+        n_pix = int(np.count_nonzero(locked.reshape(h * w, 2).any(axis=1)))
+        if n_pix > best[0]:
+            best = (n_pix, float(f), locked, np.arctan2(s, c))
+    n_pix, f, locked, phase = best
+    if not n_pix:
+        return none, None, 0
+    on_key = locked[k]
+    dphi = np.angle(np.exp(1j * ((2.0 * np.pi * f) * t[on_key] - phase[k[on_key]])))
+    out = none.copy()
+    out[sel[np.flatnonzero(on_key)[np.abs(dphi) < FLICKER_GATE_RAD]]] = True
+    return out, f, n_pix
+
+
+def drop_events(stream: EventStream, drop: np.ndarray) -> EventStream:
+    """``stream`` without the events set in ``drop`` (one bool per event); the stream itself if none."""
+    if not drop.any():
+        return stream
+    keep = ~drop
+    return EventStream(stream.t[keep], stream.x[keep], stream.y[keep], stream.p[keep], stream.width, stream.height)
 
 
 def drop_pixels(stream: EventStream, mask: np.ndarray) -> EventStream:

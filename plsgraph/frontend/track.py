@@ -10,7 +10,9 @@ solved by PnP (:mod:`plsgraph.frontend.pose`). What is counted in ``track.info``
   moved), the detector's reasons (``grid_not_found``, ``inconsistent_order``, ``mirrored_order``,
   ``ambiguous_labels``, ``too_few_points``, ``empty_image``), ``time_not_increasing`` and PnP's
   (``pnp_failed``, ``rms_above_threshold``);
-* ``detected_at_window_fraction``, ``seconds`` (surfaces, detection, PnP), ``warnings``.
+* ``detected_at_window_fraction``, ``seconds`` (surfaces, detection, PnP), ``warnings``;
+* ``hot_pixels`` (masked), ``flicker_hz``, ``flicker_pixels``, ``flicker_event_share`` (recognised, not removed;
+  the largest over the streamed spans).
 
 Circle grids are found as rims (:func:`plsgraph.frontend.detect.detect_circle_grid` with
 ``foreground="rims"``): each kind's image is binarized at a level that keeps the pixels with recent
@@ -64,7 +66,7 @@ from .detect import (
     neighbour_distance,
     refine_centroids,
 )
-from .noise import drop_pixels, hot_pixel_mask
+from .noise import drop_pixels, flicker_events, hot_pixel_mask
 from .pose import camera_track_from_detections
 
 log = logging.getLogger(__name__)
@@ -581,6 +583,9 @@ def detect_in_events(
         stream = drop_pixels(stream, hot)
         if len(stream) == 0:
             raise InsufficientDataError("front end: every event came from a hot pixel")
+    # Lamps flickering with the mains: recognised and reported (see FLICKER_WARN_SHARE), not removed: on simulated
+    # whole-scene flicker, dropping the phase-locked events did not bring the board back (docs/frontend.md).
+    flicker, flicker_hz, n_flicker = flicker_events(stream)
     if t_query_ns is None:
         t_query = np.arange(stream.t_first + period_ns, stream.t_last + period_ns, period_ns, dtype=np.int64)
     else:
@@ -639,6 +644,9 @@ def detect_in_events(
         "seconds": secs,
         "warnings": [],
         "hot_pixels": n_hot,
+        "flicker_hz": flicker_hz,
+        "flicker_pixels": n_flicker,
+        "flicker_event_share": float(flicker.mean()) if flicker.size else 0.0,
     }
     if board.pattern == "asymmetric_circles" and board_is_symmetric(board):
         info["warnings"].append(
@@ -709,6 +717,9 @@ def camera_track_from_events(
 #: Per-detection lists of the front end's info, kept aligned with the detections: which detector found each,
 #: and the span of events it was found on (multiples of the window).
 PER_FRAME_INFO = ("detector", "span_windows")
+#: Share of the events (largest over the streamed spans) from pixels flickering with the lights above which the
+#: front end warns (:func:`plsgraph.frontend.noise.flicker_events`).
+FLICKER_WARN_SHARE = 0.1
 #: Spans handed to the worker processes beyond one per worker, so that a worker finishing a span finds the next
 #: one decoded and waiting (each costs one more span of events in memory).
 QUEUED_SPANS = 1
@@ -745,6 +756,13 @@ def _track_from_detections(
     info["poses"] = len(track)
     _keep_frames(info, len(dets), np.isin(np.asarray(dets.t), np.asarray(track.t)))  # as the track's detections
     info["median_rms_px"] = track.info.get("median_rms_px")
+    share = info.get("flicker_event_share") or 0.0
+    if share >= FLICKER_WARN_SHARE:
+        info["warnings"].append(
+            f"{100 * share:.0f} % of the events come from {info['flicker_pixels']} pixels flickering in step with "
+            f"{info['flicker_hz']:g} Hz lighting (lamps on AC mains); they can drown the board's circles. Record under "
+            "DC or sun light, or with the camera's anti-flicker filter on"
+        )
     for w in info["warnings"]:
         log.warning(w)
     log.info(
@@ -843,6 +861,9 @@ def camera_track_from_event_chunks(
             info["windows"] += part["windows"]
             info["events_used"] += part["events_used"]
             info["hot_pixels"] = max(info.get("hot_pixels", 0), part.get("hot_pixels", 0))
+            if part.get("flicker_pixels", 0) > info.get("flicker_pixels", 0):
+                for k in ("flicker_hz", "flicker_pixels", "flicker_event_share"):
+                    info[k] = part.get(k)
             for k, v in part["seconds"].items():
                 info["seconds"][k] = info["seconds"].get(k, 0.0) + v
         else:
