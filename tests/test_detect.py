@@ -346,3 +346,44 @@ def test_a_predicted_board_is_tracked_at_every_rim_thickness_before_any_full_lab
     # Without a prediction the full labelling finds the same board.
     full = detect_circle_grid(rims, board, CAM, foreground="rims", rim_threshold=0.5)
     assert full.ok and calls and np.nanmax(np.linalg.norm(full.uv - det.uv, axis=1)) < 1e-9
+
+
+def _ring_events(uv: np.ndarray, radius: float, per_ring: int, noise: int, rng, shape=(260, 346)) -> np.ndarray:
+    """Event-count image of small circles as rings of events (``per_ring`` events each, 0.6 px radial spread)
+    over ``noise`` uniformly scattered background events."""
+    a = rng.uniform(0.0, 2.0 * np.pi, (len(uv), per_ring))
+    r = radius + rng.normal(0.0, 0.6, a.shape)
+    x = np.r_[(uv[:, :1] + r * np.cos(a)).ravel(), rng.uniform(0, shape[1], noise)]
+    y = np.r_[(uv[:, 1:] + r * np.sin(a)).ravel(), rng.uniform(0, shape[0], noise)]
+    xi, yi = np.rint(x).astype(int), np.rint(y).astype(int)
+    ok = (xi >= 0) & (xi < shape[1]) & (yi >= 0) & (yi < shape[0])
+    return np.bincount(yi[ok] * shape[1] + xi[ok], minlength=shape[0] * shape[1]).reshape(shape).astype(np.float32)
+
+
+@pytest.mark.parametrize("distance,seed", [(1.6, 0), (1.6, 1), (1.8, 2), (1.8, 3)])
+def test_small_ringed_circles_the_blob_detector_misses_are_found_as_peaks(distance, seed):
+    """A distant board's circles are rings of events 5-6 px across, 9-10 px apart: thresholded at the blob
+    detector's levels, neighbouring rings merge or break into arcs and the board is not found among its blobs.
+    The smoothed image's peaks are one per ring, and they are labelled right."""
+    from plsgraph.frontend.detect import neighbour_distance
+
+    board = load_board("acircles_4x11_a2")
+    uv = _board_view(board, distance)
+    spacing = float(np.median(neighbour_distance(uv)))
+    assert 9.0 < spacing < 11.0
+    radius = 0.5 * board.circle_diameter / (np.sqrt(2) * board.square_size) * spacing
+    img = _ring_events(uv, radius, per_ring=100, noise=1500, rng=np.random.default_rng(seed))
+    assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, peaks=False).ok
+    det = detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8)
+    assert det.ok and det.n_seen >= 40
+    err = np.linalg.norm(det.uv - uv, axis=1)
+    assert np.nanmedian(err) < 0.3 and np.nanmax(err) < 1.5  # every label right: a wrong one is a spacing off
+
+
+def test_peaks_on_noise_alone_label_no_board():
+    """Uniform background events (no board) give peaks too; the labelling finds no board in them."""
+    board = load_board("acircles_4x11_a2")
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        img = _ring_events(np.zeros((0, 2)), 2.5, per_ring=0, noise=6000, rng=rng)
+        assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8).ok
