@@ -223,3 +223,53 @@ def test_creeping_board_found_on_half_second_spans(creeping_sim, monkeypatch):
     monkeypatch.setattr(frontend_track, "BLOB_SPANS", (1.0, 2.0, 4.0))
     with pytest.raises(InsufficientDataError, match="no board detected"):
         camera_track_from_events(ev, CAM, FAR_BOARD, rate_hz=30, kind="count")
+
+
+@pytest.fixture(scope="module")
+def fast_sim():
+    """The A2 board 1.2 m away sweeping across the image at ~0.6 circle spacings per window (30 Hz)."""
+    t = np.arange(0.0, 0.8 + 1e-9, 0.002)
+    p = np.stack([-1.3 * (t - 0.4) + 0.05, 0.0 * t, 0.0 * t], axis=1)
+    R = so3_exp(np.array([0.03, -0.05, 0.02]))
+    poses = make_T(np.repeat(R[None], t.size, axis=0), FAR_BOARD.points.mean(axis=0) + np.array([0, 0, -1.2]) + p)
+    return t, poses, simulate_events(t, poses, CAM, FAR_BOARD, seed=5)
+
+
+def test_fast_board_tracked_in_every_window_after_a_loss(fast_sim, monkeypatch):
+    """After the board is lost, its first find has no velocity, so the next window's find on a fast board lies more
+    than half a spacing from where the board was and is refused as a jump; from then on the velocity comes from
+    finds two windows apart, so every later window keeps its find (not every other one). The detector is replaced
+    by the true circle centres, failing in a stretch of windows, so that only the tracking is under test."""
+    import plsgraph.frontend.track as frontend_track
+    from plsgraph.frontend.detect import REASON_NOT_FOUND, REASON_OK, GridDetection
+
+    t, poses, ev = fast_sim
+    now = {}
+    surface = frontend_track.surfaces.surface
+
+    def remember(events, kind, t_ns, **kw):
+        now["t"] = t_ns * 1e-9
+        return surface(events, kind, t_ns, **kw)
+
+    def true_centres(img, board, camera, **kw):
+        if 0.3 <= now["t"] < 0.4:  # lost
+            return GridDetection(np.full((len(board.points), 2), np.nan), False, REASON_NOT_FOUND)
+        T = interpolate_poses(np.array([now["t"] - 1.0 / 60]), t, poses)[0]  # the window's middle
+        return GridDetection(CAM.project(transform_points(inv_T(T), board.points)), True, REASON_OK, 0.1)
+
+    monkeypatch.setattr(frontend_track.surfaces, "surface", remember)
+    monkeypatch.setattr(frontend_track, "detect_circle_grid", true_centres)
+
+    def outcomes_after_loss():
+        track = camera_track_from_events(ev, CAM, FAR_BOARD, rate_hz=30, kind="count")
+        wo = track.info["window_outcomes"]
+        tw, out = np.asarray(wo["t"]), np.asarray(wo["outcome"])
+        return out[(tw >= 0.4) & (tw < 0.75)]
+
+    after = outcomes_after_loss()
+    assert after.size >= 9
+    assert after[0] != "jumped_from_track" and after[1] == "jumped_from_track"  # the fast board: a real jump check
+    assert np.count_nonzero(after == "jumped_from_track") == 1
+    # With the velocity only from adjacent windows, every other window is refused.
+    monkeypatch.setattr(frontend_track, "VELOCITY_WINDOWS", 1)
+    assert np.count_nonzero(outcomes_after_loss() == "jumped_from_track") >= after.size // 2 - 1

@@ -177,6 +177,11 @@ def _complete_by_homography(uv: np.ndarray, board: Board) -> np.ndarray:
 #: is refused: no board accelerates that much in one frame period, a labelling shifted by a lattice step does.
 JUMP_SPACINGS = 0.5
 REASON_JUMP = "jumped_from_track"
+#: The board's velocity for the prediction comes from the last two detections when they are at most this many
+#: windows apart. Not only adjacent ones: the first find after a loss has no velocity, so its successor on a fast
+#: board is refused as a jump, and were the velocity only taken from adjacent windows every other window would be
+#: refused from then on (study run 17: 51 windows).
+VELOCITY_WINDOWS = 3
 
 
 def _jumped(uv: np.ndarray, predicted: np.ndarray) -> bool:
@@ -469,7 +474,7 @@ class _WindowJob:
             if prev is not None and k - prev[0] <= RECENT_WINDOWS and t_det > prev[1]:
                 step = np.nanmedian(np.linalg.norm(full - prev[2], axis=1))
                 slow_board = (k, bool(step / (t_det - prev[1]) < SLOW_PX_S))
-            if prev is not None and prev[0] == k - 1 and t_det > prev[1]:
+            if prev is not None and k - prev[0] <= VELOCITY_WINDOWS and t_det > prev[1]:
                 predicted = full + (full - prev[2]) * (period_s / (t_det - prev[1]))
             else:
                 predicted = full
