@@ -374,7 +374,7 @@ def test_small_ringed_circles_the_blob_detector_misses_are_found_as_peaks(distan
     radius = 0.5 * board.circle_diameter / (np.sqrt(2) * board.square_size) * spacing
     img = _ring_events(uv, radius, per_ring=100, noise=1500, rng=np.random.default_rng(seed))
     assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, peaks=False).ok
-    det = detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8)
+    det = detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, peaks=True)
     assert det.ok and det.n_seen >= 40
     err = np.linalg.norm(det.uv - uv, axis=1)
     assert np.nanmedian(err) < 0.3 and np.nanmax(err) < 1.5  # every label right: a wrong one is a spacing off
@@ -386,4 +386,4 @@ def test_peaks_on_noise_alone_label_no_board():
     for seed in range(3):
         rng = np.random.default_rng(seed)
         img = _ring_events(np.zeros((0, 2)), 2.5, per_ring=0, noise=6000, rng=rng)
-        assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8).ok
+        assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, peaks=True).ok
