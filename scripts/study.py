@@ -80,6 +80,44 @@ def _true_pixels(sim, t_cam: np.ndarray) -> np.ndarray:
     return sim.camera.project(p.reshape(-1, 3)).reshape(p.shape[:2] + (2,))
 
 
+#: Image speeds (px/s) the missed windows of a moving board are counted by.
+MISS_SPEED_BINS = (5.0, 20.0, 100.0, 300.0)
+
+
+def _missed_moving(run, rec, t_grid: np.ndarray, missed: np.ndarray, speed: np.ndarray, rate_hz: float) -> dict:
+    """Why the front end missed the windows in which the board was in view and moving: the front end's own outcome
+    of the window (``window_outcomes``; a window it found the board in but whose detection was dropped later, e.g.
+    by PnP or at a gap, counts as ``dropped_later``), and the board's image speed there."""
+    wo = run.camera_track.info.get("window_outcomes") if run.camera_track is not None else None
+    reasons: dict[str, int] = {}
+    if wo and len(wo["t"]):
+        tw = np.asarray(wo["t"], dtype=float) - rec.epoch_ns * 1e-9
+        outcome = np.asarray(wo["outcome"], dtype=str)
+        k = np.clip(np.searchsorted(tw, t_grid[missed] - 0.5 / rate_hz), 0, tw.size - 1)
+        for o in outcome[k]:
+            o = "dropped_later" if o in ("rims", "blobs", "image") else str(o)
+            reasons[o] = reasons.get(o, 0) + 1
+    edges = (*MISS_SPEED_BINS, math.inf)
+    by_speed = {f"{lo:g}-{hi:g} px/s": int(np.count_nonzero(missed & (speed >= lo) & (speed < hi)))
+                for lo, hi in zip(edges[:-1], edges[1:], strict=True)}
+    return {"windows": int(missed.sum()), "by_outcome": dict(sorted(reasons.items(), key=lambda kv: -kv[1])),
+            "by_speed": by_speed}
+
+
+def _sum_counts(parts: list) -> dict:
+    """The missed-window counts of all runs added up."""
+    total: dict = {"windows": 0, "by_outcome": {}, "by_speed": {}}
+    for part in parts:
+        if not part:
+            continue
+        total["windows"] += part["windows"]
+        for key in ("by_outcome", "by_speed"):
+            for k, v in part[key].items():
+                total[key][k] = total[key].get(k, 0) + v
+    total["by_outcome"] = dict(sorted(total["by_outcome"].items(), key=lambda kv: -kv[1]))
+    return total
+
+
 def _frontend_metrics(rec, run, rate_hz: float = 30.0) -> dict:
     """Coverage, wrong labels and centre error of the front end's detections against the truth."""
     sim, ev = rec.sim, rec.events
@@ -95,10 +133,22 @@ def _frontend_metrics(rec, run, rate_hz: float = 30.0) -> dict:
         return out
     # Detection times are seconds on the recording's clock (epoch included); map them onto the window grid.
     t_det_s = np.asarray(det.t, dtype=float) - rec.epoch_ns * 1e-9
-    k = np.rint((t_det_s - (grid[0] - rec.epoch_ns) * 1e-9) * rate_hz).astype(int)
-    on_grid = (k >= 0) & (k < grid.size)
-    detected = np.zeros(grid.size, dtype=bool)
-    detected[k[on_grid]] = True
+    # A detection covers the window it was found in (the front end's info["window_t"]). Its stamp, the mean time
+    # of its events, lies up to half a span earlier: mapped by the stamp, detections of adjacent windows can share
+    # a slot (a stamp half a window back sits on the rounding boundary) and long spans land windows back; that
+    # mapping, used up to study_v19, is kept as ``detected_fraction_by_stamp``.
+    t0 = (grid[0] - rec.epoch_ns) * 1e-9
+
+    def slots(times_s: np.ndarray) -> np.ndarray:
+        k = np.rint((times_s - t0) * rate_hz).astype(int)
+        hit = np.zeros(grid.size, dtype=bool)
+        hit[k[(k >= 0) & (k < grid.size)]] = True
+        return hit
+
+    by_stamp = slots(t_det_s)
+    win = run.camera_track.info.get("window_t")
+    detected = slots(np.asarray(win, dtype=float) - rec.epoch_ns * 1e-9) if win is not None and len(win) == len(det) \
+        else by_stamp
     uv_true = _true_pixels(sim, t_det_s)
     err = np.linalg.norm(np.asarray(det.uv) - uv_true, axis=-1)
     med = np.nanmedian(err, axis=1)
@@ -110,6 +160,7 @@ def _frontend_metrics(rec, run, rate_hz: float = 30.0) -> dict:
     moving = in_view & (speed >= MOVING_PX_S)
     out["windows_in_view_moving"] = int(moving.sum())
     out["detected_fraction_moving"] = float((detected & moving).sum() / max(1, moving.sum()))
+    out["missed_moving"] = _missed_moving(run, rec, t_grid, moving & ~detected, speed, rate_hz)
     # Detection lag: the shift of the true board's time that best fits each detection (median over the
     # detections of a board moving fast enough to show it). Pixel latency makes it negative: the events show
     # the board where it was a moment before their stamps.
@@ -134,6 +185,7 @@ def _frontend_metrics(rec, run, rate_hz: float = 30.0) -> dict:
     out.update(
         detections=int(len(det)),
         detected_fraction=float((detected & in_view).sum() / max(1, in_view.sum())),
+        detected_fraction_by_stamp=float((by_stamp & in_view).sum() / max(1, in_view.sum())),
         detected_out_of_view=int((detected & ~in_view).sum()),
         wrong_detections=int(wrong.sum()),
         centre_err_px_median=float(np.nanmedian(good_err)) if good_err.size else None,
@@ -280,6 +332,8 @@ def summarize(runs: list[dict]) -> dict:
         "visible_fraction_median": _pct(col("visible_fraction"), 50),
         "detected_fraction_median": _pct(det_frac, 50),
         "detected_fraction_p10": _pct(det_frac, 10),
+        "detected_fraction_by_stamp_median": _pct([x for x in col("detected_fraction_by_stamp") if x is not None], 50),
+        "detected_fraction_by_stamp_p10": _pct([x for x in col("detected_fraction_by_stamp") if x is not None], 10),
         "detected_fraction_moving_median": _pct([x for x in col("detected_fraction_moving") if x is not None], 50),
         "detected_fraction_moving_p10": _pct([x for x in col("detected_fraction_moving") if x is not None], 10),
         "detection_lag_ms_median": _pct([x for x in col("detection_lag_ms") if x is not None], 50),
@@ -288,6 +342,7 @@ def summarize(runs: list[dict]) -> dict:
                                        for i in (0, 1)]
                                    for k in sorted({k for r in runs for k in (r.get("detections_by_detector") or {})})},
         "centre_err_px_median": _pct(col("centre_err_px_median"), 50),
+        "missed_moving": _sum_counts([r.get("missed_moving") for r in runs]),
         "closed_form_rot_err_deg_median": _pct(col("closed_form.rot_err_deg"), 50),
         "closed_form_rot_err_deg_p95": _pct(col("closed_form.rot_err_deg"), 95),
         "closed_form_abs_td_err_ms_median": _pct([abs(x) for x in col("closed_form.td_err_ms") if x is not None], 50),
@@ -326,7 +381,8 @@ def markdown(runs: list[dict], summary: dict, command: str, wall_s: float) -> st
              "## Summary\n", "| quantity | value |", "|---|---|"]
     for k, v in summary.items():
         if isinstance(v, dict):
-            v = ", ".join(f"{a} {_f(x, '.2f') if isinstance(x, float) else x}" for a, x in v.items())
+            v = "; ".join(f"{a}: " + ", ".join(f"{b} {y}" for b, y in x.items()) if isinstance(x, dict)
+                          else f"{a} {_f(x, '.2f') if isinstance(x, float) else x}" for a, x in v.items())
         elif isinstance(v, float):
             v = _f(v, ".4g")
         lines.append(f"| {k} | {v} |")

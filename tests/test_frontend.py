@@ -273,3 +273,19 @@ def test_fast_board_tracked_in_every_window_after_a_loss(fast_sim, monkeypatch):
     # With the velocity only from adjacent windows, every other window is refused.
     monkeypatch.setattr(frontend_track, "VELOCITY_WINDOWS", 1)
     assert np.count_nonzero(outcomes_after_loss() == "jumped_from_track") >= after.size // 2 - 1
+
+
+def test_each_detection_knows_the_window_it_was_found_in(sim):
+    """info["window_t"]: the end of the window each detection came from, one of the windows the board was found
+    in; the detection's stamp (the mean time of its events) lies inside that window's span of events."""
+    t, poses, ev = sim
+    track = camera_track_from_events(ev, CAM, BOARD, rate_hz=100, kind="count")
+    win = np.asarray(track.info["window_t"])
+    span = np.asarray(track.info["span_windows"])
+    wo = track.info["window_outcomes"]
+    found = np.asarray(wo["t"])[np.isin(wo["outcome"], ["rims", "blobs", "image"])]
+    assert win.size == len(track) >= 20
+    assert np.all(np.isin(win, found))
+    lag = win - np.asarray(track.t)
+    assert np.all(lag >= 0.0) and np.all(lag <= span * track.info["window_s"] + 1e-9)
+    assert np.all(np.diff(win) > 0)  # one detection per window

@@ -332,7 +332,7 @@ class _WindowJob:
         skipped: Counter[str] = Counter()
         retries: Counter[int] = Counter()
         secs = {"surfaces": 0.0, "detection": 0.0}
-        t_out, uv_out, src_out, span_out = [], [], [], []
+        t_out, uv_out, src_out, span_out, win_out = [], [], [], [], []
         outcome: list[str] = []  # per window: the detector that found the board, or why nothing was found
         n_events = 0
         last_good = 0
@@ -480,12 +480,13 @@ class _WindowJob:
                 predicted = full
             prev = (k, t_det, full)
             t_out.append(t_det)
+            win_out.append(tq * 1e-9)
             uv_out.append(det.uv)
             src_out.append("blobs" if blob is not None else ("image" if as_image else "rims"))
             span_out.append(float(last_blob if blob is not None else (1.0 if as_image else WINDOW_LADDER[last_good])))
             outcome.append(src_out[-1])
             roi = _roi_around(det.uv, stream.width, stream.height)
-        return t_out, uv_out, skipped, secs, n_events, retries, src_out, outcome, span_out
+        return t_out, uv_out, skipped, secs, n_events, retries, src_out, outcome, span_out, win_out
 
 
 # The job of the current parallel run; forked workers inherit it instead of receiving a pickled copy.
@@ -612,19 +613,19 @@ def detect_in_events(
         parts = _run_parallel(job, t_query, i0s, i1s, workers, progress)
     skipped: Counter[str] = Counter()
     secs = {"surfaces": 0.0, "detection": 0.0, "blobs": 0.0}
-    t_out, uv_out, src_out, span_out = [], [], [], []
+    t_out, uv_out, src_out, span_out, win_out = [], [], [], [], []
     n_events = 0
     last_t = -np.inf
     ladder: Counter[tuple] = Counter()
     outcomes: list[str] = []
-    for p_t, p_uv, p_skipped, p_secs, p_n, p_ladder, p_src, p_outcome, p_span in parts:
+    for p_t, p_uv, p_skipped, p_secs, p_n, p_ladder, p_src, p_outcome, p_span, p_win in parts:
         outcomes += p_outcome
         skipped.update(p_skipped)
         ladder.update(p_ladder)
         n_events += p_n
         for key in secs:
             secs[key] += p_secs.get(key, 0.0)
-        for t_det, uv, src, span in zip(p_t, p_uv, p_src, p_span, strict=True):
+        for t_det, uv, src, span, win in zip(p_t, p_uv, p_src, p_span, p_win, strict=True):
             if t_det <= last_t:
                 skipped["time_not_increasing"] += 1
                 continue
@@ -633,6 +634,7 @@ def detect_in_events(
             uv_out.append(uv)
             src_out.append(src)
             span_out.append(span)
+            win_out.append(win)
     if progress is not None:
         progress(t_query.size, t_query.size)
     info = {
@@ -646,6 +648,7 @@ def detect_in_events(
         "detected": len(t_out),
         "detector": src_out,
         "span_windows": span_out,
+        "window_t": win_out,
         "window_outcomes": {"t": (t_query * 1e-9).tolist(), "outcome": outcomes},
         "skipped": dict(skipped),
         "events_used": n_events,
@@ -724,8 +727,9 @@ def camera_track_from_events(
 
 
 #: Per-detection lists of the front end's info, kept aligned with the detections: which detector found each,
-#: and the span of events it was found on (multiples of the window).
-PER_FRAME_INFO = ("detector", "span_windows")
+#: the span of events it was found on (multiples of the window), and the end of the window it was found in (s; the
+#: detection's own stamp is the mean time of its events, up to half a span earlier).
+PER_FRAME_INFO = ("detector", "span_windows", "window_t")
 #: Share of the events (largest over the streamed spans) from pixels flickering with the lights above which the
 #: front end warns (:func:`plsgraph.frontend.noise.flicker_events`) ...
 FLICKER_WARN_SHARE = 0.1
@@ -853,6 +857,7 @@ def camera_track_from_event_chunks(
     uv_parts: list[np.ndarray] = []
     src_parts: list[str] = []
     span_parts: list[float] = []
+    win_parts: list[float] = []
     wo_t: list[float] = []
     wo_o: list[str] = []
     info: dict = {}
@@ -868,6 +873,7 @@ def camera_track_from_event_chunks(
         uv_parts.append(dets.uv)
         src_parts.extend(part["detector"])
         span_parts.extend(part["span_windows"])
+        win_parts.extend(part["window_t"])
         wo_t.extend(part["window_outcomes"]["t"])
         wo_o.extend(part["window_outcomes"]["outcome"])
         skipped.update(part["skipped"])
@@ -947,13 +953,15 @@ def camera_track_from_event_chunks(
     uv = np.concatenate(uv_parts) if uv_parts else np.zeros((0, board.n_points, 2))
     src = np.asarray(src_parts, dtype=object)
     spans = np.asarray(span_parts, dtype=float)
+    wins = np.asarray(win_parts, dtype=float)
     if t.size > 1:  # a detection stamped before its predecessor (across spans) would break the time order
         keep = later_than_all_before(t)
         if not keep.all():
             skipped["time_not_increasing"] += int(np.count_nonzero(~keep))
-        t, uv, src, spans = t[keep], uv[keep], src[keep], spans[keep]
+        t, uv, src, spans, wins = t[keep], uv[keep], src[keep], spans[keep], wins[keep]
     info["detector"] = src.tolist()
     info["span_windows"] = spans.tolist()
+    info["window_t"] = wins.tolist()
     info["window_outcomes"] = {"t": wo_t, "outcome": wo_o}
     info["skipped"] = dict(skipped)
     info["detected"] = int(t.size)
