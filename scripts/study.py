@@ -13,7 +13,9 @@ user's nominal wheel radius and track width and the board as its YAML states (th
 Everything is measured against the simulator's truth:
 
 * ``visible_fraction``: share of the front end's detection windows in which the whole (printed) board is in the
-  image; ``detected_fraction``: share of those windows in which the board was detected;
+  image; ``detected_fraction``: share of those windows in which the board was detected (the window each detection
+  was found in); ``missed_moving``: the windows of a moving board in view without a detection, by the front end's
+  outcome and the board's image speed;
 * ``wrong_detections``: detections whose labelled points lie far (median > 5 px) from the true projections
   (a wrong correspondence); ``centre_err_px_median``: median point error of the other detections;
 * closed-form and refined errors (rotation, td, floor-plane position), the refined per-axis sigmas and
