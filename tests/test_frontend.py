@@ -146,9 +146,9 @@ def test_every_window_has_one_outcome(sim):
     wo = track.info["window_outcomes"]
     assert len(wo["t"]) == len(wo["outcome"]) == track.info["windows"]
     found = [o for o in wo["outcome"] if o in ("rims", "blobs", "image")]
-    assert len(found) == track.info["detected"] + track.info["skipped"].get("time_not_increasing", 0)
+    assert len(found) == track.info["detected"] + track.info["skipped"].get("same_stamp", 0)
     for reason, n in track.info["skipped"].items():
-        if reason != "time_not_increasing":
+        if reason != "same_stamp":
             assert wo["outcome"].count(reason) == n
 
 

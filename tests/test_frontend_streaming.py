@@ -7,7 +7,7 @@ from plsgraph.core.board import load_board
 from plsgraph.frontend.track import (
     camera_track_from_event_chunks,
     camera_track_from_events,
-    later_than_all_before,
+    time_order,
 )
 from plsgraph.io.events_reader import iter_event_chunks, read_events
 from plsgraph.io.recording import read_recording
@@ -53,14 +53,16 @@ def test_windows_longer_than_the_history_keep_all_their_events():
 
 
 
-def test_detections_out_of_order_across_spans_keep_a_strictly_increasing_track():
-    """A detection stamped before an earlier one (its events inside a previous span) is dropped, also when it is not
-    just before its immediate predecessor (a realistic recording once ended with 'times must be strictly
-    increasing')."""
-    t = np.array([1.0, 3.0, 2.0, 2.5, 4.0])
-    keep = later_than_all_before(t)
-    assert keep.tolist() == [True, True, False, False, True]
-    assert later_than_all_before(np.zeros(0)).size == 0
+def test_detections_out_of_order_across_spans_are_put_in_time_order():
+    """A detection stamped before earlier ones (a long-span find, stamped half its span back, or its events inside a
+    previous streamed span) keeps its place in time: the track is strictly increasing (a realistic recording once
+    ended with 'times must be strictly increasing'), and of two detections with one stamp the shorter span's stays."""
+    t = np.array([1.0, 3.0, 2.0, 2.5, 4.0, 3.0])
+    span = np.array([1, 1, 8, 4, 1, 16])
+    keep = time_order(t, span)
+    assert t[keep].tolist() == [1.0, 2.0, 2.5, 3.0, 4.0]
+    assert keep.tolist() == [0, 2, 3, 1, 4]  # stamp 3.0 from the one-window find, not the 16-window one
+    assert time_order(np.zeros(0)).size == 0
 
 
 def test_spans_detected_in_parallel_give_the_same_track():

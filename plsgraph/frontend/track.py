@@ -8,8 +8,8 @@ solved by PnP (:mod:`plsgraph.frontend.pose`). What is counted in ``track.info``
   ``poses``: windows that produced a pose;
 * ``skipped``: reason -> count over all windows that gave no pose: ``too_few_events`` (nothing
   moved), the detector's reasons (``grid_not_found``, ``inconsistent_order``, ``mirrored_order``,
-  ``ambiguous_labels``, ``too_few_points``, ``empty_image``), ``time_not_increasing`` and PnP's
-  (``pnp_failed``, ``rms_above_threshold``);
+  ``ambiguous_labels``, ``too_few_points``, ``empty_image``), ``same_stamp`` (a second detection with
+  one stamp) and PnP's (``pnp_failed``, ``rms_above_threshold``);
 * ``detected_at_window_fraction``, ``seconds`` (surfaces, detection, PnP), ``warnings``;
 * ``hot_pixels`` (masked), ``flicker_hz``, ``flicker_pixels``, ``flicker_event_share`` (recognised, not removed;
   the largest over the streamed spans).
@@ -615,7 +615,6 @@ def detect_in_events(
     secs = {"surfaces": 0.0, "detection": 0.0, "blobs": 0.0}
     t_out, uv_out, src_out, span_out, win_out = [], [], [], [], []
     n_events = 0
-    last_t = -np.inf
     ladder: Counter[tuple] = Counter()
     outcomes: list[str] = []
     for p_t, p_uv, p_skipped, p_secs, p_n, p_ladder, p_src, p_outcome, p_span, p_win in parts:
@@ -625,16 +624,17 @@ def detect_in_events(
         n_events += p_n
         for key in secs:
             secs[key] += p_secs.get(key, 0.0)
-        for t_det, uv, src, span, win in zip(p_t, p_uv, p_src, p_span, p_win, strict=True):
-            if t_det <= last_t:
-                skipped["time_not_increasing"] += 1
-                continue
-            last_t = t_det
-            t_out.append(t_det)
-            uv_out.append(uv)
-            src_out.append(src)
-            span_out.append(span)
-            win_out.append(win)
+        t_out += list(p_t)
+        uv_out += list(p_uv)
+        src_out += list(p_src)
+        span_out += list(p_span)
+        win_out += list(p_win)
+    if t_out:  # long-span finds are stamped half their span back, possibly before earlier finds: put them in order
+        keep = time_order(np.asarray(t_out, dtype=float), np.asarray(span_out, dtype=float))
+        if keep.size < len(t_out):
+            skipped["same_stamp"] += len(t_out) - keep.size
+        t_out, uv_out, src_out, span_out, win_out = ([x[i] for i in keep]
+                                                     for x in (t_out, uv_out, src_out, span_out, win_out))
     if progress is not None:
         progress(t_query.size, t_query.size)
     info = {
@@ -804,11 +804,18 @@ def _mark_outcomes(info: dict, t_refused: np.ndarray, reason: str) -> None:
     info["window_outcomes"] = {"t": wo["t"], "outcome": outcome}
 
 
-def later_than_all_before(t: np.ndarray) -> np.ndarray:
-    """Mask of the stamps later than every stamp before them: what a time-ordered track may keep when detections
-    of one span can be stamped before those of the previous one."""
-    t = np.asarray(t)
-    return np.r_[True, t[1:] > np.maximum.accumulate(t)[:-1]] if t.size else np.zeros(0, dtype=bool)
+def time_order(t: np.ndarray, span: np.ndarray | None = None) -> np.ndarray:
+    """Indices that put detections in stamp order, one per stamp. A detection found on a span of several windows is
+    stamped half its span back, which can lie before detections of the windows just before it (a board found again
+    after a loss, a span that ends in the next streamed span); it is a detection of its own window all the same and
+    keeps its place in time. Of detections with the same stamp the one from the shortest span is kept."""
+    t = np.asarray(t, dtype=float)
+    if t.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    span = np.zeros_like(t) if span is None else np.asarray(span, dtype=float)
+    order = np.lexsort((span, t))  # by stamp, then by span
+    ts = t[order]
+    return order[np.r_[True, ts[1:] > ts[:-1]]]
 
 
 def _detect_span(args: tuple) -> tuple[Detections, dict]:
@@ -954,10 +961,10 @@ def camera_track_from_event_chunks(
     src = np.asarray(src_parts, dtype=object)
     spans = np.asarray(span_parts, dtype=float)
     wins = np.asarray(win_parts, dtype=float)
-    if t.size > 1:  # a detection stamped before its predecessor (across spans) would break the time order
-        keep = later_than_all_before(t)
-        if not keep.all():
-            skipped["time_not_increasing"] += int(np.count_nonzero(~keep))
+    if t.size > 1:  # a long-span find stamped before detections of earlier windows (across spans): in time order
+        keep = time_order(t, spans)
+        if keep.size < t.size:
+            skipped["same_stamp"] += int(t.size - keep.size)
         t, uv, src, spans, wins = t[keep], uv[keep], src[keep], spans[keep], wins[keep]
     info["detector"] = src.tolist()
     info["span_windows"] = spans.tolist()

@@ -27,7 +27,7 @@ _COLOURS = {
     "inconsistent_order": (1.0, 0.5, 0.05),
     "ambiguous_labels": (0.58, 0.4, 0.74),
     "too_few_points": (0.55, 0.34, 0.29),
-    "time_not_increasing": (0.5, 0.5, 0.5),
+    "same_stamp": (0.5, 0.5, 0.5),
 }
 
 
