@@ -184,6 +184,58 @@ def scaled_edge_motion(steps: PlanarSteps, lo: int, hi: int, s_v: float, s_w: fl
     return M, D
 
 
+class EdgeMotions:
+    """:func:`scaled_edge_motion` of every edge ``knot_index[i] -> knot_index[i + 1]`` at once, for the scales the
+    graph asks about last: during one linearization every odometry factor reads the same (s_v, s_w), so the edges'
+    motions are computed in one vectorized pass and each factor takes its own.
+
+    With the nominal heading Theta_j before step j and the step's mid heading phi_j = Theta_j + dth_j / 2, an edge
+    from sample lo sums R(s_w (phi_j - Theta_lo)) c_j = R(-s_w Theta_lo) g_j over its steps, g_j = R(s_w phi_j) c_j,
+    so prefix sums of g_j (and of phi_j g_j for the derivative) give every edge's sums by differences.
+    """
+
+    def __init__(self, steps: PlanarSteps, knot_index: np.ndarray) -> None:
+        k = np.asarray(knot_index, dtype=int)
+        self.lo, self.hi = k[:-1], k[1:]
+        dth = np.asarray(steps.dth, dtype=float)
+        theta = np.r_[0.0, np.cumsum(dth)]  # nominal heading before each step (and after the last)
+        self._theta_lo = theta[self.lo]
+        self._dtheta = theta[self.hi] - theta[self.lo]  # the edge's nominal heading change
+        self._phi = theta[:-1] + 0.5 * dth
+        self._chord = np.asarray(steps.chord, dtype=float)
+        self._key: tuple[float, float] | None = None
+        self._M = self._D = None
+
+    def at(self, s_v: float, s_w: float) -> tuple[np.ndarray, np.ndarray]:
+        """Every edge's motion (E, 4, 4) and its derivative (E, 6, 2) (as :func:`scaled_edge_motion`)."""
+        key = (float(s_v), float(s_w))
+        if key == self._key:
+            return self._M, self._D
+        g = np.einsum("nij,nj->ni", _rot2(s_w * self._phi), self._chord)
+        perp = np.stack([-g[:, 1], g[:, 0]], axis=1)
+        G = np.r_[np.zeros((1, 2)), np.cumsum(g, axis=0)]
+        P = np.r_[np.zeros((1, 2)), np.cumsum(perp, axis=0)]
+        Q = np.r_[np.zeros((1, 2)), np.cumsum(self._phi[:, None] * perp, axis=0)]
+        back = _rot2(-s_w * self._theta_lo)  # (E, 2, 2)
+        rc_sum = np.einsum("nij,nj->ni", back, G[self.hi] - G[self.lo])
+        q = (Q[self.hi] - Q[self.lo]) - self._theta_lo[:, None] * (P[self.hi] - P[self.lo])  # sum (phi - Theta_lo) perp
+        w_sum = np.einsum("nij,nj->ni", back, q)
+        th = s_w * self._dtheta
+        R = _rot2(th)
+        E = self.lo.size
+        M = np.zeros((E, 4, 4))
+        M[:, :2, :2] = R
+        M[:, 2, 2] = M[:, 3, 3] = 1.0
+        M[:, :2, 3] = s_v * rc_sum
+        Rt = np.swapaxes(R, 1, 2)
+        D = np.zeros((E, 6, 2))
+        D[:, 3:5, 0] = np.einsum("nij,nj->ni", Rt, rc_sum)
+        D[:, 3:5, 1] = np.einsum("nij,nj->ni", Rt, s_v * w_sum)
+        D[:, 2, 1] = self._dtheta
+        self._key, self._M, self._D = key, M, D
+        return M, D
+
+
 def make_scaled_odometry_factors(
     keys, scale_key: int, steps: PlanarSteps, knot_index: np.ndarray, distance: np.ndarray, angle: np.ndarray,
     noise: OdometryNoise | None = None,
@@ -195,15 +247,16 @@ def make_scaled_odometry_factors(
     """
     cov = odometry_covariance(distance, angle, noise)
     k = np.asarray(knot_index, dtype=int)
+    edges = EdgeMotions(steps, k)  # shared: computed once per (s_v, s_w) for all the factors
     out = []
     for i in range(k.size - 1):
-        lo, hi = int(k[i]), int(k[i + 1])
 
-        def error(this, values, H, lo=lo, hi=hi):
+        def error(this, values, H, i=i):
             Xa = values.atPose3(this.keys()[0])
             Xb = values.atPose3(this.keys()[1])
             s = values.atVector(this.keys()[2])
-            M, D = scaled_edge_motion(steps, lo, hi, float(s[0]), float(s[1]))
+            Ms, Ds = edges.at(float(s[0]), float(s[1]))
+            M, D = Ms[i], Ds[i]
             Z = Xa.between(Xb)
             E = gtsam.Pose3(M).between(Z)
             e = gtsam.Pose3.Logmap(E)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from test_factors import assert_jacobians
 
-from factors.odometry import PlanarSteps, make_scaled_odometry_factors
+from factors.odometry import EdgeMotions, PlanarSteps, make_scaled_odometry_factors, scaled_edge_motion
 from plsgraph.core.geometry import make_T, rot_z, rotation_error_deg, so3_exp, so3_log
 from plsgraph.frontend.pose import camera_track_from_detections
 from plsgraph.odometry.wheels import base_track_from_wheels, integrate_planar
@@ -54,6 +54,23 @@ def test_scaled_odometry_factor_jacobians(seed):
     v.insert(S, np.array([1.03, 0.7]))
     for f in fs[:3]:
         assert_jacobians(f, v)
+
+
+def test_edge_motions_of_all_edges_at_once_equal_each_edge_alone():
+    """The odometry factors' shared, vectorized edge motions (prefix sums over a long track that turns many times)
+    against the edge-by-edge sums, motion and derivative, at nominal and rescaled odometry."""
+    rng = np.random.default_rng(3)
+    x, y, th = integrate_planar(rng.uniform(0.0, 0.02, 3000), 0.05 * rng.normal(size=3000) + 0.01)
+    T = make_T(rot_z(th), np.stack([x, y, 0 * x], 1))
+    steps = PlanarSteps.from_poses(T)
+    knots = np.r_[0, np.sort(rng.choice(np.arange(1, 3000), 250, replace=False)), 3000]
+    edges = EdgeMotions(steps, knots)
+    for s_v, s_w in [(1.0, 1.0), (0.96, 1.4), (1.02, 0.5)]:
+        M, D = edges.at(s_v, s_w)
+        for i in range(knots.size - 1):
+            M1, D1 = scaled_edge_motion(steps, knots[i], knots[i + 1], s_v, s_w)
+            assert np.abs(M[i] - M1).max() < 1e-11 and np.abs(D[i] - D1).max() < 1e-11
+    assert edges.at(1.02, 0.5)[0] is M  # the same scales again: no recomputation
 
 
 def test_regular_stamps_remove_jitter_but_keep_gaps_and_irregular_streams():
