@@ -1,6 +1,8 @@
 """The library API's calibration tail (closed form -> refinement -> result files) on simulated tracks, no events."""
 
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -111,12 +113,48 @@ def test_a_worker_that_died_costs_no_figure(sim_run, tmp_path):
 
 def test_the_worker_is_used_only_when_a_processor_is_free(monkeypatch):
     monkeypatch.setattr(figure_worker.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    # What the processors do now decides: idle processors over a short look.
+    for idle, free in ((2.0, True), (1.85, True), (1.5, False), (0.2, False)):
+        monkeypatch.setattr(figure_worker, "idle_processors", lambda cpus, idle=idle: idle)
+        monkeypatch.setattr(figure_worker.os, "getloadavg", lambda: (3.0, 3.0, 3.0))  # a minute of ended work
+        assert figure_worker.processor_free() is free
+    # Where that cannot be seen, the load average.
+    monkeypatch.setattr(figure_worker, "idle_processors", lambda cpus: None)
     for load, free in ((0.3, True), (0.9, True), (1.2, False), (3.0, False)):
         monkeypatch.setattr(figure_worker.os, "getloadavg", lambda load=load: (load, load, load))
         assert figure_worker.processor_free() is free
     monkeypatch.setattr(figure_worker.os, "sched_getaffinity", lambda pid: {0})
     monkeypatch.setattr(figure_worker.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
     assert not figure_worker.processor_free()  # one processor: the calibration has it
+
+
+def test_idle_processors_are_read_from_the_kernel_counters(monkeypatch):
+    stats = iter([
+        "cpu  10 0 10 100 0 0 0 0 0 0\ncpu0 5 0 5 50 0 0 0 0 0 0\ncpu1 5 0 5 50 0 0 0 0 0 0\ncpu2 0 0 0 0 0 0 0 0 0 0",
+        # over the look: cpu0 busy 40 of 100 jiffies (idle 50 + iowait 10), cpu1 idle throughout, cpu2 not ours
+        "cpu  0 0 0 0 0 0 0 0 0 0\ncpu0 35 0 15 100 10 0 0 0 0 0\ncpu1 5 0 5 150 0 0 0 0 0 0\n"
+        "cpu2 90 0 0 0 0 0 0 0 0 0",
+    ])
+
+    class Stat:
+        def __init__(self, *a, **k):
+            self.text = next(stats)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *a):
+            return False
+
+        def read(self):
+            return self.text
+
+    monkeypatch.setattr("builtins.open", Stat)
+    assert figure_worker.idle_processors({0, 1}, sample_s=0.0) == pytest.approx(2 * 160 / 200)
+    if Path("/proc/stat").exists():
+        monkeypatch.undo()
+        idle = figure_worker.idle_processors(set(os.sched_getaffinity(0)))
+        assert idle is not None and 0.0 <= idle <= len(os.sched_getaffinity(0)) + 1e-9
 
 
 def test_a_worker_without_a_job_just_ends(tmp_path):

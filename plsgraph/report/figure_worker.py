@@ -52,18 +52,63 @@ def _env() -> dict[str, str]:
     return env
 
 
+# How long processor_free watches the processors (the calling process sleeps meanwhile, so what is busy is others').
+IDLE_SAMPLE_S = 0.05
+
+
+def _cpu_times(cpus: set[int]) -> tuple[float, float] | None:
+    """(idle, total) jiffies summed over ``cpus`` from /proc/stat, or None where there is none (not Linux)."""
+    try:
+        with open("/proc/stat", encoding="ascii") as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return None
+    idle = total = 0.0
+    seen = 0
+    for line in lines:
+        name, _, rest = line.partition(" ")
+        if not name.startswith("cpu") or not name[3:].isdigit() or int(name[3:]) not in cpus:
+            continue
+        v = [float(x) for x in rest.split()]
+        idle += v[3] + (v[4] if len(v) > 4 else 0.0)  # idle + iowait
+        total += sum(v[:8])  # user nice system idle iowait irq softirq steal (guest time is inside user)
+        seen += 1
+    return (idle, total) if seen else None
+
+
+def idle_processors(cpus: set[int], sample_s: float = IDLE_SAMPLE_S) -> float | None:
+    """How many of ``cpus`` stood idle over the next ``sample_s`` seconds (0 .. len(cpus)), or None if unknown."""
+    import time
+
+    a = _cpu_times(cpus)
+    if a is None:
+        return None
+    time.sleep(sample_s)
+    b = _cpu_times(cpus)
+    if b is None or b[1] <= a[1]:
+        return None
+    return len(cpus) * (b[0] - a[0]) / (b[1] - a[1])
+
+
 def processor_free() -> bool:
     """Is a processor free for the figure worker? The worker trades a second start-up (about a second of processor
     time: Python, numpy, matplotlib, a warm-up figure) for taking the figures off the calibration's critical path.
     That pays when a processor would otherwise idle beside the calibration, and costs time when every processor is
-    already busy. Judged from the load average of the last minute against the processors this process may use: one
-    runs the calibration, and a processor's worth must be left unused by everything else."""
+    already busy. One processor runs the calibration, and most of another must be left unused by everything else.
+
+    Judged from what the processors this process may use do now (:func:`idle_processors`, a 50 ms look while this
+    process sleeps), not from the load average, which still counts a minute of work that has ended (a simulation
+    just before, the previous recording of a batch); the load average where /proc/stat cannot be read."""
     try:
-        n = len(os.sched_getaffinity(0))
+        cpus = set(os.sched_getaffinity(0))
     except (AttributeError, OSError):
-        n = os.cpu_count() or 1
+        cpus = set(range(os.cpu_count() or 1))
+    n = len(cpus)
     if n < 2:
         return False
+    idle = idle_processors(cpus)
+    if idle is not None:
+        return idle >= 1.8
     try:
         load = os.getloadavg()[0]
     except (AttributeError, OSError):
