@@ -8,6 +8,7 @@ ordered row-major, point index = i * cols + j, the order cv2.findCirclesGrid ret
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +74,11 @@ class Board:
 
     @property
     def points(self) -> np.ndarray:
+        """The points (n, 3) in the board frame (metres, z = 0), a fresh copy for each caller."""
+        return self._points.copy()
+
+    @cached_property
+    def _points(self) -> np.ndarray:  # the detector asks thousands of times per recording
         if self.pattern == "asymmetric_circles":
             i, j = np.divmod(np.arange(self.rows * self.cols), self.cols)
             s = self.square_size
