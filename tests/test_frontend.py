@@ -197,6 +197,39 @@ def test_slow_boards_found_on_longer_spans(slow_sim, monkeypatch):
     assert err.max() < 1.0 and np.median(err) < 0.3
 
 
+def _with_background_activity(ev: EventStream, rate_hz: float, seed: int) -> EventStream:
+    """``ev`` plus uniform background activity at ``rate_hz`` per pixel."""
+    rng = np.random.default_rng(seed)
+    seconds = (ev.t_last - ev.t_first) * 1e-9
+    n = rng.poisson(rate_hz * ev.width * ev.height * seconds)
+    t = np.r_[ev.t, ev.t_first + (rng.uniform(0, seconds, n) * 1e9).astype(np.int64)]
+    order = np.argsort(t, kind="stable")
+    x, y, p = (np.r_[getattr(ev, a), rng.integers(0, m, n)] for a, m in (("x", ev.width), ("y", ev.height), ("p", 2)))
+    return EventStream.from_arrays(t[order], x[order], y[order], p[order], ev.width, ev.height)
+
+
+def test_slow_board_in_dense_background_activity_found_on_its_excess_events(slow_sim, monkeypatch):
+    """3 Hz of background activity per pixel over the slow board: a span long enough to show its rims has events
+    in most pixels (half of them over 8 windows), so with "any event" as the rim level the circles' insides are
+    full; rims are the pixels with significantly more events than their surroundings (track.DENSE_RETRY)."""
+    import plsgraph.frontend.track as frontend_track
+
+    t, poses, ev = slow_sim
+    noisy = _with_background_activity(ev, 3.0, seed=1)
+    track = camera_track_from_events(noisy, CAM, FAR_BOARD, rate_hz=30, kind="count")
+    err = _median_point_errors(track, t, poses)
+    spans = track.info["detected_at_window_fraction"]
+    assert len(track) >= 0.8 * track.info["windows"]
+    assert sum(v for key, v in spans.items() if key.startswith("rims_excess:")) >= 0.6 * track.info["windows"]
+    assert err.max() < 1.0 and np.median(err) < 0.3
+    monkeypatch.setattr(frontend_track, "DENSE_RETRY", False)
+    try:
+        found_plain = len(camera_track_from_events(noisy, CAM, FAR_BOARD, rate_hz=30, kind="count"))
+    except InsufficientDataError:  # no board in any window
+        found_plain = 0
+    assert found_plain <= 0.2 * track.info["windows"]
+
+
 @pytest.fixture(scope="module")
 def creeping_sim():
     """Creeping across the image at ~1.5 px/s (a twentieth of a pixel per window): no window ever sees the board

@@ -157,6 +157,24 @@ BLOB_SPANS = (1.0, 2.0, 4.0, 8.0, 16.0)
 BLOB_BLUR_PX = 0.8
 #: A detection this many windows back still says how large the circles are.
 RECENT_WINDOWS = 15
+#: Count images of spans longer than the window in which more than DENSE_ACTIVE of the pixels fired (a textured
+#: scene under flickering light, background activity, half a second of events) bury the rims: with "any event" as
+#: the rim level the circles' insides fill with events. A span whose rims were not found on such an image is tried
+#: again on its local excess (:func:`_excess_image`): pixels with significantly more events than their surroundings.
+DENSE_RETRY = True
+DENSE_ACTIVE = 0.25
+EXCESS_BOX_PX = 9
+EXCESS_Z = 2.0
+
+
+def _excess_image(counts: np.ndarray) -> np.ndarray:
+    """Events per pixel above what its surroundings explain: count - (m + EXCESS_Z sqrt(m)), m the mean count in
+    the EXCESS_BOX_PX box around it (for events that fall evenly over an area, sqrt(m) is their count's spread).
+    A rim is a thin curve of many events, so it stands out above its box's mean; a pixel of an evenly busy area does
+    not. Rims are the pixels above 0."""
+    c = np.asarray(counts, dtype=np.float32)
+    m = cv2.blur(c, (EXCESS_BOX_PX, EXCESS_BOX_PX), borderType=cv2.BORDER_REFLECT)
+    return c - (m + EXCESS_Z * np.sqrt(m))
 
 
 def _complete_by_homography(uv: np.ndarray, board: Board) -> np.ndarray:
@@ -390,6 +408,7 @@ class _WindowJob:
                         continue  # too short a span to show the board; try the others
                     img = surfaces.surface(sub, kind, int(tq), **params)
                 c1 = time.perf_counter()
+                excess = False
                 if board.pattern == "aprilgrid":
                     # A light blur joins the speckled event edges into the solid tag borders aruco looks for.
                     tag_img = cv2.GaussianBlur(img, (0, 0), self.tag_blur) if self.tag_blur > 0 else img
@@ -417,12 +436,23 @@ class _WindowJob:
                         if det is None or det.reason != REASON_OK:
                             det = detect_circle_grid(rim, board, self.camera, foreground="rims",
                                                      rim_threshold=level)
+                        if (det.reason != REASON_OK and DENSE_RETRY and kind == "count" and frac > 1.0
+                                and np.count_nonzero(img) > DENSE_ACTIVE * img.size):
+                            ex = _excess_image(img)
+                            first, det = det, None
+                            if roi is not None:
+                                det = detect_circle_grid(ex, board, self.camera, foreground="rims", rim_threshold=0.0,
+                                                         roi=roi, predicted_uv=predicted)
+                            if det is None or det.reason != REASON_OK:
+                                det = detect_circle_grid(ex, board, self.camera, foreground="rims", rim_threshold=0.0)
+                            excess = det.reason == REASON_OK
+                            det = det if excess else first  # a miss keeps the plain image's reason
                 if det.reason == REASON_OK and frac > 1.0 and stale and not self._holds_still(det, tq, age, "rims"):
                     det = _refused(det)
                 secs["surfaces"] += c1 - c0
                 secs["detection"] += time.perf_counter() - c1
                 if det.reason == REASON_OK:
-                    retries[("rims", WINDOW_LADDER[j])] += 1
+                    retries[("rims_excess" if excess else "rims", WINDOW_LADDER[j])] += 1
                     if frac > 1.0:
                         ev = sub  # the events the rims came from, for the time stamp
                     last_good = j
