@@ -151,6 +151,8 @@ def test_idle_processors_are_read_from_the_kernel_counters(monkeypatch):
 
     monkeypatch.setattr("builtins.open", Stat)
     assert figure_worker.idle_processors({0, 1}, sample_s=0.0) == pytest.approx(2 * 160 / 200)
+    stats = iter(["cpu0 5 0 5\ncpu1 5 0 5 50 0 0 0 0 0 0"])  # a line too short to hold the idle count
+    assert figure_worker.idle_processors({0, 1}, sample_s=0.0) is None  # then the load average decides
     if Path("/proc/stat").exists():
         monkeypatch.undo()
         idle = figure_worker.idle_processors(set(os.sched_getaffinity(0)))

@@ -62,6 +62,10 @@ def test_detections_out_of_order_across_spans_are_put_in_time_order():
     keep = time_order(t, span)
     assert t[keep].tolist() == [1.0, 2.0, 2.5, 3.0, 4.0]
     assert keep.tolist() == [0, 2, 3, 1, 4]  # stamp 3.0 from the one-window find, not the 16-window one
+    # Stamps on an epoch clock that differ only by rounding (window-centre stamps of nested spans) are one stamp.
+    t0 = 1_767_225_600.0
+    near = np.array([t0 + 5.0, t0 + 5.0 + 4.8e-7, t0 + 5.1])
+    assert time_order(near, np.array([4, 2, 1])).tolist() == [1, 2]
     assert time_order(np.zeros(0)).size == 0
 
 

@@ -659,10 +659,12 @@ def detect_in_events(
         src_out += list(p_src)
         span_out += list(p_span)
         win_out += list(p_win)
+    same_stamp_windows: list[float] = []
     if t_out:  # long-span finds are stamped half their span back, possibly before earlier finds: put them in order
         keep = time_order(np.asarray(t_out, dtype=float), np.asarray(span_out, dtype=float))
         if keep.size < len(t_out):
             skipped["same_stamp"] += len(t_out) - keep.size
+            same_stamp_windows = [win_out[i] for i in np.setdiff1d(np.arange(len(t_out)), keep)]
         t_out, uv_out, src_out, span_out, win_out = ([x[i] for i in keep]
                                                      for x in (t_out, uv_out, src_out, span_out, win_out))
     if progress is not None:
@@ -690,6 +692,7 @@ def detect_in_events(
         "flicker_pixels": n_flicker,
         "flicker_event_share": float(flicker.mean()) if flicker.size else 0.0,
     }
+    _mark_outcomes(info, np.asarray(same_stamp_windows, dtype=float), "same_stamp")
     if board.pattern == "asymmetric_circles" and board_is_symmetric(board):
         info["warnings"].append(
             f"board {board.name!r} looks the same turned by 180 degrees (even number of rows): its detections "
@@ -787,7 +790,10 @@ def _track_from_detections(
     if bad.any():
         # A labelling shifted by a lattice step fits its own pixels (PnP cannot refuse it) but not its neighbours.
         skipped[REASON_INCONSISTENT] += int(bad.sum())
-        _mark_outcomes(info, np.asarray(dets.t)[bad], REASON_INCONSISTENT)
+        win = info.get("window_t")  # the window each detection was found in (its stamp may lie windows back)
+        found_in = np.asarray(win, dtype=float) if win is not None and len(win) == len(dets) else np.asarray(dets.t)
+        where = found_in[bad]
+        _mark_outcomes(info, where, REASON_INCONSISTENT)
         _keep_frames(info, len(dets), ~bad)
         info["detected"] = int(info.get("detected", len(dets))) - int(bad.sum())
         dets = Detections(np.asarray(dets.t)[~bad], np.asarray(dets.uv)[~bad], dets.board_points)
@@ -834,18 +840,25 @@ def _mark_outcomes(info: dict, t_refused: np.ndarray, reason: str) -> None:
     info["window_outcomes"] = {"t": wo["t"], "outcome": outcome}
 
 
+#: Stamps closer than this are one stamp (seconds on an epoch clock carry about 0.2 us of rounding; window-centre
+#: stamps of spans that nest, e.g. 2 windows ending at k and 4 ending at k + 1, coincide up to that rounding).
+SAME_STAMP_S = 1e-6
+
+
 def time_order(t: np.ndarray, span: np.ndarray | None = None) -> np.ndarray:
     """Indices that put detections in stamp order, one per stamp. A detection found on a span of several windows is
     stamped half its span back, which can lie before detections of the windows just before it (a board found again
     after a loss, a span that ends in the next streamed span); it is a detection of its own window all the same and
-    keeps its place in time. Of detections with the same stamp the one from the shortest span is kept."""
+    keeps its place in time. Of detections with the same stamp (within SAME_STAMP_S) the one from the shortest span is
+    kept."""
     t = np.asarray(t, dtype=float)
     if t.size == 0:
         return np.zeros(0, dtype=np.int64)
     span = np.zeros_like(t) if span is None else np.asarray(span, dtype=float)
-    order = np.lexsort((span, t))  # by stamp, then by span
-    ts = t[order]
-    return order[np.r_[True, ts[1:] > ts[:-1]]]
+    q = np.round(t / SAME_STAMP_S).astype(np.int64)  # stamps on a grid of SAME_STAMP_S (epoch seconds fit)
+    order = np.lexsort((span, q))  # by stamp, then by span
+    qs = q[order]
+    return order[np.r_[True, qs[1:] - qs[:-1] > 1]]  # one grid step apart still counts as the same stamp
 
 
 def _detect_span(args: tuple) -> tuple[Detections, dict]:
@@ -993,13 +1006,17 @@ def camera_track_from_event_chunks(
     wins = np.asarray(win_parts, dtype=float)
     if t.size > 1:  # a long-span find stamped before detections of earlier windows (across spans): in time order
         keep = time_order(t, spans)
+        dropped_windows = np.delete(wins, keep)
         if keep.size < t.size:
             skipped["same_stamp"] += int(t.size - keep.size)
         t, uv, src, spans, wins = t[keep], uv[keep], src[keep], spans[keep], wins[keep]
+    else:
+        dropped_windows = np.zeros(0)
     info["detector"] = src.tolist()
     info["span_windows"] = spans.tolist()
     info["window_t"] = wins.tolist()
     info["window_outcomes"] = {"t": wo_t, "outcome": wo_o}
+    _mark_outcomes(info, dropped_windows, "same_stamp")
     info["skipped"] = dict(skipped)
     info["detected"] = int(t.size)
     info["streamed_span_s"] = span_s

@@ -53,11 +53,14 @@ def _env() -> dict[str, str]:
 
 
 # How long processor_free watches the processors (the calling process sleeps meanwhile, so what is busy is others').
-IDLE_SAMPLE_S = 0.05
+# 100 ms: the kernel counts in jiffies of 10 ms, so two processors give 20 of them and one stray jiffy moves the
+# reading by 0.1 processor (at 50 ms it moved it by 0.2, the whole margin of the 1.8 threshold).
+IDLE_SAMPLE_S = 0.1
 
 
-def _cpu_times(cpus: set[int]) -> tuple[float, float] | None:
-    """(idle, total) jiffies summed over ``cpus`` from /proc/stat, or None where there is none (not Linux)."""
+def _cpu_times(cpus: set[int]) -> tuple[float, float, int] | None:
+    """(idle, total) jiffies summed over ``cpus`` from /proc/stat and how many of them it lists, or None where it
+    cannot be read (not Linux, another format)."""
     try:
         with open("/proc/stat", encoding="ascii") as f:
             lines = f.read().splitlines()
@@ -69,11 +72,14 @@ def _cpu_times(cpus: set[int]) -> tuple[float, float] | None:
         name, _, rest = line.partition(" ")
         if not name.startswith("cpu") or not name[3:].isdigit() or int(name[3:]) not in cpus:
             continue
-        v = [float(x) for x in rest.split()]
-        idle += v[3] + (v[4] if len(v) > 4 else 0.0)  # idle + iowait
+        try:
+            v = [float(x) for x in rest.split()]
+            idle += v[3] + (v[4] if len(v) > 4 else 0.0)  # idle + iowait
+        except (ValueError, IndexError):
+            return None  # not the format this reads: judge by the load average instead
         total += sum(v[:8])  # user nice system idle iowait irq softirq steal (guest time is inside user)
         seen += 1
-    return (idle, total) if seen else None
+    return (idle, total, seen) if seen else None
 
 
 def idle_processors(cpus: set[int], sample_s: float = IDLE_SAMPLE_S) -> float | None:
@@ -85,7 +91,7 @@ def idle_processors(cpus: set[int], sample_s: float = IDLE_SAMPLE_S) -> float | 
         return None
     time.sleep(sample_s)
     b = _cpu_times(cpus)
-    if b is None or b[1] <= a[1]:
+    if b is None or b[2] != a[2] or b[1] <= a[1]:  # unreadable, or a processor came or went meanwhile
         return None
     return len(cpus) * (b[0] - a[0]) / (b[1] - a[1])
 
@@ -96,7 +102,7 @@ def processor_free() -> bool:
     That pays when a processor would otherwise idle beside the calibration, and costs time when every processor is
     already busy. One processor runs the calibration, and most of another must be left unused by everything else.
 
-    Judged from what the processors this process may use do now (:func:`idle_processors`, a 50 ms look while this
+    Judged from what the processors this process may use do now (:func:`idle_processors`, a 100 ms look while this
     process sleeps), not from the load average, which still counts a minute of work that has ended (a simulation
     just before, the previous recording of a batch); the load average where /proc/stat cannot be read."""
     try:
