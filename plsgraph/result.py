@@ -238,6 +238,25 @@ def final_estimate(run: Run) -> tuple[np.ndarray, float, np.ndarray | None, str]
     return make_T(cf.R_base_cam, t), cf.td, None, f"closed_form.{cf.method}"
 
 
+#: Below this share of the windows in which the robot moved with the board found, the result warns.
+LOW_COVERAGE = 0.5
+
+
+def _coverage(run: Run) -> dict | None:
+    """The front end's window outcomes counted (report.json ``coverage``); a warning when the board was missed in
+    most windows in which the robot moved."""
+    from .report.coverage import coverage_summary
+
+    track = run.camera_track
+    cov = None if track is None else coverage_summary(track.info, run)
+    if cov is not None and cov["found_fraction_robot_moving"] is not None \
+            and cov["found_fraction_robot_moving"] < LOW_COVERAGE:
+        run.warn(f"the board was found in only {100 * cov['found_fraction_robot_moving']:.0f} % of the windows in "
+                 "which the robot moved (report.html 'Detection coverage' says why); the calibration rests on the "
+                 "rest")
+    return cov
+
+
 def calibration_result(run: Run) -> CalibrationResult:
     """The typed result (and its report dict) of a solved run."""
     from . import __version__
@@ -265,6 +284,7 @@ def calibration_result(run: Run) -> CalibrationResult:
     cf = run.closed_form
     methods = method_rows(run)
     errs = truth_errors(run)
+    coverage = _coverage(run)
     report: dict[str, Any] = {
         "plsgraph_version": __version__,
         "recording": str(run.log_path),
@@ -298,6 +318,7 @@ def calibration_result(run: Run) -> CalibrationResult:
         "refinement": None if run.refinement is None else run.refinement.to_dict(),
         "options": run.options.to_dict(),
         "recording_info": run.recording_info,
+        "coverage": coverage,
         "counts": {
             "camera_frames": len(run.camera_track) if run.camera_track is not None else 0,
             "odometry_samples": len(run.base_track) if run.base_track is not None else 0,

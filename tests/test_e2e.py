@@ -198,4 +198,7 @@ def test_report_shows_detection_coverage_and_event_frames(calibrated):
     windows = rep["discarded"]["frontend_windows"]
     found = re.search(r"found in (\d+) of (\d+) windows", page)
     assert found and int(found.group(2)) == windows
+    cov = rep["coverage"]  # the same counts for scripts, with the windows of a still robot apart
+    assert cov["windows"] == windows and cov["found"] == int(found.group(1))
+    assert sum(cov["by_outcome"].values()) == windows and 0 < cov["found_fraction_robot_moving"] <= 1
     assert int(found.group(1)) >= rep["counts"]["camera_frames"]

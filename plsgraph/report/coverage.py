@@ -6,6 +6,12 @@ them as a strip over time, :func:`fig_event_frames` a few event frames (count im
 detected circles and their order drawn on them; both are figures of :data:`plsgraph.report.figures.FIGURES`
 (drawn with the others, in the figure worker when there is one). :func:`coverage_table` is the HTML table of
 counts, cheap enough for the report page itself.
+
+A window without a detection while the robot stood still is no failure of the detector: a still camera before a
+still board sees no change and makes no events. :func:`window_outcomes` relabels such windows ``robot_still``,
+from the odometry around each window (on the odometry's clock, through the calibrated time offset), and
+:func:`coverage_summary` counts the board's windows found while the robot moved, which is what a recording can be
+judged by (report.json ``coverage``).
 """
 
 from __future__ import annotations
@@ -28,20 +34,100 @@ _COLOURS = {
     "ambiguous_labels": (0.58, 0.4, 0.74),
     "too_few_points": (0.55, 0.34, 0.29),
     "same_stamp": (0.5, 0.5, 0.5),
+    "robot_still": (0.93, 0.93, 0.75),
 }
+
+#: A window counts as one of a still robot when, over STILL_HALF_S either side of it, the base moved less than
+#: STILL_MOVE_M and turned less than STILL_TURN_RAD (about 0.6 px/s of image motion of a board 1.5 m away at
+#: 300 px focal length; an encoder's one-tick dither stays under both).
+STILL_HALF_S = 0.25
+STILL_MOVE_M = 1e-3
+STILL_TURN_RAD = 1e-3
 
 
 #: Outcomes that are detections (the detector that found the board).
 DETECTED = ("rims", "blobs", "image")
 
 
-def outcome_counts(info: dict) -> dict[str, int]:
-    """Windows per outcome (only outcomes that occur)."""
+def robot_still(t_odometry: np.ndarray, base_track: Any) -> np.ndarray:
+    """Per time (odometry clock, s): whether the base stood still over STILL_HALF_S either side of it. Times whose
+    neighbourhood is not inside the odometry's span are not still (nothing says so)."""
+    t = np.asarray(t_odometry, dtype=float)
+    still = np.zeros(t.size, dtype=bool)
+    if base_track is None or len(base_track) < 2 or t.size == 0:
+        return still
+    tb = np.asarray(base_track.t, dtype=float)
+    a, b = t - STILL_HALF_S, t + STILL_HALF_S
+    inside = (a >= tb[0]) & (b <= tb[-1])
+    if not np.any(inside):
+        return still
+    # Over a stretch: the largest departure of any sample inside it from its first pose (a robot that drives away
+    # and back is not still), and the same for the heading.
+    T = np.asarray(base_track.T_world_base, dtype=float)
+    xy = T[:, :2, 3]
+    yaw = np.unwrap(np.arctan2(T[:, 1, 0], T[:, 0, 0]))
+    i0 = np.searchsorted(tb, a[inside], side="left")
+    i1 = np.searchsorted(tb, b[inside], side="right")
+    ok = np.zeros(i0.size, dtype=bool)
+    for n, (j0, j1) in enumerate(zip(i0, i1, strict=True)):
+        j0 = max(j0 - 1, 0)  # the sample just before the stretch: a robot that set off inside it moved
+        j1 = min(j1 + 1, tb.size)
+        d = np.linalg.norm(xy[j0:j1] - xy[j0], axis=1).max(initial=0.0)
+        w = np.abs(yaw[j0:j1] - yaw[j0]).max(initial=0.0)
+        ok[n] = d < STILL_MOVE_M and w < STILL_TURN_RAD
+    still[inside] = ok
+    return still
+
+
+def _odometry_offset_s(run: Any) -> float:
+    """Camera clock -> odometry clock: the coarse clock shift plus the calibrated td (refined, else closed form)."""
+    td = 0.0
+    ref, cf = getattr(run, "refinement", None), getattr(run, "closed_form", None)
+    if ref is not None and getattr(ref, "converged", False) and np.isfinite(getattr(ref, "td", np.nan)):
+        td = float(ref.td)
+    elif cf is not None and np.isfinite(getattr(cf, "td", np.nan) or np.nan):
+        td = float(cf.td)
+    return float(getattr(run, "clock_offset_s", 0.0) or 0.0) + td
+
+
+def window_outcomes(info: dict, run: Any = None) -> np.ndarray:
+    """Every window's outcome (as the front end gave it), with the windows missed while the robot stood still
+    (``run``'s odometry says so) relabelled ``robot_still``."""
     wo = info.get("window_outcomes")
     if not wo or len(wo["outcome"]) == 0:
+        return np.zeros(0, dtype=str)
+    outcome = np.asarray(wo["outcome"], dtype=object)
+    base = getattr(run, "base_track", None)
+    if base is not None:
+        t = np.asarray(wo["t"], dtype=float) + _odometry_offset_s(run)
+        still = robot_still(t, base) & ~np.isin(outcome, DETECTED)
+        outcome[still] = "robot_still"
+    return outcome.astype(str)
+
+
+def outcome_counts(info: dict, run: Any = None) -> dict[str, int]:
+    """Windows per outcome (only outcomes that occur); with ``run``, missed windows of a still robot are counted
+    as ``robot_still``."""
+    outcome = window_outcomes(info, run)
+    if outcome.size == 0:
         return {}
-    names, counts = np.unique(np.asarray(wo["outcome"], dtype=str), return_counts=True)
+    names, counts = np.unique(outcome, return_counts=True)
     return {str(n): int(c) for n, c in zip(names, counts, strict=True)}
+
+
+def coverage_summary(info: dict, run: Any = None) -> dict | None:
+    """report.json's ``coverage``: windows, windows with the board found, windows missed while the robot stood
+    still, and the share of the others (the robot moving) with the board found, plus the counts per outcome."""
+    counts = outcome_counts(info, run)
+    if not counts:
+        return None
+    windows = sum(counts.values())
+    found = sum(v for k, v in counts.items() if k in DETECTED)
+    still = counts.get("robot_still", 0)
+    moving = windows - still
+    return {"windows": windows, "found": found, "robot_still": still,
+            "found_fraction": found / windows, "found_fraction_robot_moving": found / moving if moving else None,
+            "by_outcome": dict(sorted(counts.items(), key=lambda kv: -kv[1]))}
 
 
 def fig_coverage(run: Any, out: Path, truth_T: Any = None) -> str | None:
@@ -56,7 +142,7 @@ def fig_coverage(run: Any, out: Path, truth_T: Any = None) -> str | None:
     plt = _plt()
     t = np.asarray(wo["t"], dtype=float)
     t = t - t[0]
-    outcome = np.asarray(wo["outcome"], dtype=str)
+    outcome = window_outcomes(info, run)
     names = sorted(set(outcome.tolist()), key=lambda n: (n not in DETECTED, n))
     code = np.array([names.index(o) for o in outcome], dtype=int)
     fig, ax = plt.subplots(figsize=(8.0, 1.9))
@@ -122,17 +208,26 @@ def fig_event_frames(run: Any, out: Path, truth_T: Any = None, n_frames: int = 3
     return "event_frames.png"
 
 
-def coverage_table(info: dict) -> str | None:
-    """HTML: how many windows found the board, by which detector, and why the others did not."""
-    counts = outcome_counts(info)
-    if not counts:
+def coverage_table(info: dict, run: Any = None) -> str | None:
+    """HTML: how many windows found the board, by which detector, and why the others did not (with ``run``, the
+    windows missed while the robot stood still on a line of their own)."""
+    cov = coverage_summary(info, run)
+    if cov is None:
         return None
-    total = sum(counts.values())
-    found = sum(v for k, v in counts.items() if k in DETECTED)
-    rows = "".join(f"<tr><td>{'found by ' if k in DETECTED else 'missed: '}{html.escape(k)}</td><td>{v}</td>"
-                   f"<td>{100.0 * v / total:.1f} %</td></tr>"
+    counts, total, found = cov["by_outcome"], cov["windows"], cov["found"]
+
+    def label(k: str) -> str:
+        if k in DETECTED:
+            return f"found by {html.escape(k)}"
+        return "not found: the robot stood still" if k == "robot_still" else f"missed: {html.escape(k)}"
+
+    rows = "".join(f"<tr><td>{label(k)}</td><td>{v}</td><td>{100.0 * v / total:.1f} %</td></tr>"
                    for k, v in sorted(counts.items(), key=lambda kv: (kv[0] not in DETECTED, -kv[1])))
-    return (f"<p>The board was found in {found} of {total} windows ({100.0 * found / total:.0f} %). "
-            "Windows without events from the board (a robot standing still) cannot show it. The figures "
+    moving = ""
+    if cov["robot_still"] and cov["found_fraction_robot_moving"] is not None:
+        moving = (f" The robot stood still in {cov['robot_still']} of them (no motion, no events); of the windows "
+                  f"in which it moved, {100.0 * cov['found_fraction_robot_moving']:.0f} % found the board.")
+    return (f"<p>The board was found in {found} of {total} windows ({100.0 * found / total:.0f} %).{moving} "
+            "Windows without events from the board cannot show it. The figures "
             "'detection coverage' and 'event frames' below show when and what the detector saw.</p>"
             f"<table><tr><th>window outcome</th><th>windows</th><th>share</th></tr>{rows}</table>")

@@ -255,7 +255,7 @@ def write_html_report(out: Path, run: Any, report: dict,
         tail.append(("Errors against truth", html_table(
             [{"quantity": k, "value": v} for k, v in report["truth_errors"].items()], ["quantity", "value"])))
     track = getattr(run, "camera_track", None)
-    table = None if track is None else coverage_table(track.info)
+    table = None if track is None else coverage_table(track.info, run)
     if table:
         sections.append(("Detection coverage", table))
     if report["discarded"]:

@@ -1,0 +1,72 @@
+"""Windows missed while the robot stood still are counted as such, not as detector failures."""
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from plsgraph.core.tracks import BaseTrack
+from plsgraph.report.coverage import STILL_HALF_S, coverage_summary, coverage_table, robot_still, window_outcomes
+
+
+def _base(t: np.ndarray, x: np.ndarray, yaw: np.ndarray) -> BaseTrack:
+    T = np.broadcast_to(np.eye(4), (t.size, 4, 4)).copy()
+    T[:, 0, 0] = T[:, 1, 1] = np.cos(yaw)
+    T[:, 0, 1], T[:, 1, 0] = -np.sin(yaw), np.sin(yaw)
+    T[:, 0, 3] = x
+    return BaseTrack(t, T, np.zeros((t.size, 3)), np.zeros((t.size, 3)))
+
+
+def _stop_and_go(rate_hz: float = 50.0, tick_m: float = 0.0):
+    """0-4 s driving at 0.3 m/s, 4-8 s standing (with an encoder's one-tick dither), 8-10 s turning at 0.5 rad/s."""
+    t = np.arange(0.0, 10.0, 1.0 / rate_hz)
+    x = 0.3 * np.minimum(t, 4.0)
+    standing = (t >= 4.0) & (t < 8.0)
+    x = x + np.where(standing, tick_m * (np.arange(t.size) % 2), 0.0)
+    yaw = 0.5 * np.clip(t - 8.0, 0.0, None)
+    return _base(t, x, yaw)
+
+
+def test_still_only_where_the_base_neither_moves_nor_turns():
+    base = _stop_and_go(tick_m=0.00038)  # one tick of a 1660-tick encoder on a 0.1 m wheel
+    tq = np.arange(0.5, 9.5, 1.0 / 30.0)
+    still = robot_still(tq, base)
+    inner = (tq > 4.0 + STILL_HALF_S + 0.02) & (tq < 8.0 - STILL_HALF_S - 0.02)
+    assert np.all(still[inner])
+    assert not np.any(still[(tq < 4.0 + STILL_HALF_S - 0.02) | (tq > 8.0 - STILL_HALF_S + 0.02)])
+
+
+def test_a_slow_creep_and_times_outside_the_odometry_are_not_still():
+    t = np.arange(0.0, 10.0, 0.02)
+    creep = _base(t, 0.005 * t, np.zeros_like(t))  # 5 mm/s: a board 1.5 m away moves ~1 px/s
+    assert not np.any(robot_still(np.array([2.0, 5.0]), creep))
+    standing = _base(t, np.zeros_like(t), np.zeros_like(t))
+    s = robot_still(np.array([-1.0, 0.1, 5.0, 9.9, 12.0]), standing)
+    assert s.tolist() == [False, False, True, False, False]
+
+
+def test_missed_windows_of_a_still_robot_are_relabelled_and_counted_apart():
+    base = _stop_and_go()
+    tq = np.arange(0.5, 9.5, 1.0 / 30.0)
+    # The front end found the board while the robot drove and turned, and nothing while it stood; one window of the
+    # drive was missed by the detector.
+    outcome = np.where((tq > 4.0) & (tq < 8.0), "too_few_events", "rims").astype(object)
+    outcome[10] = "grid_not_found"
+    # The camera clock runs 2 s behind the odometry's: clock shift 1.5 s plus td 0.5 s.
+    info = {"window_outcomes": {"t": (tq - 2.0).tolist(), "outcome": outcome.tolist()}}
+    run = SimpleNamespace(base_track=base, clock_offset_s=1.5, refinement=None, closed_form=SimpleNamespace(td=0.5))
+    got = window_outcomes(info, run)
+    inner = (tq > 4.0 + STILL_HALF_S + 0.02) & (tq < 8.0 - STILL_HALF_S - 0.02)
+    assert np.all(got[inner] == "robot_still")
+    assert got[10] == "grid_not_found"  # a miss while moving stays a miss
+    assert np.all(got[outcome == "rims"] == "rims")  # a find is never relabelled
+    cov = coverage_summary(info, run)
+    assert cov["windows"] == tq.size and cov["found"] == int(np.sum(outcome == "rims"))
+    assert cov["robot_still"] == int(np.sum(got == "robot_still"))
+    moving = cov["windows"] - cov["robot_still"]
+    assert cov["found_fraction_robot_moving"] == cov["found"] / moving
+    assert "the robot stood still" in coverage_table(info, run)
+    # Without the odometry (or with the wrong clock) nothing is relabelled.
+    assert "robot_still" not in coverage_summary(info)["by_outcome"]
+    wrong_clock = SimpleNamespace(base_track=base, clock_offset_s=0.0, refinement=None,
+                                  closed_form=SimpleNamespace(td=0.0))
+    assert np.sum(window_outcomes(info, wrong_clock) == "robot_still") < np.sum(got == "robot_still")
