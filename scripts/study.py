@@ -130,6 +130,25 @@ def _sum_counts(parts: list) -> dict:
     return total
 
 
+def _still_windows(run, rec, t_grid, in_view, detected, speed, rate_hz: float) -> dict:
+    """The product's own account of the windows missed while the robot stood still (report.json ``coverage``,
+    from the odometry and the calibrated td), checked against the truth: ``robot_still_windows`` in view,
+    ``robot_still_moving_board`` of them with the true board moving (>= MOVING_PX_S; should be none), and
+    ``detected_fraction_robot_moving``: detected share of the in-view windows not so labelled."""
+    from plsgraph.report.coverage import window_outcomes
+
+    wo = run.camera_track.info.get("window_outcomes") if run.camera_track is not None else None
+    if not wo or not len(wo["t"]):
+        return {}
+    tw = np.asarray(wo["t"], dtype=float) - rec.epoch_ns * 1e-9
+    k = np.clip(np.searchsorted(tw, t_grid - 0.5 / rate_hz), 0, tw.size - 1)
+    still = (window_outcomes(run.camera_track.info, run) == "robot_still")[k] & ~detected
+    rest = in_view & ~still
+    return {"robot_still_windows": int((still & in_view).sum()),
+            "robot_still_moving_board": int((still & in_view & (speed >= MOVING_PX_S)).sum()),
+            "detected_fraction_robot_moving": float((detected & rest).sum() / max(1, rest.sum()))}
+
+
 def _frontend_metrics(rec, run, rate_hz: float = 30.0) -> dict:
     """Coverage, wrong labels and centre error of the front end's detections against the truth."""
     sim, ev = rec.sim, rec.events
@@ -173,6 +192,7 @@ def _frontend_metrics(rec, run, rate_hz: float = 30.0) -> dict:
     out["windows_in_view_moving"] = int(moving.sum())
     out["detected_fraction_moving"] = float((detected & moving).sum() / max(1, moving.sum()))
     out["missed_moving"] = _missed_moving(run, rec, t_grid, moving & ~detected, speed, rate_hz)
+    out.update(_still_windows(run, rec, t_grid, in_view, detected, speed, rate_hz))
     # Detection lag: the shift of the true board's time that best fits each detection (median over the
     # detections of a board moving fast enough to show it). Pixel latency makes it negative: the events show
     # the board where it was a moment before their stamps.
@@ -418,6 +438,12 @@ def summarize(runs: list[dict]) -> dict:
         "detected_fraction_by_stamp_p10": _pct([x for x in col("detected_fraction_by_stamp") if x is not None], 10),
         "detected_fraction_moving_median": _pct([x for x in col("detected_fraction_moving") if x is not None], 50),
         "detected_fraction_moving_p10": _pct([x for x in col("detected_fraction_moving") if x is not None], 10),
+        "detected_fraction_robot_moving_median": _pct(
+            [x for x in col("detected_fraction_robot_moving") if x is not None], 50),
+        "detected_fraction_robot_moving_p10": _pct(
+            [x for x in col("detected_fraction_robot_moving") if x is not None], 10),
+        "robot_still_windows": sum(x or 0 for x in col("robot_still_windows")),
+        "robot_still_moving_board": sum(x or 0 for x in col("robot_still_moving_board")),
         "detection_lag_ms_median": _pct([x for x in col("detection_lag_ms") if x is not None], 50),
         "wrong_detection_rate": wrong / dets if dets else None,
         "detections_by_detector": {k: [sum((r.get("detections_by_detector") or {}).get(k, [0, 0])[i] for r in runs)
