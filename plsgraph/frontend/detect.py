@@ -54,6 +54,9 @@ MIN_INSIDE_FRACTION = 0.85
 #: thickness before the full lattice labelling is tried at any.
 RIM_THICKNESSES = (2, 3, 1)
 TRACK_BEFORE_LABEL = True
+#: Circles a board labelled by its predicted positions (:func:`track_circle_grid`) must show; None: half the
+#: board's, as for the full lattice labelling.
+TRACK_MIN_POINTS: int | None = 11
 #: Candidates for the lattice labelling when the blob detector's do not give a board: the local maxima of the
 #: weight image smoothed at each of these scales (pixels). A distant board's circles are 4-6 px rings of events
 #: spaced 10 px apart; thresholded at the blob detector's levels, neighbouring rings merge at the low levels
@@ -531,7 +534,8 @@ def detect_circle_grid(
     missing circles: unseen points are NaN, at least ``min_points`` must be found). ``roi`` (x0, y0,
     x1, y1) restricts the rim search to that part of the image (coordinates stay full-image ones).
     ``predicted_uv`` (N, 2), where the circles are expected (e.g. extrapolated from the previous
-    windows), lets :func:`track_circle_grid` label the candidates cheaply before the full search.
+    windows), lets :func:`track_circle_grid` label the candidates (rim holes, or the blob detector's blobs) by it
+    before the full search.
     """
     if board.pattern != "asymmetric_circles":
         raise InputError(f"detect_circle_grid: board {board.name!r} is a {board.pattern}, not asymmetric_circles")
@@ -571,10 +575,17 @@ def detect_circle_grid(
         last_reason, last_rms = reason, rms
         log.debug("circle grid rejected (%s, homography rms %.2f px)", reason, rms)
     # OpenCV's grid finder needs every circle. For a board partly out of view (or partly hidden) label the
-    # blobs with the lattice method instead, which allows missing circles but never guesses an order.
+    # blobs with the lattice method instead, which allows missing circles but never guesses an order; a board
+    # predicted from its last find labels them by that prediction first (tracking: no shifted grid may explain
+    # them as well).
     if lattice_fallback and len(kp) >= 6:
         pts = np.array([k.pt for k in kp], dtype=float)
-        det = label_circle_grid(pts, board, camera, min_points=min_points, max_rms_px=max_homography_rms_px)
+        det = _fail(n, REASON_NOT_FOUND)
+        if predicted_uv is not None:
+            det = track_circle_grid(pts, predicted_uv, board, camera, max_rms_px=max_homography_rms_px,
+                                    min_points=TRACK_MIN_POINTS)
+        if not det.ok:
+            det = label_circle_grid(pts, board, camera, min_points=min_points, max_rms_px=max_homography_rms_px)
         if det.ok:
             uv = det.uv
             if refine:
@@ -789,13 +800,24 @@ def _detect_rims(
     if predicted_uv is not None and TRACK_BEFORE_LABEL:
         # Labelling by the prediction is cheap and certain when it works: try it at every thickness before the
         # full lattice labelling at any (which costs several times more, and mostly fails where tracking did).
+        # A find of half the board or more is taken at once; one of fewer circles (TRACK_MIN_POINTS or more) only if
+        # no thickness shows more of them.
+        best, best_seen = None, 0
         for k in RIM_THICKNESSES:
             cand = candidates(k)
             if cand is None:
                 continue
-            det = track_circle_grid(cand[0], predicted_uv, board, camera, max_rms_px=max_rms_px)
-            if det.ok:
+            det = track_circle_grid(cand[0], predicted_uv, board, camera, max_rms_px=max_rms_px,
+                                    min_points=TRACK_MIN_POINTS)
+            if not det.ok:
+                continue
+            seen = int(np.count_nonzero(np.all(np.isfinite(det.uv), axis=1)))
+            if seen >= max(6, n // 2):
                 return accepted(det)
+            if seen > best_seen:
+                best, best_seen = det, seen
+        if best is not None:
+            return accepted(best)
         predicted_uv = None
     for k in RIM_THICKNESSES:
         det = _rims_at(candidates(k), n, board, camera, max_rms_px, min_points, predicted_uv)
@@ -825,7 +847,7 @@ def _rims_at(cand, n, board, camera, max_rms_px, min_points, predicted_uv) -> Gr
         return _fail(n, REASON_NOT_FOUND)
     pts, area = cand
     if predicted_uv is not None:
-        det = track_circle_grid(pts, predicted_uv, board, camera, max_rms_px=max_rms_px)
+        det = track_circle_grid(pts, predicted_uv, board, camera, max_rms_px=max_rms_px, min_points=TRACK_MIN_POINTS)
         if det.ok:
             return det
     det = label_circle_grid(pts, board, camera, areas=area, min_points=min_points, max_rms_px=max_rms_px)

@@ -200,6 +200,12 @@ REASON_JUMP = "jumped_from_track"
 #: board is refused as a jump, and were the velocity only taken from adjacent windows every other window would be
 #: refused from then on (study run 17: 51 windows).
 VELOCITY_WINDOWS = 3
+#: After a window without the board, the next PREDICT_THROUGH_MISSES windows still label circles by the last find's
+#: positions carried forward at its speed (a slow board's next find is then a tracked one, which needs fewer circles
+#: than the full lattice labelling); 0: the prediction ends at the first miss.
+PREDICT_THROUGH_MISSES = 5
+#: The blob detector's blobs are labelled by the predicted board too (before the lattice labelling).
+BLOB_TRACKING = True
 
 
 def _jumped(uv: np.ndarray, predicted: np.ndarray) -> bool:
@@ -307,11 +313,12 @@ class _WindowJob:
         return float(np.median(np.linalg.norm(det.uv[both] - again.uv[both], axis=1))) < spacing / 3.0
 
     def _blobs(self, tq: int, first: float, roi: tuple[int, int, int, int] | None, long_spans: bool = False,
-               lost: bool = False):
+               lost: bool = False, predicted: np.ndarray | None = None):
         """The board as blobs of events (:func:`detect_circle_grid` on a count image) over the spans of
         :data:`BLOB_SPANS` (multiples of the window; the one that worked last first): (detection, span s,
         multiple) or None. With ``roi`` (where the board was a moment ago) that part of the image is searched
-        first, then the whole image."""
+        first, then the whole image; with ``predicted`` (the board's circles carried forward from its last find) the
+        blobs there are labelled by them first."""
         for mult in sorted(BLOB_SPANS, key=lambda m: m != first):
             if mult > SHORT_BLOB_SPAN and not long_spans:
                 continue
@@ -326,7 +333,8 @@ class _WindowJob:
                     x0, y0, x1, y1 = box
                     view = np.zeros_like(img)
                     view[y0:y1, x0:x1] = img[y0:y1, x0:x1]
-                det = detect_circle_grid(view, self.board, self.camera, foreground="bright", blur_sigma=BLOB_BLUR_PX)
+                det = detect_circle_grid(view, self.board, self.camera, foreground="bright", blur_sigma=BLOB_BLUR_PX,
+                                         predicted_uv=predicted if box is not None else None)
                 if det.reason == REASON_OK and mult > SHORT_BLOB_SPAN and lost and not self._holds_still(
                         det, tq, age, "blobs"):
                     break  # refused: a board smeared over the long span; try the other spans
@@ -355,6 +363,7 @@ class _WindowJob:
         n_events = 0
         last_good = 0
         roi = predicted = prev = None
+        velocity = None  # the board's image motion per window at the last find (N, 2), or None
         as_image = False
         last_blob = BLOB_SPANS[0]
         small_circles = None  # index of the last window whose detection had circles too small for rims
@@ -464,7 +473,8 @@ class _WindowJob:
                 # Circles a few pixels wide have no inside left between their rims, and slow motion leaves a
                 # window too sparse for rims: look for the circles as blobs of events over this and longer spans.
                 c0 = time.perf_counter()
-                blob = self._blobs(tq, last_blob, roi, long_spans, stale)
+                blob = self._blobs(tq, last_blob, roi, long_spans, stale,
+                                   predicted if BLOB_TRACKING else None)
                 secs["blobs"] = secs.get("blobs", 0.0) + time.perf_counter() - c0
                 if blob is not None:
                     det, age, mult = blob
@@ -477,6 +487,9 @@ class _WindowJob:
                 skipped[reason] += 1
                 outcome.append(reason)
                 predicted = None
+                if PREDICT_THROUGH_MISSES and prev is not None and velocity is not None \
+                        and k + 1 - prev[0] <= PREDICT_THROUGH_MISSES:
+                    predicted = prev[2] + velocity * (k + 1 - prev[0])
                 if not (KEEP_ROI and prev is not None and k - prev[0] <= RECENT_WINDOWS):
                     roi = None
                 continue
@@ -505,9 +518,10 @@ class _WindowJob:
                 step = np.nanmedian(np.linalg.norm(full - prev[2], axis=1))
                 slow_board = (k, bool(step / (t_det - prev[1]) < SLOW_PX_S))
             if prev is not None and k - prev[0] <= VELOCITY_WINDOWS and t_det > prev[1]:
-                predicted = full + (full - prev[2]) * (period_s / (t_det - prev[1]))
+                velocity = (full - prev[2]) * (period_s / (t_det - prev[1]))
             else:
-                predicted = full
+                velocity = np.zeros_like(full)
+            predicted = full + velocity
             prev = (k, t_det, full)
             t_out.append(t_det)
             win_out.append(tq * 1e-9)
