@@ -85,7 +85,7 @@ def _odometry_offset_s(run: Any) -> float:
     ref, cf = getattr(run, "refinement", None), getattr(run, "closed_form", None)
     if ref is not None and getattr(ref, "converged", False) and np.isfinite(getattr(ref, "td", np.nan)):
         td = float(ref.td)
-    elif cf is not None and np.isfinite(getattr(cf, "td", np.nan) or np.nan):
+    elif cf is not None and getattr(cf, "td", None) is not None and np.isfinite(cf.td):
         td = float(cf.td)
     return float(getattr(run, "clock_offset_s", 0.0) or 0.0) + td
 
