@@ -53,7 +53,9 @@ log = logging.getLogger(__name__)
 #: RMS turn rate (rad/s) below which the angular velocity says nothing about roll and pitch.
 MIN_TURN_RATE = 0.05
 #: RMS forward speed (m/s) below which the linear velocity says nothing about yaw.
-MIN_DRIVING_SPEED = 0.05  # RMS speed (m/s) below which the robot only spins: yaw unobservable
+# Speed (m/s) below which the robot only spins (yaw unobservable): its RMS over the paired samples, or its 90th
+# percentile (the RMS alone is diluted by every extra detection of a board seen while the robot crept or stood).
+MIN_DRIVING_SPEED = 0.05
 #: Huber threshold in robust sigmas for the velocity rows and the td refinement.
 HUBER_K = 2.5
 #: |cosine| between forward speed and turn rate above which the driving is constant-curvature.
@@ -483,10 +485,12 @@ def calibrate_closed_form(
     v = pairs.v_base[:, 0]
     turn_rms = float(np.sqrt(np.mean(w**2)))
     speed_rms = float(np.sqrt(np.mean(v**2)))
+    speed_p90 = float(np.percentile(np.abs(v), 90)) if v.size else 0.0
     cos_vw = float(abs(v @ w) / np.sqrt((v @ v) * (w @ w))) if turn_rms > 0 and speed_rms > 0 else 0.0
     turning = turn_rms >= MIN_TURN_RATE
-    driving = speed_rms >= MIN_DRIVING_SPEED
-    excitation = {"turn_rate_rms": turn_rms, "speed_rms": speed_rms, "speed_turn_cosine": cos_vw}
+    driving = speed_rms >= MIN_DRIVING_SPEED or speed_p90 >= MIN_DRIVING_SPEED
+    excitation = {"turn_rate_rms": turn_rms, "speed_rms": speed_rms, "speed_p90": speed_p90,
+                  "speed_turn_cosine": cos_vw}
     if not turning and not driving:
         reasons.append(
             f"the robot neither turns (RMS {turn_rms:.3f} rad/s) nor drives (RMS {speed_rms:.3f} m/s): nothing is "
@@ -499,7 +503,8 @@ def calibrate_closed_form(
         )
     elif not driving:
         reasons.append(
-            f"no driving (RMS speed {speed_rms:.3f} m/s < {MIN_DRIVING_SPEED}): the yaw is unobservable (spinning in "
+            f"no driving (RMS speed {speed_rms:.3f} m/s, 90th percentile {speed_p90:.3f} m/s, both < "
+            f"{MIN_DRIVING_SPEED}): the yaw is unobservable (spinning in "
             "place fixes only the camera's tilt); drive forwards/backwards while turning"
         )
     elif cos_vw > MAX_SPEED_TURN_COSINE:
