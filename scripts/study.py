@@ -308,6 +308,7 @@ def run_one(args: tuple) -> dict:
                                         surface=surface, frontend_workers=1)
         run = Run(path, opts)
         run.truth = load_truth(opts.truth)
+        saved = None  # the tracks, pickled, when kept (none when the front end refused the recording)
         try:
             build_tracks(run)
             saved = pickle.dumps(run) if tracks_dir is not None else None

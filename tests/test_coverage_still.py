@@ -51,14 +51,20 @@ def test_missed_windows_of_a_still_robot_are_relabelled_and_counted_apart():
     # drive was missed by the detector.
     outcome = np.where((tq > 4.0) & (tq < 8.0), "too_few_events", "rims").astype(object)
     outcome[10] = "grid_not_found"
+    outcome[int(np.argmin(np.abs(tq - 6.0)))] = "jumped_from_track"  # a board found and refused while still
     # The camera clock runs 2 s behind the odometry's: clock shift 1.5 s plus td 0.5 s.
     info = {"window_outcomes": {"t": (tq - 2.0).tolist(), "outcome": outcome.tolist()}}
     run = SimpleNamespace(base_track=base, clock_offset_s=1.5, refinement=None, closed_form=SimpleNamespace(td=0.5))
     got = window_outcomes(info, run)
-    inner = (tq > 4.0 + STILL_HALF_S + 0.02) & (tq < 8.0 - STILL_HALF_S - 0.02)
+    inner = (tq > 4.0 + STILL_HALF_S + 0.02) & (tq < 8.0 - STILL_HALF_S - 0.02) & (outcome == "too_few_events")
     assert np.all(got[inner] == "robot_still")
     assert got[10] == "grid_not_found"  # a miss while moving stays a miss
+    assert got[int(np.argmin(np.abs(tq - 6.0)))] == "jumped_from_track"  # a refusal stays a refusal
     assert np.all(got[outcome == "rims"] == "rims")  # a find is never relabelled
+    # A converged refinement's td is the one used (here the same offset, split differently).
+    refined = SimpleNamespace(base_track=base, clock_offset_s=1.5, refinement=SimpleNamespace(converged=True, td=0.5),
+                              closed_form=SimpleNamespace(td=-3.0))
+    assert np.array_equal(window_outcomes(info, refined), got)
     cov = coverage_summary(info, run)
     assert cov["windows"] == tq.size and cov["found"] == int(np.sum(outcome == "rims"))
     assert cov["robot_still"] == int(np.sum(got == "robot_still"))

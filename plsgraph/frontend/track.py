@@ -200,9 +200,11 @@ REASON_JUMP = "jumped_from_track"
 #: board is refused as a jump, and were the velocity only taken from adjacent windows every other window would be
 #: refused from then on (study run 17: 51 windows).
 VELOCITY_WINDOWS = 3
-#: After a window without the board, the next PREDICT_THROUGH_MISSES windows still label circles by the last find's
-#: positions carried forward at its speed (a slow board's next find is then a tracked one, which needs fewer circles
-#: than the full lattice labelling); 0: the prediction ends at the first miss.
+#: For PREDICT_THROUGH_MISSES windows after a find (the first is the ordinary next-window prediction, so up to
+#: PREDICT_THROUGH_MISSES - 1 windows without the board) circles are still labelled by the last find's positions carried
+#: forward at its speed (a slow board's next find is then a tracked one, which needs fewer circles than the full
+#: lattice labelling); 0 or 1: the prediction ends at the first miss. Such a carried prediction never refuses a find
+#: as a jump, and a window without events or a refused jump ends it.
 PREDICT_THROUGH_MISSES = 5
 #: The blob detector's blobs are labelled by the predicted board too (before the lattice labelling).
 BLOB_TRACKING = True
@@ -375,7 +377,7 @@ class _WindowJob:
             if i1 - i0 < self.min_events:
                 skipped["too_few_events"] += 1
                 outcome.append("too_few_events")
-                roi = predicted = None
+                roi = predicted = velocity = None
                 continue
             ev = stream.slice_index(int(i0), int(i1))
             n_events += int(i1 - i0)
@@ -493,12 +495,15 @@ class _WindowJob:
                 if not (KEEP_ROI and prev is not None and k - prev[0] <= RECENT_WINDOWS):
                     roi = None
                 continue
-            if board.pattern == "asymmetric_circles" and predicted is not None and _jumped(det.uv, predicted):
+            # A prediction carried through missed windows labels candidates (with its own shift test) but does not
+            # refuse a find: the board's speed may have changed meanwhile.
+            fresh = prev is not None and k - prev[0] == 1
+            if board.pattern == "asymmetric_circles" and predicted is not None and fresh and _jumped(det.uv, predicted):
                 # The previous window's board, carried forward at its speed, lies half a spacing or more away:
                 # one of the two labellings is shifted. Refuse this one; the search starts afresh next window.
                 skipped[REASON_JUMP] += 1
                 outcome.append(REASON_JUMP)
-                roi = predicted = None
+                roi = predicted = velocity = None
                 continue
             if board.pattern == "asymmetric_circles":
                 seen = det.uv[np.all(np.isfinite(det.uv), axis=1)]

@@ -47,6 +47,9 @@ STILL_TURN_RAD = 1e-3
 
 #: Outcomes that are detections (the detector that found the board).
 DETECTED = ("rims", "blobs", "image")
+#: Outcomes of a board found and then refused: kept as they are while the robot stands still too.
+REFUSED = ("jumped_from_track", "inconsistent_with_neighbours", "same_stamp", "ambiguous_labels", "inconsistent_order",
+           "mirrored_order")
 
 
 def robot_still(t_odometry: np.ndarray, base_track: Any) -> np.ndarray:
@@ -100,7 +103,7 @@ def window_outcomes(info: dict, run: Any = None) -> np.ndarray:
     base = getattr(run, "base_track", None)
     if base is not None:
         t = np.asarray(wo["t"], dtype=float) + _odometry_offset_s(run)
-        still = robot_still(t, base) & ~np.isin(outcome, DETECTED)
+        still = robot_still(t, base) & ~np.isin(outcome, DETECTED + REFUSED)
         outcome[still] = "robot_still"
     return outcome.astype(str)
 
@@ -117,7 +120,8 @@ def outcome_counts(info: dict, run: Any = None) -> dict[str, int]:
 
 def coverage_summary(info: dict, run: Any = None) -> dict | None:
     """report.json's ``coverage``: windows, windows with the board found, windows missed while the robot stood
-    still, and the share of the others (the robot moving) with the board found, plus the counts per outcome."""
+    still, ``found_fraction_robot_moving`` = found / (windows - those missed while still), plus the counts per
+    outcome."""
     counts = outcome_counts(info, run)
     if not counts:
         return None
