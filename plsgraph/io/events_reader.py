@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import copy
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,6 +21,9 @@ log = logging.getLogger(__name__)
 
 # evt3 packets used to map the sensor clock onto the host clock.
 _EVT3_CLOCK_PACKETS = 8
+# evt3 packets decoded together once the clock is mapped: the decoder's state carries from packet to packet, so a
+# group decodes to the same events as its packets one by one, with a tenth of the per-call overhead.
+EVT3_GROUP_PACKETS = 32
 # 11-bit addresses (libcaer_cmp, evt3) bound the sensor when a message does not state its size.
 _FALLBACK_SIZE = 2048
 
@@ -89,6 +93,59 @@ class _TopicDecoder:
                 raise
             self._bad(m, exc)
         return []
+
+    def decode_many(self, msgs: Iterable[RawMessage]) -> list[tuple[np.ndarray, ...]]:
+        """:meth:`decode` of each message in turn, with the same events, stats and warnings; evt3 packets whose
+        clock is mapped are decoded a group at a time (their words joined), which is several times faster.
+        A group whose events come out of time order is decoded again packet by packet, so that a caller
+        checking each message's order sees the messages."""
+        out: list[tuple[np.ndarray, ...]] = []
+        group: list = []
+        for m in msgs:
+            blob = self._groupable(m)
+            if blob is None:
+                if group:
+                    out += self._decode_group(group)
+                    group = []
+                out += self.decode(m)
+                continue
+            group.append(blob)
+        if group:
+            out += self._decode_group(group)
+        return out
+
+    def _groupable(self, m: RawMessage):
+        """The event words of an evt3 packet that can join a group, else None (decoded on its own)."""
+        if (
+            self.evt3_offset_ns is None
+            or not isinstance(self.decoder, Evt3Decoder)
+            or isinstance(m.data, DecodedEvents)
+            or m.msgtype not in EVENT_PACKET_TYPES
+        ):
+            return None
+        try:
+            hdr, blob = parse_event_packet(m.data, m.serialization)
+        except (CdrError, RecordingError):
+            return None  # decode() reports it
+        if hdr.encoding != self.encoding or (hdr.width, hdr.height) != (self.width, self.height) or len(blob) % 2:
+            return None
+        self.good_messages += 1
+        return blob
+
+    def _decode_group(self, blobs: list) -> list[tuple[np.ndarray, ...]]:
+        if len(blobs) == 1:
+            return self._mapped(self.decoder.decode(blobs[0]))
+        before = copy.deepcopy(self.decoder)
+        t, x, y, p = self.decoder.decode(b"".join(blobs))
+        if t.size > 1 and np.any(t[1:] < t[:-1]):
+            self.decoder = before  # packet by packet, as decode() would
+            self.stats = before.stats
+            return [q for b in blobs for q in self._mapped(self.decoder.decode(b))]
+        return self._mapped((t, x, y, p))
+
+    def _mapped(self, q: tuple[np.ndarray, ...]) -> list[tuple[np.ndarray, ...]]:
+        t, x, y, p = q
+        return [(t + self.evt3_offset_ns, x, y, p)] if t.size else []
 
     def flush(self) -> list[tuple[np.ndarray, ...]]:
         """Whatever is still held back at the end of the stream."""
@@ -196,8 +253,13 @@ def _iter_chunks(
         return s.sorted() if overlapped else s
 
     def decoded():
+        group: list[RawMessage] = []
         for m in src.iter_raw({topic}):
-            yield from dec.decode(m)
+            group.append(m)
+            if len(group) >= EVT3_GROUP_PACKETS or dec.evt3_offset_ns is None:
+                yield from dec.decode_many(group)
+                group = []
+        yield from dec.decode_many(group)
         yield from dec.flush()
 
     for t, x, y, p in decoded():

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .events_reader import _TopicDecoder
+from .events_reader import EVT3_GROUP_PACKETS, _TopicDecoder
 from .messages import EVENT_TYPES
 from .source import Source, open_source
 
@@ -38,6 +38,7 @@ def inspect_recording(path: str | Path | Source) -> dict:
             row["events_off"] += int(t.size) - on
             _span(row, int(t.min()), int(t.max()))
 
+    groups: dict[str, list] = {name: [] for name in decoders}
     for m in src.iter_raw(None):
         row = rows.get(m.topic)
         if row is None:  # a topic the scan found only now (file without summary)
@@ -47,9 +48,14 @@ def inspect_recording(path: str | Path | Source) -> dict:
         dec = decoders.get(m.topic)
         if dec is None:
             _span(row, int(m.log_time_ns), int(m.log_time_ns))
-        else:
-            add_events(row, dec.decode(m))
+            continue
+        group = groups[m.topic]
+        group.append(m)
+        if len(group) >= EVT3_GROUP_PACKETS or dec.evt3_offset_ns is None:
+            add_events(row, dec.decode_many(group))
+            group.clear()
     for name, dec in decoders.items():
+        add_events(rows[name], dec.decode_many(groups[name]))
         add_events(rows[name], dec.flush())
     for name, dec in decoders.items():
         dec.finish()
