@@ -172,7 +172,13 @@ def calibrate_to_dir(
     (:func:`~plsgraph.report.figure_worker.processor_free`)."""
     from .report.figure_worker import FigureWorker, processor_free
     from .report.files import prepare_output_dir
-    from .report.output import write_calibration, write_diagnosis_only, write_result_folder
+    from .report.output import (
+        DIAGNOSIS_ADVICE,
+        FRONTEND_ADVICE,
+        write_calibration,
+        write_diagnosis_only,
+        write_result_folder,
+    )
     from .report.text import calibration_text
 
     out = prepare_output_dir(out_dir, force=force, create=False)  # refuse before hours of work, not after
@@ -184,7 +190,8 @@ def calibrate_to_dir(
                 result = calibrate(recording, options=options, refine=refine, progress=progress)
             except (DegenerateMotionError, InsufficientDataError) as exc:
                 # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
-                return write_diagnosis_only(stage, recording, str(exc))
+                advice = FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else DIAGNOSIS_ADVICE
+                return write_diagnosis_only(stage, recording, str(exc), advice, getattr(exc, "coverage", None))
             written = write_calibration(stage, result, figures)
         text = calibration_text(result.report) + "\n\nwritten: " + ", ".join(str(out / p.name) for p in written)
         return {"ok": result.ok, "text": text, "report": result.report, "result": result}

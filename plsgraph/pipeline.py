@@ -261,10 +261,12 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
         if k in track.info:
             run.discarded[f"frontend_{k}"] = to_jsonable(track.info[k])
     if len(track) < MIN_CAMERA_FRAMES:
-        raise InsufficientDataError(
+        exc = InsufficientDataError(
             f"the board was found in only {len(track)} of the event windows; check the board definition "
             f"(--board), the intrinsics and that the board is in view while the robot moves"
         )
+        exc.frontend_info = track.info
+        raise exc
     return track
 
 
@@ -347,8 +349,23 @@ def run_recording(
     """The whole calibration of one recording. Raises typed errors on user mistakes."""
     run = Run(Path(log_path), options)
     run.truth = load_truth(options.truth)
-    build_tracks(run, progress)
-    return solve(run, refine, progress)
+    try:
+        build_tracks(run, progress)
+        return solve(run, refine, progress)
+    except (DegenerateMotionError, InsufficientDataError) as exc:
+        exc.coverage = diagnosis_coverage(run, exc)
+        raise
+
+
+def diagnosis_coverage(run: Run, exc: Exception) -> dict | None:
+    """The front end's coverage (report.json ``coverage``) of a run that ends in a diagnosis: what the detector saw
+    is most of what a user needs when the board was found too rarely. None when the front end did not run."""
+    from .report.coverage import coverage_summary
+
+    info = getattr(exc, "frontend_info", None)
+    if info is None and run.camera_track is not None:
+        info = run.camera_track.info
+    return None if not info else coverage_summary(info, run)
 
 
 def run_tracks(

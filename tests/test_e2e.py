@@ -121,6 +121,10 @@ def test_spinning_in_place_gives_a_diagnosis_not_a_number(tmp_path, capsys):
     assert not (out / "calibration.yaml").exists()
     rep = json.loads((out / "report.json").read_text())
     assert rep["ok"] is False and "yaw" in rep["problems"][0]
+    cov = rep["coverage"]  # what the detector saw, also when there is no calibration
+    assert 0 < cov["found"] <= cov["windows"] and sum(cov["by_outcome"].values()) == cov["windows"]
+    assert cov["found"] == sum(cov["by_outcome"].get(k, 0) for k in ("rims", "blobs", "image"))
+    assert f"board found in {cov['found']} of {cov['windows']} windows" in text
     code = main(["diagnose", str(log), "--board", "acircles_4x11_a2", "--json"])
     res = json.loads(capsys.readouterr().out)
     assert code == 1 and res["ok"] is False
@@ -185,7 +189,17 @@ def test_too_short_a_recording_gets_a_diagnosis(tmp_path, capsys):
     code = main(["calibrate", str(log), "--board", "acircles_4x11_a2", "--out", str(out)])
     assert code == 1 and "NO CALIBRATION" in capsys.readouterr().out
     assert not (out / "calibration.yaml").exists()
-    assert json.loads((out / "report.json").read_text())["ok"] is False
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["ok"] is False and rep["coverage"]["found"] > 0
+    # The wrong board's pattern is found in no window: the diagnosis still says what each window gave.
+    out = tmp_path / "wrong_board"
+    code = main(["calibrate", str(log), "--board", "aprilgrid_6x6", "--out", str(out)])
+    text = capsys.readouterr().out
+    rep = json.loads((out / "report.json").read_text())
+    assert code == 1 and "no board detected" in rep["problems"][0]
+    assert rep["coverage"]["found"] == 0 and rep["coverage"]["windows"] == sum(rep["coverage"]["by_outcome"].values())
+    assert f"board found in 0 of {rep['coverage']['windows']} windows" in text
+    assert "--board" in rep["advice"][0] and "drive" not in rep["advice"][0]
 
 
 def test_report_shows_detection_coverage_and_event_frames(calibrated):

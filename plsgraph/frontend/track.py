@@ -579,12 +579,14 @@ def _window_of(kind: str, surface_params: dict | None, window_s: float | None, r
     return params, window_s
 
 
-def _no_board(windows: int, skipped: Counter, board: Board) -> InsufficientDataError:
-    return InsufficientDataError(
+def _no_board(windows: int, skipped: Counter, board: Board, info: dict | None = None) -> InsufficientDataError:
+    exc = InsufficientDataError(
         f"front end: no board detected in any of {windows} windows ({dict(skipped)}); check that the board "
         f"definition ({board.cols} x {board.rows} {board.pattern}) matches the target, that it is in view and "
         "moving, and try another surface kind"
     )
+    exc.frontend_info = info  # the windows' outcomes, for the diagnosis's coverage
+    return exc
 
 
 def detect_in_events(
@@ -718,7 +720,7 @@ def detect_in_events(
             "cannot be labelled uniquely and are rejected as ambiguous; use a board with an odd number of rows"
         )
     if not t_out and require_detection:
-        raise _no_board(t_query.size, skipped, board)
+        raise _no_board(t_query.size, skipped, board, info)
     dets = Detections(np.asarray(t_out), np.asarray(uv_out).reshape(-1, n, 2), board.points)
     return dets, info
 
@@ -817,7 +819,9 @@ def _track_from_detections(
         info["detected"] = int(info.get("detected", len(dets))) - int(bad.sum())
         dets = Detections(np.asarray(dets.t)[~bad], np.asarray(dets.uv)[~bad], dets.board_points)
         if not len(dets):
-            raise InsufficientDataError("no detection agrees with its neighbours in time; check the board definition")
+            exc = InsufficientDataError("no detection agrees with its neighbours in time; check the board definition")
+            exc.frontend_info = info
+            raise exc
     info["seconds"]["consistency"] = time.perf_counter() - c0
     c0 = time.perf_counter()
     track = camera_track_from_detections(dets, camera, max_rms_px=max_rms_px, sigma_px=sigma_px)
@@ -1041,7 +1045,7 @@ def camera_track_from_event_chunks(
     info["streamed_span_s"] = span_s
     info["late_events"] = late_events  # arrived after their windows were detected (out-of-order packets)
     if t.size == 0:
-        raise _no_board(info.get("windows", 0), skipped, board)
+        raise _no_board(info.get("windows", 0), skipped, board, info)
     if progress is not None:
         progress(info["windows"], info["windows"])
     return _track_from_detections(Detections(t, uv, board.points), info, camera, max_rms_px, sigma_px)

@@ -13,6 +13,7 @@ from typing import Any
 
 import yaml
 
+from .coverage import DETECTED
 from .files import OutputLock, _atomic_write, staged_output, to_jsonable, write_json
 
 
@@ -60,14 +61,30 @@ def write_calibration(out: Path, result: Any, figures: Any = None) -> list[Path]
     return [out / "calibration.yaml", out / "report.json", out / "report.html", *robot]
 
 
+def coverage_line(cov: dict) -> str:
+    """One line on the front end's coverage, for a summary."""
+    moving = cov.get("found_fraction_robot_moving")
+    also = "" if moving is None else f", {100 * moving:.0f} % of those in which the robot moved"
+    missed = [f"{k} {v}" for k, v in cov.get("by_outcome", {}).items() if k not in DETECTED][:4]
+    why = f"; missed: {', '.join(missed)}" if missed else ""
+    return f"board found in {cov['found']} of {cov['windows']} windows{also}{why}"
+
+
 DIAGNOSIS_ADVICE = (
     "drive forwards and backwards while turning (arcs, S-curves) with the board in view; straight "
     "driving leaves the camera yaw and lever arm undetermined, turning in place the yaw"
 )
+#: The advice when the front end found (almost) no board: the board or camera files come before the driving.
+FRONTEND_ADVICE = (
+    "check --board against the printed target (pattern, rows x columns, spacing) and --camera-info against the "
+    "camera; keep the whole board in view, lit, while the robot moves"
+)
 
 
-def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: str = DIAGNOSIS_ADVICE) -> dict:
-    """A run that could not calibrate: report.json with the reason and advice, no calibration.yaml."""
+def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: str = DIAGNOSIS_ADVICE,
+                         coverage: dict | None = None) -> dict:
+    """A run that could not calibrate: report.json with the reason and advice (and the front end's ``coverage``
+    when it ran), no calibration.yaml."""
     from .. import __version__
 
     out.mkdir(parents=True, exist_ok=True)
@@ -79,11 +96,14 @@ def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: s
         "problems": [reason],
         "advice": [advice] if advice else [],
     }
+    if coverage is not None:
+        report["coverage"] = coverage
     write_json(out / "report.json", report)
     text = "\n".join([
         f"recording      {log_path}",
         "NO CALIBRATION: the recording does not determine the extrinsic.",
         f"  - {reason}",
+        *([coverage_line(coverage)] if coverage is not None else []),
         *([f"advice: {advice}"] if advice else []),
         "",
         f"written: {out / 'report.json'} (diagnosis only)",
