@@ -219,3 +219,43 @@ def test_wheel_slip_bursts_are_downweighted():
     assert np.all(np.abs(res.t_xy - rec.T_base_cam[:2, 3]) < 0.025)
     plain = calibrate_closed_form(cam, base, compare=False, robust_iterations=0)
     assert rotation_error_deg(plain.R_base_cam, rec.R_base_cam) > rotation_error_deg(res.R_base_cam, rec.R_base_cam)
+
+
+def test_short_drives_among_turning_in_place_count_as_driving():
+    """A robot that turns in place most of the time and drives curves in short stretches: its RMS speed over the
+    paired samples stays under MIN_DRIVING_SPEED, diluted by the turning, but a tenth of its samples are driven
+    faster, and those determine the yaw; the robot counts as driving (the 90th percentile of the speed) and the
+    rotation is solved. Only turning in place stays a diagnosis."""
+    from plsgraph.calib.closed_form import MIN_DRIVING_SPEED
+    from plsgraph.core.geometry import make_T
+
+    r, track = 0.098, 0.37
+    t = np.arange(0.0, 20.0, 0.005)
+    phase = t % 5.0
+    drive = (phase > 1.0) & (phase < 1.75)  # 15 % of the time: curves at 0.14 m/s, then turning in place
+    ramp = np.clip(np.minimum(phase - 1.0, 1.75 - phase) / 0.1, 0.0, 1.0)
+    v = np.where(drive, 0.14 * ramp, 0.0) * np.sign(np.sin(2 * np.pi * t / 10.0) + 1e-9)
+    w = 0.5 * np.sin(2 * np.pi * t / 3.0) + np.where(drive, 0.3, 0.0)
+    yaw = np.cumsum(w) * 0.005
+    xy = np.cumsum(np.stack([v * np.cos(yaw), v * np.sin(yaw)], axis=1), axis=0) * 0.005
+    left = np.cumsum(v - w * track / 2) * 0.005 / r
+    right = np.cumsum(v + w * track / 2) * 0.005 / r
+    base = base_track_from_wheels(t, left, right, r, track)
+    c, s = np.cos(yaw), np.sin(yaw)
+    R_wb = np.stack([np.stack([c, -s, 0 * c], 1), np.stack([s, c, 0 * c], 1), np.tile([0.0, 0.0, 1.0], (t.size, 1))], 1)
+    T_world_base = make_T(R_wb, np.c_[xy, np.zeros(t.size)])
+    T_bc = default_T_base_cam()
+    T_world_board = make_T(np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]), np.array([1.5, -0.3, 0.5]))
+    cam_idx = np.arange(0, t.size, 7)  # ~29 Hz
+    T_board_cam = np.linalg.inv(T_world_board) @ T_world_base[cam_idx] @ T_bc
+    res = calibrate_closed_form(CameraTrack(t[cam_idx], T_board_cam), base, td=0.0, compare=False)
+    assert res.excitation["speed_rms"] < MIN_DRIVING_SPEED <= res.excitation["speed_p90"]
+    assert not res.degenerate, res.degenerate_reasons
+    assert rotation_error_deg(res.R_base_cam, T_bc[:3, :3]) < 0.5
+    # The same robot without its drives: turning in place, diagnosed.
+    spin = base_track_from_wheels(t, np.cumsum(-w * track / 2) * 0.005 / r, np.cumsum(w * track / 2) * 0.005 / r,
+                                  r, track)
+    R_only = make_T(R_wb, np.zeros((t.size, 3)))
+    res = calibrate_closed_form(CameraTrack(t[cam_idx], np.linalg.inv(T_world_board) @ R_only[cam_idx] @ T_bc), spin,
+                                td=0.0, compare=False)
+    assert res.degenerate and any("no driving" in m for m in res.degenerate_reasons)

@@ -383,3 +383,59 @@ def test_a_partly_covered_board_is_tracked_on_fewer_circles(sim, monkeypatch):
     monkeypatch.setattr(detect, "TRACK_MIN_POINTS", None)
     plain = camera_track_from_events(covered, CAM, BOARD, rate_hz=30, kind="count")
     assert np.count_nonzero(plain.t > 0.14) == 0
+
+
+def test_prediction_carried_through_missed_windows_labels_the_next_find(fast_sim, monkeypatch):
+    """After a find, the board's circles carried forward at its speed are handed to the detector (rims and, with
+    BLOB_TRACKING, blobs) for PREDICT_THROUGH_MISSES windows, also through windows without the board; the carried
+    positions lie where the board is. With PREDICT_THROUGH_MISSES = 0 the prediction ends at the first miss, without
+    BLOB_TRACKING the blobs are labelled from scratch. The detector is replaced by the true circle centres, failing
+    in three windows, so that only the tracking is under test."""
+    import plsgraph.frontend.track as frontend_track
+    from plsgraph.frontend.detect import REASON_NOT_FOUND, REASON_OK, GridDetection, neighbour_distance
+
+    t, poses, ev = fast_sim
+    now = {}
+    calls = []
+    surface = frontend_track.surfaces.surface
+
+    def truth_at(ts):
+        T = interpolate_poses(np.array([ts - 1.0 / 60]), t, poses)[0]  # the window's middle
+        return CAM.project(transform_points(inv_T(T), FAR_BOARD.points))
+
+    def remember(events, kind, t_ns, **kw):
+        now["t"] = t_ns * 1e-9
+        return surface(events, kind, t_ns, **kw)
+
+    def true_centres(img, board, camera, predicted_uv=None, foreground="rims", **kw):
+        calls.append((now["t"], foreground, None if predicted_uv is None else np.array(predicted_uv)))
+        if 0.3 <= now["t"] < 0.4:  # lost for three windows
+            return GridDetection(np.full((len(board.points), 2), np.nan), False, REASON_NOT_FOUND)
+        return GridDetection(truth_at(now["t"]), True, REASON_OK, 0.1)
+
+    monkeypatch.setattr(frontend_track.surfaces, "surface", remember)
+    monkeypatch.setattr(frontend_track, "detect_circle_grid", true_centres)
+    monkeypatch.setattr(frontend_track, "LONG_WHEN_LOST", False)
+
+    def predictions():
+        calls.clear()
+        track = camera_track_from_events(ev, CAM, FAR_BOARD, rate_hz=30, kind="count")
+        tw = np.asarray(track.info["window_outcomes"]["t"])
+        t_back = tw[tw >= 0.4][0]  # the first window after the loss
+        rims_back = [p for ts, fg, p in calls if abs(ts - t_back) < 1e-6 and fg == "rims"]
+        blobs_lost = [p for ts, fg, p in calls if 0.3 <= ts < 0.4 and fg == "bright"]
+        return t_back, rims_back, blobs_lost
+
+    t_back, rims_back, blobs_lost = predictions()
+    carried = [p for p in rims_back if p is not None]
+    assert carried, "the first find after three missed windows is labelled by the carried prediction"
+    true = truth_at(t_back)
+    spacing = float(np.median(neighbour_distance(true)))
+    assert np.median(np.linalg.norm(carried[0] - true, axis=1)) < 0.25 * spacing
+    assert sum(p is not None for p in blobs_lost) >= 3  # in each lost window, the search around the board
+    monkeypatch.setattr(frontend_track, "BLOB_TRACKING", False)
+    blobs_plain = predictions()[2]
+    assert len(blobs_plain) >= 3 and all(p is None for p in blobs_plain)
+    monkeypatch.setattr(frontend_track, "PREDICT_THROUGH_MISSES", 0)
+    rims_plain = predictions()[1]
+    assert rims_plain and all(p is None for p in rims_plain)
