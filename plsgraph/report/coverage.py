@@ -149,17 +149,27 @@ def fig_coverage(run: Any, out: Path, truth_T: Any = None) -> str | None:
     outcome = window_outcomes(info, run)
     names = sorted(set(outcome.tolist()), key=lambda n: (n not in DETECTED, n))
     code = np.array([names.index(o) for o in outcome], dtype=int)
+    from matplotlib.patches import Patch
+
     fig, ax = plt.subplots(figsize=(8.0, 1.9))
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+    # Runs of windows with one outcome are drawn as one bar each (a bar per window took a second for 600 windows).
+    start = np.flatnonzero(np.r_[True, code[1:] != code[:-1]])
+    end = np.r_[start[1:], code.size]
+    handles = []
     for i, name in enumerate(names):
-        sel = code == i
-        if np.any(sel):
-            ax.bar(t[sel], 1.0, width=dt, color=_COLOURS.get(name, (0.6, 0.6, 0.6)), align="edge",
-                   label=f"{name} ({np.count_nonzero(sel)})", linewidth=0)
+        runs = np.flatnonzero(code[start] == i)
+        if runs.size == 0:
+            continue
+        colour = _COLOURS.get(name, (0.6, 0.6, 0.6))
+        a, b = start[runs], end[runs] - 1
+        ax.broken_barh(list(zip(t[a], t[b] - t[a] + dt, strict=True)), (0.0, 1.0), facecolors=colour, linewidth=0)
+        handles.append(Patch(facecolor=colour, label=f"{name} ({np.count_nonzero(code == i)})"))
+    ax.set_ylim(0.0, 1.0)
     ax.set_yticks([])
     ax.set_xlim(t[0], t[-1] + dt)
     ax.set_xlabel("time in the recording (s)")
-    ax.legend(loc="lower center", bbox_to_anchor=(0.5, 1.02), ncol=4, fontsize=7, frameon=False)
+    ax.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 1.02), ncol=4, fontsize=7, frameon=False)
     fig.tight_layout()
     return _save(plt, fig, out, "coverage.png")
 
@@ -169,8 +179,6 @@ def fig_event_frames(run: Any, out: Path, truth_T: Any = None, n_frames: int = 3
     them and joined in the board's order (the first circle red)."""
     import cv2
 
-    from ..io.events_reader import read_events
-
     track = getattr(run, "camera_track", None)
     log_path = getattr(run, "log_path", None)
     det = None if track is None else track.detections
@@ -178,16 +186,15 @@ def fig_event_frames(run: Any, out: Path, truth_T: Any = None, n_frames: int = 3
         return None  # no detections, or tracks given without their recording
     window_s = float(track.info.get("window_s") or 1.0 / 30.0)
     picks = np.unique(np.linspace(0, len(det) - 1, n_frames).round().astype(int))
+    # Detections are on the odometry clock when the camera track was shifted there; events are not.
+    shift = float(getattr(run, "clock_offset_s", 0.0) or 0.0)
+    half = int(window_s * 0.5e9)
+    mids = [int(round((float(det.t[i]) - shift) * 1e9)) for i in picks]
+    frames = _window_counts(log_path, [(m - half, m + half) for m in mids])
     tiles = []
-    for i in picks:
-        # Detections are on the odometry clock when the camera track was shifted there; events are not.
-        t_ns = int(round((float(det.t[i]) - float(getattr(run, "clock_offset_s", 0.0) or 0.0)) * 1e9))
-        half = int(window_s * 0.5e9)
-        ev = read_events(log_path, None, t_ns - half, t_ns + half)
-        if len(ev) == 0:
+    for i, img in zip(picks, frames, strict=True):
+        if img is None:
             continue
-        img = np.zeros((ev.height, ev.width), np.float32)
-        np.add.at(img, (ev.y.astype(int), ev.x.astype(int)), 1.0)
         hi = max(1.0, float(np.percentile(img[img > 0], 95)))
         g = (np.clip(img / hi, 0, 1) * 255).astype(np.uint8)
         s = 2
@@ -210,6 +217,24 @@ def fig_event_frames(run: Any, out: Path, truth_T: Any = None, n_frames: int = 3
         row = np.hstack([row, gap, tile])
     cv2.imwrite(str(out / "event_frames.png"), row)
     return "event_frames.png"
+
+
+def _window_counts(log_path: Any, windows: list[tuple[int, int]]) -> list[np.ndarray | None]:
+    """Count images of the events in each time window [t0, t1) (ns), in one pass over the recording's events (None
+    for a window without events)."""
+    from ..io.events_reader import iter_event_chunks
+
+    imgs: list[np.ndarray | None] = [None] * len(windows)
+    lo, hi = min(w[0] for w in windows), max(w[1] for w in windows)
+    for ch in iter_event_chunks(log_path, None, t0=lo, t1=hi):
+        for k, (a, b) in enumerate(windows):
+            i0, i1 = np.searchsorted(ch.t, [a, b], side="left")
+            if i1 <= i0:
+                continue
+            if imgs[k] is None:
+                imgs[k] = np.zeros((ch.height, ch.width), np.float32)
+            np.add.at(imgs[k], (ch.y[i0:i1].astype(int), ch.x[i0:i1].astype(int)), 1.0)
+    return imgs
 
 
 def coverage_table(info: dict, run: Any = None) -> str | None:
