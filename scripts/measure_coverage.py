@@ -11,7 +11,8 @@ name, of another front-end module (``detect.TRACK_BEFORE_LABEL=False``); every v
 defaults run on each recording in turn, so a busy machine slows all of them alike. Printed per setting: coverage
 (share of the 30 Hz windows with the whole board in view that have a detection; "slow" below 20 px/s), wrong
 labels (median point error over 5 px), median centre error (all detections; those of slow boards), and the
-front end's seconds.
+front end's seconds; each run's JSON line also has ``by_speed``, [found, in-view windows] per image-speed bin
+(SPEED_BINS, px/s).
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ sys.path.insert(0, str(REPO / "scripts"))
 import study  # noqa: E402
 
 SLOW_PX_S = 20.0
+#: Image speed bins (px/s) of the per-bin coverage ``by_speed``: [found, in-view windows] per bin.
+SPEED_BINS = ((0.0, 1.0), (1.0, 2.0), (2.0, 5.0), (5.0, 20.0), (20.0, np.inf))
 
 
 def recording(index: int, cache: Path, duration: float) -> Path:
@@ -99,7 +102,11 @@ def measure(d: Path, settings: dict) -> dict:
     err = np.nanmedian(np.linalg.norm(np.asarray(ct.detections.uv) - study._true_pixels(sim, td), axis=-1), axis=1)
     wrong = err > study.WRONG_PX
     slow_det = _speed(sim, td) < SLOW_PX_S
-    return {"seconds": seconds, "coverage": float(found[in_view].mean()),
+    bins = {}
+    for lo, hi in SPEED_BINS:
+        sel = in_view & (speed >= lo) & (speed < hi)
+        bins[f"{lo:g}-{hi:g}"] = [int(found[sel].sum()), int(sel.sum())]
+    return {"seconds": seconds, "coverage": float(found[in_view].mean()), "by_speed": bins,
             "coverage_slow": _mean(found[in_view & (speed < SLOW_PX_S)]),
             "coverage_fast": _mean(found[in_view & (speed >= SLOW_PX_S)]),
             "slow_share": _mean(speed[in_view] < SLOW_PX_S), "detections": int(len(err)), "wrong": int(wrong.sum()),
