@@ -353,7 +353,11 @@ def run_recording(
         build_tracks(run, progress)
         return solve(run, refine, progress)
     except (DegenerateMotionError, InsufficientDataError) as exc:
-        exc.coverage = diagnosis_coverage(run, exc)
+        try:
+            exc.coverage = diagnosis_coverage(run, exc)
+        except Exception as cov_exc:  # noqa: BLE001 - the diagnosis matters, its coverage is extra
+            log.warning("the diagnosis's coverage could not be computed: %s", cov_exc)
+            exc.coverage = None
         raise
 
 

@@ -221,7 +221,7 @@ def test_wheel_slip_bursts_are_downweighted():
     assert rotation_error_deg(plain.R_base_cam, rec.R_base_cam) > rotation_error_deg(res.R_base_cam, rec.R_base_cam)
 
 
-def test_short_drives_among_turning_in_place_count_as_driving():
+def test_short_drives_among_turning_in_place_count_as_driving(monkeypatch):
     """A robot that turns in place most of the time and drives curves in short stretches: its RMS speed over the
     paired samples stays under MIN_DRIVING_SPEED, diluted by the turning, but a tenth of its samples are driven
     faster, and those determine the yaw; the robot counts as driving (the 90th percentile of the speed) and the
@@ -252,6 +252,15 @@ def test_short_drives_among_turning_in_place_count_as_driving():
     assert res.excitation["speed_rms"] < MIN_DRIVING_SPEED <= res.excitation["speed_p90"]
     assert not res.degenerate, res.degenerate_reasons
     assert rotation_error_deg(res.R_base_cam, T_bc[:3, :3]) < 0.5
+    assert not any("settled" in w for w in res.warnings)
+    # Cut short, the alternations do not settle: said, and the answer is off.
+    import plsgraph.calib.closed_form as closed_form
+
+    monkeypatch.setattr(closed_form, "MAX_ALTERNATIONS", 3)
+    short = calibrate_closed_form(CameraTrack(t[cam_idx], T_board_cam), base, td=0.0, compare=False)
+    assert any("had not settled" in w for w in short.warnings)
+    assert rotation_error_deg(short.R_base_cam, T_bc[:3, :3]) > 1.0
+    monkeypatch.undo()
     # The same robot without its drives: turning in place, diagnosed.
     spin = base_track_from_wheels(t, np.cumsum(-w * track / 2) * 0.005 / r, np.cumsum(w * track / 2) * 0.005 / r,
                                   r, track)

@@ -439,3 +439,35 @@ def test_prediction_carried_through_missed_windows_labels_the_next_find(fast_sim
     monkeypatch.setattr(frontend_track, "PREDICT_THROUGH_MISSES", 0)
     rims_plain = predictions()[1]
     assert rims_plain and all(p is None for p in rims_plain)
+
+
+def test_windows_without_a_pose_are_not_counted_as_found(sim, monkeypatch):
+    """A detection PnP gives no pose for is refused: its window's outcome is ``no_pose``, not a find, and when no
+    detection gives a pose the error carries every window's outcome (for the diagnosis's coverage)."""
+    import plsgraph.frontend.track as frontend_track
+    from plsgraph.core.tracks import CameraTrack
+
+    t, poses, ev = sim
+    posed = frontend_track.camera_track_from_detections
+
+    def every_other(dets, camera, **kw):  # PnP refuses every other detection
+        tr = posed(dets, camera, **kw)
+        keep = np.arange(len(tr)) % 2 == 0
+        return CameraTrack(tr.t[keep], tr.T_board_cam[keep], tr.cov[keep], tr.rms_px[keep],
+                           tr.detections.subset(keep),
+                           dict(tr.info, rejected={"pnp_failed": int((~keep).sum())}))
+
+    monkeypatch.setattr(frontend_track, "camera_track_from_detections", every_other)
+    track = camera_track_from_events(ev, CAM, BOARD, rate_hz=30, kind="count")
+    out = track.info["window_outcomes"]["outcome"]
+    assert out.count("no_pose") == track.info["skipped"]["pnp_failed"] >= 3
+    assert sum(o in ("rims", "blobs", "image") for o in out) == len(track) == track.info["poses"]
+
+    def no_pose(dets, camera, **kw):
+        raise InsufficientDataError("PnP: none of the detection frames gave a pose")
+
+    monkeypatch.setattr(frontend_track, "camera_track_from_detections", no_pose)
+    with pytest.raises(InsufficientDataError) as err:
+        camera_track_from_events(ev, CAM, BOARD, rate_hz=30, kind="count")
+    outcomes = err.value.frontend_info["window_outcomes"]["outcome"]
+    assert outcomes.count("no_pose") >= 6 and not any(o in ("rims", "blobs", "image") for o in outcomes)

@@ -342,5 +342,25 @@ def test_evt3_group_out_of_time_order_is_decoded_packet_by_packet():
     rng = np.random.default_rng(5)
     packets = [_random_words(rng, 2000, [0, 2, 3, 4, 5, 6, 8], [0.2, 0.35, 0.05, 0.05, 0.05, 0.2, 0.1], xmax=300)
                for _ in range(40)]
-    ref, out, _ = _decode_both(_evt3_messages(packets), group=8)
+    ref, out, dec = _decode_both(_evt3_messages(packets), group=8)
     assert len(out) == len(ref) and len(ref) > 20
+    assert dec.group_fallbacks == 3  # then one by one: grouping such a stream only costs
+
+
+def test_evt3_vector_base_at_the_end_of_a_packet_carries_to_the_next():
+    # A VECT_BASE_X ends one packet and its vectors start the next (drivers cut packets anywhere): the vectors'
+    # events lie at that base, as a word-by-word decoder has them, whether the packets are decoded one by one or
+    # in a group.
+    t = [(8 << 12) | 0, (6 << 12) | 5, 17]  # time, then y = 17
+    first = np.array(t + [(2 << 12) | 40, (3 << 12) | (1 << 11) | 100], np.uint16)  # an event, then the base
+    second = np.array([(5 << 12) | 0xFF, (6 << 12) | 9, (2 << 12) | 41], np.uint16)  # 8 events at the base
+    slow, fast = SlowEvt3(346, 260), Evt3Decoder(346, 260)
+    for words in (first, second):
+        _check(fast.decode(words.tobytes()), slow.decode(words.tolist()))
+    x = Evt3Decoder(346, 260).decode(np.r_[first, second].tobytes())[1]
+    assert sorted(x.tolist()) == [40, 41, *range(100, 108)]
+    rng = np.random.default_rng(11)
+    packets = _monotonic_evt3(rng, 20)
+    packets[12] = np.r_[packets[12], np.uint16((3 << 12) | 200)]  # a base at the end of a packet in a group
+    packets[13] = np.r_[np.uint16((4 << 12) | 0xFFF), packets[13]]  # its 12-wide vector starting the next
+    _decode_both(_evt3_messages(packets), group=16)

@@ -402,6 +402,8 @@ class ClosedFormOptions:
     otherwise it is searched in ``td_range`` with ``time_offset_method``. ``iterations`` alternations of
     rotation and lever arm; ``hand_eye_interval_s`` the span of the relative motions for the translation and
     the OpenCV hand-eye comparison. ``compare`` also runs every other solver (results in ``methods``).
+    (``iterations`` is the least number of alternations: they go on until rotation and lever arm settle, at most
+    MAX_ALTERNATIONS times, after each of the ``robust_iterations`` reweightings too.)
     ``use_covariance`` weights the velocity rows by the camera poses' covariance when the track has one.
     ``estimate_odometry_scale`` estimates the odometry's speed and turn-rate scale factors (wrong wheel radius,
     effective track width) along with the lever arm, reports them and corrects the odometry for the translation.
@@ -566,8 +568,9 @@ def calibrate_closed_form(
                 weights = covariance_weights(camera_track, pairs.t) if use_covariance else None
                 rob = (np.ones(pairs.t.size), np.ones(pairs.t.size))
                 R = None
+                settled = False
                 for k in range(robust_iterations + 1):
-                    for i in range(MAX_ALTERNATIONS):
+                    for i in range(max(MAX_ALTERNATIONS, n_iter)):
                         X, Y, _k = _stack_rows(pairs, t_xy, s_v, s_w)
                         W = np.r_[rob[0], rob[1]] if weights is None else weights * np.r_[rob[0], rob[1]]
                         R_new = _solve_rotation(X, Y, method, W).R_base_cam
@@ -577,13 +580,13 @@ def calibrate_closed_form(
                         R, t_xy = R_new, t_new
                         if settled and i + 1 >= n_iter:
                             break
-                    alternations.append(i + 1)
                     if k < robust_iterations:
                         e_w, e_v = model_residuals(pairs, R, t_xy, s_v, s_w)
                         rob = (huber_weights(e_w, _robust_sigma(e_w)), huber_weights(e_v, _robust_sigma(e_v)))
+                unsettled.append(not settled)  # the last weighting's alternations reached their cap
                 return R, t_xy, s_v, s_w, int(np.count_nonzero((rob[0] < 1) | (rob[1] < 1)))
 
-            alternations: list[int] = []
+            unsettled: list[bool] = []
 
             R, t_xy, s_v, s_w, downweighted = solve_model(pairs, max(1, iterations), t_xy, s_v, s_w)
             if o.refine_td and td is None:
@@ -603,7 +606,7 @@ def calibrate_closed_form(
                     R, t_xy, s_v, s_w, downweighted = solve_model(pairs, 1, t_xy, s_v, s_w)
             t_xy_vel = t_xy.copy()
             discarded["velocity_samples_downweighted"] = downweighted
-            if max(alternations) >= MAX_ALTERNATIONS:
+            if unsettled[-1]:
                 warnings.append(
                     f"the rotation and the lever arm had not settled after {MAX_ALTERNATIONS} alternations (the robot "
                     "mostly turns in place?); the closed form may be off, drive more"

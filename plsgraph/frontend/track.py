@@ -780,6 +780,8 @@ def camera_track_from_events(
     return _track_from_detections(dets, info, camera, max_rms_px, sigma_px)
 
 
+#: The window outcome of a detection PnP gave no pose for (it failed, or its reprojection RMS was too large).
+REASON_NO_POSE = "no_pose"
 #: Per-detection lists of the front end's info, kept aligned with the detections: which detector found each,
 #: the span of events it was found on (multiples of the window), and the end of the window it was found in (s; the
 #: detection's own stamp is the mean time of its events, up to half a span earlier).
@@ -824,12 +826,21 @@ def _track_from_detections(
             raise exc
     info["seconds"]["consistency"] = time.perf_counter() - c0
     c0 = time.perf_counter()
-    track = camera_track_from_detections(dets, camera, max_rms_px=max_rms_px, sigma_px=sigma_px)
+    win = info.get("window_t")  # the window each detection was found in
+    found_in = np.asarray(win, dtype=float) if win is not None and len(win) == len(dets) else np.asarray(dets.t)
+    try:
+        track = camera_track_from_detections(dets, camera, max_rms_px=max_rms_px, sigma_px=sigma_px)
+    except InsufficientDataError as exc:  # no frame gave a pose: the diagnosis still shows what each window gave
+        _mark_outcomes(info, found_in, REASON_NO_POSE)
+        exc.frontend_info = info
+        raise
     info["seconds"]["pnp"] = time.perf_counter() - c0
     skipped.update(track.info.get("rejected", {}))
     info["skipped"] = dict(skipped)
     info["poses"] = len(track)
-    _keep_frames(info, len(dets), np.isin(np.asarray(dets.t), np.asarray(track.t)))  # as the track's detections
+    posed = np.isin(np.asarray(dets.t), np.asarray(track.t))
+    _mark_outcomes(info, found_in[~posed], REASON_NO_POSE)  # found, then refused by PnP: not a find in the coverage
+    _keep_frames(info, len(dets), posed)  # as the track's detections
     info["median_rms_px"] = track.info.get("median_rms_px")
     share = info.get("flicker_event_share") or 0.0
     found = int(info.get("detected", 0)) / max(int(info.get("windows", 0)), 1)

@@ -309,6 +309,10 @@ class Evt3Decoder:
             self.stats.unknown_codes += int(counts[[1, 9, 11, 12, 13]].sum())
             self.stats.triggers += int(counts[10])
             has_vect = bool(counts[4] or counts[5])
+            if counts[3] and not has_vect:
+                # A vector base without vectors (they follow in the next packet): it is the state they start from.
+                last = int(w[start + np.flatnonzero(code[start:] == 3)[-1]])
+                self.base_x, self.pol = last & 0x7FF, (last >> 11) & 1
         ix = np.flatnonzero(is_x)
         if has_vect:
             active = np.arange(w.size) >= start

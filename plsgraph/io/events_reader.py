@@ -24,6 +24,9 @@ _EVT3_CLOCK_PACKETS = 8
 # evt3 packets decoded together once the clock is mapped: the decoder's state carries from packet to packet, so a
 # group decodes to the same events as its packets one by one, with a tenth of the per-call overhead.
 EVT3_GROUP_PACKETS = 32
+#: After this many groups had to be decoded again packet by packet (a stream whose time steps back now and then),
+#: the topic's packets are decoded one by one: grouping would only cost twice.
+MAX_GROUP_FALLBACKS = 3
 # 11-bit addresses (libcaer_cmp, evt3) bound the sensor when a message does not state its size.
 _FALLBACK_SIZE = 2048
 
@@ -74,6 +77,7 @@ class _TopicDecoder:
     bad_messages: int = 0
     good_messages: int = 0
     backwards: int = 0  # messages that started before the previous one ended (stream not time-ordered)
+    group_fallbacks: int = 0  # groups of evt3 packets decoded again one by one (their time stepped back)
     _pending: list = field(default_factory=list)  # evt3 packets waiting for the clock offset
     stats: DecodeStats = field(default_factory=DecodeStats)
 
@@ -118,6 +122,7 @@ class _TopicDecoder:
         """The event words of an evt3 packet that can join a group, else None (decoded on its own)."""
         if (
             self.evt3_offset_ns is None
+            or self.group_fallbacks >= MAX_GROUP_FALLBACKS
             or not isinstance(self.decoder, Evt3Decoder)
             or isinstance(m.data, DecodedEvents)
             or m.msgtype not in EVENT_PACKET_TYPES
@@ -127,7 +132,9 @@ class _TopicDecoder:
             hdr, blob = parse_event_packet(m.data, m.serialization)
         except (CdrError, RecordingError):
             return None  # decode() reports it
-        if hdr.encoding != self.encoding or (hdr.width, hdr.height) != (self.width, self.height) or len(blob) % 2:
+        sized = hdr.width > 0 and hdr.height > 0  # a header without the size keeps the size taken before
+        if hdr.encoding != self.encoding or (sized and (hdr.width, hdr.height) != (self.width, self.height)) \
+                or len(blob) % 2:
             return None
         self.good_messages += 1
         return blob
@@ -140,6 +147,7 @@ class _TopicDecoder:
         if t.size > 1 and np.any(t[1:] < t[:-1]):
             self.decoder = before  # packet by packet, as decode() would
             self.stats = before.stats
+            self.group_fallbacks += 1
             return [q for b in blobs for q in self._mapped(self.decoder.decode(b))]
         return self._mapped((t, x, y, p))
 

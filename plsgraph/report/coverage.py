@@ -34,6 +34,7 @@ _COLOURS = {
     "ambiguous_labels": (0.58, 0.4, 0.74),
     "too_few_points": (0.55, 0.34, 0.29),
     "same_stamp": (0.5, 0.5, 0.5),
+    "no_pose": (0.35, 0.35, 0.35),
     "robot_still": (0.93, 0.93, 0.75),
 }
 
@@ -49,7 +50,7 @@ STILL_TURN_RAD = 1e-3
 DETECTED = ("rims", "blobs", "image")
 #: Outcomes of a board found and then refused: kept as they are while the robot stands still too.
 REFUSED = ("jumped_from_track", "inconsistent_with_neighbours", "same_stamp", "ambiguous_labels", "inconsistent_order",
-           "mirrored_order")
+           "mirrored_order", "no_pose")
 
 
 def robot_still(t_odometry: np.ndarray, base_track: Any) -> np.ndarray:
