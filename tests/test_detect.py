@@ -387,3 +387,43 @@ def test_peaks_on_noise_alone_label_no_board():
         rng = np.random.default_rng(seed)
         img = _ring_events(np.zeros((0, 2)), 2.5, per_ring=0, noise=6000, rng=rng)
         assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, peaks=True).ok
+
+
+def _with_texture(img: np.ndarray, streaks: int, rng) -> np.ndarray:
+    """``img`` plus a textured background's events: short streaks of 5-30 events in random directions."""
+    img = img.copy()
+    h, w = img.shape
+    for _ in range(streaks):
+        x0, y0, length, a = rng.uniform(0, w), rng.uniform(0, h), rng.uniform(2, 8), rng.uniform(0, np.pi)
+        s = rng.uniform(0, length, int(rng.integers(5, 30)))
+        xi, yi = np.rint(x0 + s * np.cos(a)).astype(int), np.rint(y0 + s * np.sin(a)).astype(int)
+        ok = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+        np.add.at(img, (yi[ok], xi[ok]), 1.0)
+    return img
+
+
+@pytest.mark.parametrize("distance,seed", [(1.6, 0), (1.6, 1), (1.8, 2), (1.8, 3), (2.0, 4)])
+def test_faint_rings_over_a_textured_background_are_found_by_the_ring_filter(distance, seed):
+    """A slow, distant board over half a second: its circles are faint rings of events among a textured
+    background's streaks. Neither the blob detector nor the smoothed image's peaks give the board; the ring
+    filter's strongest responses hold most circles, and they are labelled right, at their sub-pixel peaks."""
+    from plsgraph.frontend.detect import neighbour_distance
+
+    board = load_board("acircles_4x11_a2")
+    uv = _board_view(board, distance)
+    radius = 0.5 * board.circle_diameter / (np.sqrt(2) * board.square_size) * float(np.median(neighbour_distance(uv)))
+    rng = np.random.default_rng(seed)
+    img = _with_texture(_ring_events(uv, radius, per_ring=60, noise=2000, rng=rng), 300, rng)
+    assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, peaks=True).ok
+    det = detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, rings=True)
+    assert det.ok and det.n_seen >= 30
+    err = np.linalg.norm(det.uv - uv, axis=1)
+    assert np.nanmedian(err) < 0.3 and np.nanmax(err) < 1.5  # every label right: a wrong one is a spacing off
+
+
+def test_rings_in_texture_alone_label_no_board():
+    board = load_board("acircles_4x11_a2")
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        img = _with_texture(_ring_events(np.zeros((0, 2)), 2.5, per_ring=0, noise=3000, rng=rng), 400, rng)
+        assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, rings=True).ok

@@ -155,6 +155,10 @@ SUPPRESS_FLICKER = False
 #: the blur that merges a small circle's events into one blob.
 BLOB_SPANS = (1.0, 2.0, 4.0, 8.0, 16.0)
 BLOB_BLUR_PX = 0.8
+#: Blob spans of RING_MIN_SPAN windows or more also look for the circles as rings (detect.ring_peaks), in the
+#: whole image, when the blob detector's blobs do not give the board (slow, distant boards).
+RING_PEAKS = True
+RING_MIN_SPAN = 4.0
 #: A detection this many windows back still says how large the circles are.
 RECENT_WINDOWS = 15
 #: Count images of spans longer than the window in which more than DENSE_ACTIVE of the pixels fired (a textured
@@ -336,7 +340,8 @@ class _WindowJob:
                     view = np.zeros_like(img)
                     view[y0:y1, x0:x1] = img[y0:y1, x0:x1]
                 det = detect_circle_grid(view, self.board, self.camera, foreground="bright", blur_sigma=BLOB_BLUR_PX,
-                                         predicted_uv=predicted if box is not None else None)
+                                         predicted_uv=predicted if box is not None else None,
+                                         rings=RING_PEAKS and box is None and mult >= RING_MIN_SPAN)
                 if det.reason == REASON_OK and mult > SHORT_BLOB_SPAN and lost and not self._holds_still(
                         det, tq, age, "blobs"):
                     break  # refused: a board smeared over the long span; try the other spans
