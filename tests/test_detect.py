@@ -427,3 +427,24 @@ def test_rings_in_texture_alone_label_no_board():
         rng = np.random.default_rng(seed)
         img = _with_texture(_ring_events(np.zeros((0, 2)), 2.5, per_ring=0, noise=3000, rng=rng), 400, rng)
         assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, rings=True).ok
+
+
+def test_a_ring_labelling_of_the_gaps_between_the_circles_is_refused():
+    """The ring filter answers weakly between four rings too; those gap sites form a lattice as regular as the
+    circles' (the board turned by 180 degrees). A labelling of them is refused: its own gaps, the true circles,
+    answer more strongly than its circles. The true labelling passes."""
+    from plsgraph.frontend.detect import neighbour_distance, normalize_image, ring_gaps_weaker, ring_response
+
+    board = load_board("acircles_4x11_a2")
+    for distance, seed in [(1.6, 0), (1.8, 2), (2.0, 4)]:
+        uv = _board_view(board, distance)
+        radius = 0.5 * board.circle_diameter / (np.sqrt(2) * board.square_size) * float(
+            np.median(neighbour_distance(uv)))
+        rng = np.random.default_rng(seed)
+        img = _with_texture(_ring_events(uv, radius, per_ring=60, noise=2000, rng=rng), 300, rng)
+        resp = ring_response(normalize_image(img, "bright"))
+        H, _ = cv2.findHomography(board.points[:, :2], uv, 0)
+        gaps = board.points[:, :2] + np.array([board.square_size, 0.0])
+        gap_uv = cv2.perspectiveTransform(gaps.reshape(-1, 1, 2), H).reshape(-1, 2)
+        assert ring_gaps_weaker(resp, uv, board)
+        assert not ring_gaps_weaker(resp, gap_uv, board)

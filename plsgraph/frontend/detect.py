@@ -138,25 +138,45 @@ def _ring_kernel(radius: float) -> np.ndarray:
     d = np.hypot(xx, yy)
     ring = (np.abs(d - radius) <= 0.75).astype(np.float32)
     around = ((d <= radius - 1.5) | ((d > radius + 1.5) & (d <= radius + 3.0))).astype(np.float32)
-    return ring / ring.sum() - around / around.sum()
+    k = ring / ring.sum() - around / around.sum()
+    k.setflags(write=False)
+    return k
 
 
 def ring_response(weight: np.ndarray, radii: tuple[float, ...] = RING_RADII_PX) -> np.ndarray:
-    """The largest ring-filter response over ``radii`` at each pixel (float32, the image's shape)."""
+    """The largest ring-filter response over ``radii`` at each pixel (float32, the image's shape). Within
+    ``ring_margin(radii)`` px of the border it is 0: there the image's edge looks like a ring's outside."""
     w = np.asarray(weight, dtype=np.float32)
     resp = np.full(w.shape, -np.inf, np.float32)
     for r in radii:
         np.maximum(resp, cv2.filter2D(w, -1, _ring_kernel(float(r)), borderType=cv2.BORDER_CONSTANT), out=resp)
+    m = ring_margin(radii)
+    resp[:m], resp[-m:], resp[:, :m], resp[:, -m:] = 0.0, 0.0, 0.0, 0.0
     return resp
 
 
-def ring_peaks(resp: np.ndarray, count: int) -> np.ndarray:
-    """The ``count`` strongest local maxima (3 x 3) of a :func:`ring_response`: candidate centres (k, 2) of circles
-    seen as rings of events, strongest first, each placed at the top of a parabola through its row and column."""
+def ring_margin(radii: tuple[float, ...] = RING_RADII_PX) -> int:
+    return int(np.ceil(max(radii) + 3.0))
+
+
+def ring_peaks(resp: np.ndarray, count: int, fraction: float = 0.1, min_dist_px: float = 2.0) -> np.ndarray:
+    """The ``count`` strongest local maxima (3 x 3) of a :func:`ring_response` above ``fraction`` of its largest
+    value, none within ``min_dist_px`` of a stronger one: candidate centres (k, 2) of circles seen as rings of
+    events, strongest first, each placed at the top of a parabola through its row and column."""
+    top = float(resp.max(initial=0.0))
+    if not np.isfinite(top) or top <= 0.0:
+        return np.zeros((0, 2))
     local_max = cv2.dilate(resp, np.ones((3, 3), np.uint8))
-    ys, xs = np.nonzero((resp >= local_max) & (resp > 0.0))
-    order = np.argsort(-resp[ys, xs], kind="stable")[:count]
+    ys, xs = np.nonzero((resp >= local_max) & (resp > fraction * top))
+    order = np.argsort(-resp[ys, xs], kind="stable")[: 4 * count]
     ys, xs = ys[order], xs[order]
+    keep: list[int] = []
+    for i in range(ys.size):  # the strongest of maxima closer than min_dist_px (flat tops, ties)
+        if all((ys[i] - ys[j]) ** 2 + (xs[i] - xs[j]) ** 2 >= min_dist_px**2 for j in keep):
+            keep.append(i)
+            if len(keep) == count:
+                break
+    ys, xs = ys[keep], xs[keep]
     h, w = resp.shape
     inner = (xs > 0) & (xs < w - 1) & (ys > 0) & (ys < h - 1)
     fx, fy = xs.astype(float), ys.astype(float)
@@ -172,6 +192,39 @@ def ring_peaks(resp: np.ndarray, count: int) -> np.ndarray:
         else:
             fy[inner] += step
     return np.c_[fx, fy]
+
+
+#: A ring labelling is refused when the ring response at the board's gaps (each circle's position moved by one
+#: square along the rows: the empty sites between the circles) reaches this share of the response at its circles.
+#: The filter also answers, more weakly, between four rings; labelled, those gap sites form a lattice as regular as
+#: the circles' (the board turned by 180 degrees) whose own gaps are the true circles, where the response is larger.
+RING_GAP_RATIO = 0.8
+
+
+def ring_gaps_weaker(resp: np.ndarray, uv: np.ndarray, board: Board) -> bool:
+    """Whether the ring response at the labelled circles ``uv`` (N, 2; NaN unseen) clearly exceeds that at the
+    board's gaps, mapped into the image by the labelling's homography (see RING_GAP_RATIO)."""
+    seen = np.all(np.isfinite(uv), axis=1)
+    if np.count_nonzero(seen) < 4:
+        return False
+    H, _ = cv2.findHomography(board.points[seen, :2].astype(np.float64), uv[seen].astype(np.float64), 0)
+    if H is None:
+        return False
+    gaps = board.points[:, :2] + np.array([board.square_size, 0.0])
+    g = cv2.perspectiveTransform(gaps.reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
+
+    def at(p: np.ndarray) -> np.ndarray:
+        q = np.rint(p).astype(int)
+        h, w = resp.shape
+        q = q[(q[:, 0] >= 1) & (q[:, 0] < w - 1) & (q[:, 1] >= 1) & (q[:, 1] < h - 1)]
+        if q.shape[0] == 0:
+            return np.zeros(0)
+        return np.max([resp[q[:, 1] + dy, q[:, 0] + dx] for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
+
+    on, off = at(uv[seen]), at(g[np.all(np.isfinite(g), axis=1)])
+    if on.size < 4 or off.size < 4:
+        return False
+    return float(np.median(off)) < RING_GAP_RATIO * float(np.median(on))
 
 
 def blob_peaks(weight: np.ndarray, sigma_px: float, fraction: float = PEAK_FRACTION) -> np.ndarray:
@@ -579,7 +632,8 @@ def detect_circle_grid(
     ``lattice_fallback=False`` keeps OpenCV's finder alone (for comparisons). When both fail, the local
     maxima of the smoothed weight image (:func:`blob_peaks`, scales :data:`PEAK_SIGMAS_PX`) are labelled the
     same way: small ringed circles the blob detector misses are one peak each (``peaks``; default
-    :data:`PEAKS_BY_DEFAULT`).
+    :data:`PEAKS_BY_DEFAULT`). With ``rings``, before the peaks, the strongest responses of a ring filter
+    (:func:`ring_response`, :func:`ring_peaks`): circles seen as thin rings of events, of a slow, distant board.
 
     ``foreground="rims"`` (event-activity images): pixels above ``rim_threshold`` are active; the
     circle centres are the centroids of the holes inside the rims (:func:`rim_holes`). Between
@@ -656,23 +710,22 @@ def detect_circle_grid(
     # Circles seen as thin rings (a slow, distant board over a long span): the ring filter's strongest responses.
     resp = ring_response(weight) if (lattice_fallback and rings) else None
     for share in RING_CANDIDATES if resp is not None else ():
-        pts = ring_peaks(resp, int(round(share * n)))
+        want = int(round(share * n))
+        pts = ring_peaks(resp, want)
         if pts.shape[0] < 6:
             break
-        det = _fail(n, REASON_NOT_FOUND)
-        if predicted_uv is not None:
-            det = track_circle_grid(pts, predicted_uv, board, camera, max_rms_px=max_homography_rms_px,
-                                    min_points=TRACK_MIN_POINTS)
-        if not det.ok:
-            det = label_circle_grid(pts, board, camera, min_points=min_points, max_rms_px=max_homography_rms_px)
-        if not det.ok:
-            continue
-        # The ring filter's sub-pixel peaks are the centres: re-centring on the events would pull them towards the
-        # background's events inside the disk.
-        reason, rms = check_grid_order(det.uv, board, camera, max_rms_px=max_homography_rms_px)
-        if reason == REASON_OK:
-            return GridDetection(det.uv, True, REASON_OK, rms)
-        last_reason, last_rms = reason, rms
+        # Labelled from scratch (half the board at least, a unique placement, the order check), never by a
+        # prediction: the strongest responses alone hide the weak candidates the tracker's shift test looks at.
+        det = label_circle_grid(pts, board, camera, min_points=min_points, max_rms_px=max_homography_rms_px)
+        if det.ok and not ring_gaps_weaker(resp, det.uv, board):
+            det = _fail(n, REASON_ORDER)  # the gaps between the circles answer as strongly: not certain
+        if det.ok:
+            # The ring filter's sub-pixel peaks are the centres: re-centring on the events would pull them towards
+            # the background's events inside the disk.
+            return det
+        last_reason, last_rms = det.reason, det.homography_rms_px
+        if pts.shape[0] < want:
+            break  # no more candidates to add
     # Neither found the board among the blob detector's blobs: label the smoothed image's peaks instead.
     if peaks is None:
         peaks = PEAKS_BY_DEFAULT
