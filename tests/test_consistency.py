@@ -95,3 +95,17 @@ def test_front_end_records_the_refusal_and_the_refinement_matches_clean_data():
     assert np.all(np.abs(err) <= 3 * np.radians(a.sigma_rot_deg))
     assert np.degrees(np.linalg.norm(rotation_error_base_axes(a.R_base_cam, b.R_base_cam))) < 0.1
     assert abs(a.td - b.td) < 1e-3
+
+
+def test_an_isolated_find_of_a_slow_board_is_checked_across_the_gaps():
+    """A slow board's find between gaps of 0.15 and 0.25 s (no near pair can predict it) is checked against the
+    finds before and after the gaps, interpolated: shifted by a lattice step it is refused, right it is kept."""
+    rng = np.random.default_rng(3)
+    base = rng.uniform(50, 250, (1, 44, 2)) + np.c_[np.arange(44) % 4 * 9.0, np.arange(44) // 4 * 9.0][None]
+    t = np.r_[np.arange(0.0, 0.3, 1 / 30), 0.45, np.arange(0.7, 1.0, 1 / 30)]
+    uv = base + np.array([3.0, 1.0])[None, None] * t[:, None, None] + rng.normal(0, 0.2, (t.size, 44, 2))
+    i = int(np.flatnonzero(t == 0.45)[0])
+    assert not inconsistent_frames(t, uv).any()
+    _shift_by_a_step(uv, i)
+    bad = inconsistent_frames(t, uv)
+    assert bad[i] and bad.sum() == 1

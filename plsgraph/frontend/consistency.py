@@ -9,7 +9,8 @@ predicts each point by a line through time (interpolation when they straddle the
 not), and the detection is refused when the median over pairs of the median point distance exceeds
 ``spacings`` lattice spacings. The median over pairs keeps one wrong neighbour from condemning a good frame.
 A frame with fewer than two neighbours within ``max_dt_s`` is checked against its two nearest within twice
-that; one without is kept (it cannot be checked).
+that, and failing that against its nearest detections before and after within MAX_BRIDGE_S when the board moved
+less than a spacing between them (a slow board's isolated finds); one without is kept (it cannot be checked).
 """
 
 from __future__ import annotations
@@ -51,10 +52,10 @@ def _score(i: int, t: np.ndarray, uv: np.ndarray, finite: np.ndarray, alive: np.
     # within twice that (a detection after a gap is the likeliest to be labelled afresh, and wrongly).
     nb = near if len(near) >= 2 else sorted(before + after, key=lambda j: abs(t[j] - t[i]))[:2]
     spacing = _spacing(uv[i])
-    if len(nb) < 2 or not np.isfinite(spacing) or spacing <= 0:
+    if not np.isfinite(spacing) or spacing <= 0:
         return float("nan")
     errs = []
-    for j, k in combinations(nb, 2):
+    for j, k in combinations(nb, 2) if len(nb) >= 2 else ():
         both = finite[i] & finite[j] & finite[k]
         if np.count_nonzero(both) < min_points:
             continue
@@ -63,7 +64,32 @@ def _score(i: int, t: np.ndarray, uv: np.ndarray, finite: np.ndarray, alive: np.
             continue
         pred = uv[j, both] + a * (uv[k, both] - uv[j, both])
         errs.append(float(np.median(np.linalg.norm(uv[i, both] - pred, axis=1))))
+    if not errs:
+        errs = _bridged(i, t, uv, finite, alive, spacing, min_points)
     return float(np.median(errs)) / spacing if errs else float("nan")
+
+
+#: A frame no near pair can check is checked against the nearest detections before and after it within this
+#: time (s), interpolated, when the board moved less than BRIDGE_STILL_SPACINGS lattice spacings between them:
+#: a slow board's isolated finds (long spans, between gaps) are where a shifted labelling went unchecked.
+MAX_BRIDGE_S = 0.5
+BRIDGE_STILL_SPACINGS = 1.0
+
+
+def _bridged(i: int, t: np.ndarray, uv: np.ndarray, finite: np.ndarray, alive: np.ndarray, spacing: float,
+             min_points: int) -> list[float]:
+    j = next((j for j in range(i - 1, -1, -1) if alive[j]), None)
+    k = next((k for k in range(i + 1, t.size) if alive[k]), None)
+    if j is None or k is None or t[i] - t[j] > MAX_BRIDGE_S or t[k] - t[i] > MAX_BRIDGE_S:
+        return []
+    both = finite[i] & finite[j] & finite[k]
+    if np.count_nonzero(both) < min_points:
+        return []
+    if float(np.median(np.linalg.norm(uv[k, both] - uv[j, both], axis=1))) > BRIDGE_STILL_SPACINGS * spacing:
+        return []  # the board moved too much across the gap for a straight line to predict it
+    a = (t[i] - t[j]) / (t[k] - t[j])
+    pred = uv[j, both] + a * (uv[k, both] - uv[j, both])
+    return [float(np.median(np.linalg.norm(uv[i, both] - pred, axis=1)))]
 
 
 def _spacings(uv: np.ndarray, chunk: int = 512) -> np.ndarray:
