@@ -8,12 +8,20 @@ import numpy as np
 import pytest
 from test_factors import assert_jacobians
 
-from factors.odometry import EdgeMotions, PlanarSteps, make_scaled_odometry_factors, scaled_edge_motion
+from factors.odometry import (
+    EdgeMotions,
+    OdometryNoise,
+    PlanarSteps,
+    make_scaled_odometry_factors,
+    odometry_covariance,
+    scaled_edge_motion,
+)
 from plsgraph.core.geometry import make_T, rot_z, rotation_error_deg, so3_exp, so3_log
 from plsgraph.frontend.pose import camera_track_from_detections
 from plsgraph.odometry.wheels import base_track_from_wheels, integrate_planar
 from plsgraph.refine.graph import (
     RefinementOptions,
+    _scaled_noise,
     autocorrelation_time,
     disagreement_with_seed,
     refine,
@@ -223,6 +231,34 @@ def test_the_odometry_noise_factor_follows_the_slip():
     f0 = refine(track, base, rec.camera, seed_T, rec.td).inflation["odometry_variance_factor"]
     f1 = refine(slipping[2], slipping[1], rec.camera, slipping[3], rec.td).inflation["odometry_variance_factor"]
     assert f1 > 3 * f0, (f0, f1)
+
+
+def test_split_odometry_noise_scales_heading_and_distance_terms_apart():
+    noise = OdometryNoise()
+    c0 = odometry_covariance(0.8, 0.6, noise)
+    c = odometry_covariance(0.8, 0.6, _scaled_noise(noise, (9.0, 4.0)))
+    assert np.allclose(np.diag(c)[:3], 9.0 * np.diag(c0)[:3])  # roll, pitch, heading
+    assert np.allclose(c[[3, 5], [3, 5]], 4.0 * c0[[3, 5], [3, 5]])  # along, height
+    assert c0[4, 4] * 4.0 < c[4, 4] < c0[4, 4] * 9.0  # across: distance terms and the heading's lever
+    assert _scaled_noise(noise, 4.0) == _scaled_noise(noise, (4.0, 4.0))
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_split_odometry_noise_on_correlated_slip(seed):
+    """The odometry's heading and distance residuals measured and weighted apart (split_odometry_noise): on the
+    slipping drives the yaw error is smaller than with one factor for both (0.76 -> 0.24 deg, 0.25 -> 0.12 deg when
+    measured), every axis within 3 sigma, both factors reported."""
+    rec, base, track, seed_T = _slip_case(seed, 0.04)
+    one = refine(track, base, rec.camera, seed_T, rec.td, RefinementOptions(split_odometry_noise=False))
+    res = refine(track, base, rec.camera, seed_T, rec.td, RefinementOptions(split_odometry_noise=True))
+    f = res.inflation["odometry_variance_factors"]
+    assert min(f.values()) >= 5.0 and res.inflation["odometry_variance_factor"] == max(f.values())
+    assert "odometry_variance_factors" not in one.inflation
+    err = so3_log(res.R_base_cam @ rec.T_base_cam[:3, :3].T)
+    err_one = so3_log(one.R_base_cam @ rec.T_base_cam[:3, :3].T)
+    assert abs(err[2]) < abs(err_one[2]), (np.degrees(err), np.degrees(err_one))
+    assert np.all(np.abs(err) <= 3 * np.radians(res.sigma_rot_deg))
+    assert np.all(np.abs(res.T_base_cam[:2, 3] - rec.T_base_cam[:2, 3]) <= 3 * res.sigma_trans_m[:2])
 
 
 @lru_cache(maxsize=2)

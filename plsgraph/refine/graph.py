@@ -150,6 +150,9 @@ class RefinementOptions:
     # robust mean square, at least 1, times their autocorrelation time over the edges); the odometry variances are
     # multiplied by that (at most max_odometry_noise_factor) and the graph is solved again, once.
     adapt_odometry_noise: bool = True
+    # The adaptation's factor measured and applied separately for the heading (and tilt) terms and for the distance
+    # terms of the odometry noise, instead of one factor from all three planar residuals.
+    split_odometry_noise: bool = False
     # The change the adaptation (odometry and planar) made to the calibration is a second opinion on the reported
     # sigma per axis (the larger is reported): how much the answer depends on the noise model is an uncertainty the
     # marginals do not hold (the td of a study recording moved by 17 ms against a marginal sigma of 1 ms;
@@ -639,11 +642,22 @@ def _add_priors(graph: gtsam.NonlinearFactorGraph, C0: np.ndarray, td0: float, o
         graph.add(make_vertical_board_prior(KEY_BOARD, opt.board_vertical_sigma))
 
 
-def _scaled_noise(noise: OdometryNoise, var_factor: float) -> OdometryNoise:
+_HEADING_NOISE = ("yaw_per_radian", "yaw_per_metre", "floor_rad")
+
+
+def _scaled_noise(noise: OdometryNoise, var_factor: float | tuple[float, float]) -> OdometryNoise:
+    """``noise`` with its variances multiplied by ``var_factor``, or by (heading, distance) factors: the heading's
+    terms (which also carry roll and pitch) by the first, the distance terms by the second."""
     import dataclasses
 
-    k = float(np.sqrt(var_factor))
-    return dataclasses.replace(noise, **{f.name: getattr(noise, f.name) * k for f in dataclasses.fields(noise)})
+    fh, fd = (var_factor, var_factor) if np.isscalar(var_factor) else var_factor
+    return dataclasses.replace(noise, **{
+        f.name: getattr(noise, f.name) * float(np.sqrt(fh if f.name in _HEADING_NOISE else fd))
+        for f in dataclasses.fields(noise)})
+
+
+def _largest(var_factor: float | tuple[float, float]) -> float:
+    return float(np.max(var_factor))
 
 
 def _pixel_sigma(prob: _Problem, rows: np.ndarray, opt: RefinementOptions) -> float | np.ndarray:
@@ -655,7 +669,7 @@ def _pixel_sigma(prob: _Problem, rows: np.ndarray, opt: RefinementOptions) -> fl
 
 def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: RefinementOptions,
                  C_prior: np.ndarray, td_prior: float, R_prior: np.ndarray, rep_var: float = 1.0,
-                 odo_var: float = 1.0, planar_var: tuple[float, float] = (1.0, 1.0)):
+                 odo_var: float | tuple[float, float] = 1.0, planar_var: tuple[float, float] = (1.0, 1.0)):
     """The factor graph; ``rep_var`` / ``odo_var`` multiply the variances of the reprojection / odometry factors
     (used for the covariance under correlated errors, see correlation_inflation)."""
     frames, kidx = _brackets(prob, td_bracket, rows)
@@ -665,7 +679,7 @@ def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: Refin
     for f in make_reprojection_factors(batch, _pixel_sigma(prob, rows, opt) * np.sqrt(rep_var), opt.robust,
                                        opt.robust_k):
         graph.add(f)
-    noise = opt.odometry_noise if odo_var == 1.0 else _scaled_noise(opt.odometry_noise, odo_var)
+    noise = opt.odometry_noise if np.all(np.asarray(odo_var) == 1.0) else _scaled_noise(opt.odometry_noise, odo_var)
     d, a = path_increments(prob.base_track.t, prob.base_track.T_world_base, prob.knot_idx)
     if prob.steps is not None:
         for f in make_scaled_odometry_factors(keys, KEY_SCALE, prob.steps, prob.knot_idx, d, a, noise):
@@ -1096,19 +1110,24 @@ def refine(
             # scaled noise, the residuals' correlation would be counted a second time).
             adapted = True
             held_solution = (values.atPose3(KEY_CAM).matrix(), float(values.atVector(KEY_TD)[0]))
-            odo_var = float(np.clip(odometry_noise_factor(graph, values), 1.0, opt.max_odometry_noise_factor))
-            if odo_var >= NOISY_ODOMETRY_FACTOR:
+            if opt.split_odometry_noise:
+                odo_var = tuple(float(v) for v in np.clip(odometry_noise_factor(graph, values, split=True), 1.0,
+                                                           opt.max_odometry_noise_factor))
+            else:
+                odo_var = float(np.clip(odometry_noise_factor(graph, values), 1.0, opt.max_odometry_noise_factor))
+            if _largest(odo_var) >= NOISY_ODOMETRY_FACTOR:
                 warnings.append(
-                    f"the wheel odometry's errors carry {odo_var:.0f}x the variance of good odometry on a hard floor "
-                    "(wheel slip correlated over many samples, as on skid-steer robots); the refinement weighted it "
-                    "down by that factor, so yaw and lever arm rest more on the camera and their sigmas are larger")
+                    f"the wheel odometry's errors carry {_largest(odo_var):.0f}x the variance of good odometry on a "
+                    "hard floor (wheel slip correlated over many samples, as on skid-steer robots); the refinement "
+                    "weighted it down by that factor, so yaw and lever arm rest more on the camera and their sigmas "
+                    "are larger")
             if opt.planar and opt.adapt_planar_prior:
                 f = np.clip(planar_noise_factors(graph, values), 1.0, opt.max_planar_prior_factor)
                 planar_var = (float(f[0]) if opt.adapt_planar_height else 1.0, float(f[1]))
                 log.info("refine: planar prior variance factors (height, tilt) %s", np.round(planar_var, 1))
-            if odo_var > 1.25 or max(planar_var) > 1.25:
-                log.info("refine: odometry errors %.1fx the model's variance (magnitude x correlation); solving "
-                         "again with the odometry and planar variances scaled", odo_var)
+            if _largest(odo_var) > 1.25 or max(planar_var) > 1.25:
+                log.info("refine: odometry errors %sx the model's variance (magnitude x correlation); solving "
+                         "again with the odometry and planar variances scaled", np.round(odo_var, 1))
                 continue
         if not (converged and opt.freeze_unobservable and opt.marginals):
             settled = True
@@ -1164,14 +1183,15 @@ def refine(
                 cov_graph = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
                                          inflation["reprojection_autocorrelation_time"],
                                          # an adapted odometry variance already holds the correlation
-                                         odo_var if odo_var > 1.0 else inflation["odometry_autocorrelation_time"],
+                                         odo_var if _largest(odo_var) > 1.0
+                                         else inflation["odometry_autocorrelation_time"],
                                          planar_var)[0]
                 cov_plain = _calibration_covariance(final_graph, values, C, chi2, opt)[1]
             cov, cov_base, joint = _calibration_covariance(cov_graph, values, C, chi2, opt, with_scale=True)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
     sensitivity = None
-    if held_solution is not None and (odo_var > 1.0 or max(planar_var) > 1.0):
+    if held_solution is not None and (_largest(odo_var) > 1.0 or max(planar_var) > 1.0):
         sensitivity = noise_model_sensitivity(C, td, *held_solution)
     if cov_base is not None:
         cov_base = _honest_covariance(cov_base, opt, bool(frozen), cov_plain)
@@ -1231,7 +1251,9 @@ def refine(
         odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
         disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_seed, opt,
                                                                           rotation=td_seed == td_given),
-        inflation={**inflation, "odometry_variance_factor": odo_var,
+        inflation={**inflation, "odometry_variance_factor": _largest(odo_var),
+                   **({"odometry_variance_factors": {"heading": odo_var[0], "distance": odo_var[1]}}
+                      if isinstance(odo_var, tuple) else {}),
                    "noise_model_sensitivity": None if sensitivity is None else dict(zip(
                        ("roll", "pitch", "yaw", "x", "y", "z", "td"), sensitivity.tolist(), strict=True)),
                    "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])}},
@@ -1287,16 +1309,20 @@ def _odometry_factors(graph) -> list:
     return out
 
 
-def odometry_noise_factor(graph, values: gtsam.Values) -> float:
+def odometry_noise_factor(graph, values: gtsam.Values, split: bool = False) -> float | np.ndarray:
     """How much more variance the odometry's planar errors (heading, along, across; whitened) have than their model
     gives them: the median of their squares over the chi-square(1) median 0.455 (robust to a few resets or bumps;
     at least 1) times their integrated autocorrelation time over the edges (an error correlated over k edges adds
-    up like k times its variance). Measured at a solution under the model's own noise."""
+    up like k times its variance). Measured at a solution under the model's own noise. With ``split``, two factors:
+    the heading's and the two distances' (along, across)."""
     w = np.array([f.whitenedError(values)[2:5] for f in _odometry_factors(graph)])
     if len(w) < 10:
-        return 1.0
-    msq = float(np.median(np.square(w)) / 0.455)
-    return max(msq, 1.0) * autocorrelation_time(w)
+        return np.ones(2) if split else 1.0
+    out = []
+    for x in ((w[:, :1], w[:, 1:]) if split else (w,)):
+        msq = float(np.median(np.square(x)) / 0.455)
+        out.append(max(msq, 1.0) * autocorrelation_time(x))
+    return np.array(out) if split else out[0]
 
 
 def planar_noise_factors(graph, values: gtsam.Values) -> np.ndarray:
