@@ -192,6 +192,8 @@ def test_slow_boards_found_on_longer_spans(slow_sim, monkeypatch):
     track = camera_track_from_events(ev, CAM, FAR_BOARD, rate_hz=30, kind="count")
     monkeypatch.setattr(frontend_track, "SLOW_PX_S", 0.0)  # never the longer spans
     monkeypatch.setattr(frontend_track, "LONG_WHEN_LOST", False)
+    # and no ring filter, which finds this board on the blob detector's 4-window spans (23 windows of 59)
+    monkeypatch.setattr(frontend_track, "RING_PEAKS", False)
     one_window = camera_track_from_events(ev, CAM, FAR_BOARD, rate_hz=30, kind="count")
     assert len(track) >= len(one_window) + 20
     spans = track.info["detected_at_window_fraction"]
@@ -217,6 +219,7 @@ def test_slow_board_tracked_on_one_windows_sparse_rims(slow_sim, monkeypatch):
     err = _median_point_errors(track, t, poses)
     assert err.max() < 1.0 and np.median(err) < 0.3
     monkeypatch.setattr(detect, "TRACK_MIN_POINTS", None)
+    monkeypatch.setattr(frontend_track, "RING_PEAKS", False)  # which finds this board on 4-window blob spans
     assert len(camera_track_from_events(ev, CAM, FAR_BOARD, rate_hz=30, kind="count")) < 0.7 * len(track)
 
 
@@ -246,6 +249,7 @@ def test_slow_board_in_dense_background_activity_found_on_its_excess_events(slow
     assert sum(v for key, v in spans.items() if key.startswith("rims_excess:")) >= 0.6 * track.info["windows"]
     assert err.max() < 1.0 and np.median(err) < 0.3
     monkeypatch.setattr(frontend_track, "DENSE_RETRY", False)
+    monkeypatch.setattr(frontend_track, "RING_PEAKS", False)  # the ring filter finds the board in this noise too
     try:
         found_plain = len(camera_track_from_events(noisy, CAM, FAR_BOARD, rate_hz=30, kind="count"))
     except InsufficientDataError:  # no board in any window
@@ -277,6 +281,7 @@ def test_creeping_board_found_on_half_second_spans(creeping_sim, monkeypatch):
     monkeypatch.setattr(frontend_track, "LONG_WHEN_LOST", False)
     monkeypatch.setattr(frontend_track, "WINDOW_LADDER", (1.0, 0.5, 0.25, 0.125, 2.0, 4.0))
     monkeypatch.setattr(frontend_track, "BLOB_SPANS", (1.0, 2.0, 4.0))
+    monkeypatch.setattr(frontend_track, "RING_PEAKS", False)  # the ring filter finds it on the 4-window spans
     with pytest.raises(InsufficientDataError, match="no board detected"):
         camera_track_from_events(ev, CAM, FAR_BOARD, rate_hz=30, kind="count")
 
