@@ -109,3 +109,43 @@ def test_an_isolated_find_of_a_slow_board_is_checked_across_the_gaps():
     _shift_by_a_step(uv, i)
     bad = inconsistent_frames(t, uv)
     assert bad[i] and bad.sum() == 1
+
+
+def _slow_lattice(rng, t: np.ndarray, unit: float = 7.0) -> np.ndarray:
+    """The asymmetric 4 x 11 grid's circles (label 4 i + j at ((2 j + i % 2) u, i u)) drifting at 3 px/s, with
+    0.2 px of noise: (m, 44, 2)."""
+    i, j = np.divmod(np.arange(44), 4)
+    grid = np.c_[(2 * j + i % 2) * unit, i * unit] + np.array([120.0, 60.0])
+    drift = np.array([3.0, 1.0])[None, None] * t[:, None, None]
+    return grid[None] + drift + rng.normal(0, 0.2, (t.size, 44, 2))
+
+
+@pytest.mark.parametrize("shift", [8, 4])
+def test_a_run_of_frames_labelled_a_lattice_step_off_after_a_gap_is_refused(shift):
+    """A slow board found again after a gap, labelled two rows (8 labels) or one row (4 labels) off, and tracked in
+    that labelling for four frames: the frames vouch for each other, so only the runs' meeting across the gaps
+    refuses them (study_v28 run 5: four such frames). The right labelling is kept, and so is a board that moved
+    across the gap by something no lattice step is."""
+    rng = np.random.default_rng(5)
+    t = np.r_[np.arange(0.0, 1.0, 1 / 30), 1.25 + np.arange(4) / 30, np.arange(1.6, 2.4, 1 / 30)]
+    uv = _slow_lattice(rng, t)
+    run_b = (t >= 1.2) & (t < 1.5)
+    assert not inconsistent_frames(t, uv).any()
+    wrong = uv.copy()
+    wrong[run_b] = np.nan
+    wrong[np.ix_(run_b, np.arange(44 - shift))] = uv[np.ix_(run_b, np.arange(shift, 44))]  # label k shows k + shift
+    bad = inconsistent_frames(t, wrong)
+    np.testing.assert_array_equal(bad, run_b)
+    moved = uv.copy()
+    moved[t >= 1.2] += np.array([7.0, 14.0])  # a jolt across the first gap: 1.6 spacings, as far as can be from a step
+    assert not inconsistent_frames(t, moved).any()
+
+
+def test_runs_equally_long_in_two_labellings_are_both_refused():
+    rng = np.random.default_rng(6)
+    t = np.r_[np.arange(0.0, 0.1, 1 / 30), 0.3 + np.arange(3) / 30]
+    uv = _slow_lattice(rng, t)
+    late = t >= 0.3
+    uv[np.ix_(late, np.arange(36))] = uv[np.ix_(late, np.arange(8, 44))]
+    uv[np.ix_(late, np.arange(36, 44))] = np.nan
+    assert inconsistent_frames(t, uv).all()

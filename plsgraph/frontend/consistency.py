@@ -11,6 +11,13 @@ not), and the detection is refused when the median over pairs of the median poin
 A frame with fewer than two neighbours within ``max_dt_s`` is checked against its two nearest within twice
 that, and failing that against its nearest detections before and after within MAX_BRIDGE_S when the board moved
 less than a spacing between them (a slow board's isolated finds); one without is kept (it cannot be checked).
+
+Consecutive wrong frames vouch for each other: a slow board labelled afresh after a gap, one lattice step off, is
+then tracked in that labelling for several frames. So where two runs of frames meet across a short gap, each run's
+board is carried to the middle of the gap at its own speed; when the two disagree by most of a spacing in their
+labels but their circles coincide once the labels are ignored, one run is a lattice step off. Runs joined by such
+tests form chains, each run either in the first run's labelling or a step off it; the labelling fewer frames of
+the chain have is refused (both on a tie).
 """
 
 from __future__ import annotations
@@ -32,6 +39,8 @@ MAX_SIDE = 3
 #: A pair predicts a frame only if the frame lies within this many of the pair's own time apart from the first of
 #: them (|a| in uv_j + a (uv_k - uv_j)): beyond, the pair's detection noise is amplified past the threshold.
 MAX_EXTRAPOLATION = 3.0
+#: Runs of frames a lattice step off the run they meet across a short gap are refused (shifted_runs).
+SHIFTED_RUNS = True
 
 
 def _spacing(uv: np.ndarray) -> float:
@@ -90,6 +99,92 @@ def _bridged(i: int, t: np.ndarray, uv: np.ndarray, finite: np.ndarray, alive: n
     a = (t[i] - t[j]) / (t[k] - t[j])
     pred = uv[j, both] + a * (uv[k, both] - uv[j, both])
     return [float(np.median(np.linalg.norm(uv[i, both] - pred, axis=1)))]
+
+
+#: Runs of frames (stamps at most max_dt_s apart) that meet across a gap of at most this (s) are compared.
+MAX_SHIFT_GAP_S = 0.5
+#: ... when each run's board, carried at its own speed, moves less than this many spacings across the gap.
+SHIFT_STILL_SPACINGS = 2.0
+#: The runs disagree by a lattice step when their labelled circles lie more than SHIFT_LABELLED_SPACINGS apart
+#: (median) and their circles, labels ignored, within SHIFT_UNLABELLED_SPACINGS of each other (median).
+SHIFT_LABELLED_SPACINGS = 0.75
+SHIFT_UNLABELLED_SPACINGS = 0.35
+
+
+def _carried(idx: list[int], t: np.ndarray, uv: np.ndarray, t_to: float) -> tuple[np.ndarray, float]:
+    """The board of the run's end frame ``idx[0]`` carried to ``t_to`` at the speed of the line through it and
+    ``idx[1]`` (still when the run has one frame; points missing in either stay where they are): (uv, largest
+    median move in pixels)."""
+    a = idx[0]
+    if len(idx) < 2:
+        return uv[a], 0.0
+    b = idx[1]
+    v = (uv[a] - uv[b]) / (t[a] - t[b])
+    v = np.where(np.isfinite(v), v, 0.0)
+    step = v * (t_to - t[a])
+    seen = np.all(np.isfinite(uv[a]), axis=1)
+    move = float(np.median(np.linalg.norm(step[seen], axis=1))) if seen.any() else 0.0
+    return uv[a] + step, move
+
+
+def shifted_runs(t: np.ndarray, uv: np.ndarray, keep: np.ndarray, *, max_dt_s: float = MAX_DT_S,
+                 min_points: int = 6) -> np.ndarray:
+    """Mask (m,) of the frames among ``keep`` refused because their run of frames is a lattice step off the run
+    it meets across a short gap (see the module's doc)."""
+    t = np.asarray(t, dtype=float)
+    uv = np.asarray(uv, dtype=float)
+    out = np.zeros(t.size, dtype=bool)
+    kept = np.flatnonzero(keep)
+    if kept.size < 2:
+        return out
+    cut = np.flatnonzero(np.diff(t[kept]) > max_dt_s) + 1
+    runs = np.split(kept, cut)
+    finite = np.all(np.isfinite(uv), axis=2)
+    # Each boundary between consecutive runs: 0 (the runs agree), 1 (a lattice step apart) or None (no test).
+    rel: list[int | None] = []
+    for r1, r2 in zip(runs[:-1], runs[1:], strict=True):
+        rel.append(_relation(r1, r2, t, uv, finite, min_points))
+    # Runs joined by tested boundaries form chains; within a chain each run is in the first run's labelling or a
+    # step off it, and the labelling fewer frames have is refused (both on a tie).
+    start = 0
+    for end in range(len(runs)):
+        if end < len(rel) and rel[end] is not None:
+            continue
+        chain = runs[start:end + 1]
+        cls = np.cumsum([0] + [int(x) for x in rel[start:end]]) % 2
+        if cls.any():
+            frames = [sum(r.size for r, c in zip(chain, cls, strict=True) if c == k) for k in (0, 1)]
+            for r, c in zip(chain, cls, strict=True):
+                if frames[c] <= frames[1 - c]:
+                    out[r] = True
+        start = end + 1
+    return out
+
+
+def _relation(r1: np.ndarray, r2: np.ndarray, t: np.ndarray, uv: np.ndarray, finite: np.ndarray,
+              min_points: int) -> int | None:
+    """How the run ``r1`` and the next run ``r2`` meet: 0 they agree, 1 they are a lattice step apart, None the
+    gap cannot be tested (too long, a fast board, too few common circles, or the board moved across it)."""
+    a, b = int(r1[-1]), int(r2[0])
+    if t[b] - t[a] > MAX_SHIFT_GAP_S:
+        return None
+    spacing = _spacing(uv[b])
+    if not np.isfinite(spacing) or spacing <= 0:
+        return None
+    tm = 0.5 * (t[a] + t[b])
+    pa, move_a = _carried([a] + [int(j) for j in r1[-2:-1]], t, uv, tm)
+    pb, move_b = _carried([b] + [int(j) for j in r2[1:2]], t, uv, tm)
+    if max(move_a, move_b) > SHIFT_STILL_SPACINGS * spacing:
+        return None  # a fast board: carrying it across the gap is no test
+    both = finite[a] & finite[b]
+    if np.count_nonzero(both) < min_points:
+        return None
+    labelled = float(np.median(np.linalg.norm(pa[both] - pb[both], axis=1)))
+    if labelled <= SHIFT_LABELLED_SPACINGS * spacing:
+        return 0
+    qa, qb = pa[finite[a]], pb[finite[b]]
+    unlabelled = float(np.median(np.min(np.linalg.norm(qb[:, None] - qa[None], axis=-1), axis=1)))
+    return 1 if unlabelled < SHIFT_UNLABELLED_SPACINGS * spacing else None
 
 
 def _spacings(uv: np.ndarray, chunk: int = 512) -> np.ndarray:
@@ -158,4 +253,6 @@ def inconsistent_frames(t: np.ndarray, uv: np.ndarray, *, max_dt_s: float = MAX_
         for j in range(lo, hi):
             if alive[j]:
                 score[j] = _score(j, t, uv, finite, alive, max_dt_s, min_points)
+    if SHIFTED_RUNS:
+        alive &= ~shifted_runs(t, uv, alive, max_dt_s=max_dt_s, min_points=min_points)
     return ~alive
