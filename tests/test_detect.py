@@ -367,15 +367,25 @@ def test_small_ringed_circles_the_blob_detector_misses_are_found_as_peaks(distan
     The smoothed image's peaks are one per ring, and they are labelled right."""
     from plsgraph.frontend.detect import neighbour_distance
 
+    board, uv, radius = _distant_board(distance)
+    assert 9.0 < float(np.median(neighbour_distance(uv))) < 11.0
+    img = _ring_events(uv, radius, per_ring=100, noise=1500, rng=np.random.default_rng(seed))
+    assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, peaks=False).ok
+    _assert_labelled_right(detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, peaks=True), uv, 40)
+
+
+def _distant_board(distance: float):
+    """The A2 board ``distance`` m away: (board, its circles' pixels, their radius in pixels)."""
+    from plsgraph.frontend.detect import neighbour_distance
+
     board = load_board("acircles_4x11_a2")
     uv = _board_view(board, distance)
     spacing = float(np.median(neighbour_distance(uv)))
-    assert 9.0 < spacing < 11.0
-    radius = 0.5 * board.circle_diameter / (np.sqrt(2) * board.square_size) * spacing
-    img = _ring_events(uv, radius, per_ring=100, noise=1500, rng=np.random.default_rng(seed))
-    assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, peaks=False).ok
-    det = detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, peaks=True)
-    assert det.ok and det.n_seen >= 40
+    return board, uv, 0.5 * board.circle_diameter / (np.sqrt(2) * board.square_size) * spacing
+
+
+def _assert_labelled_right(det, uv: np.ndarray, min_seen: int) -> None:
+    assert det.ok and det.n_seen >= min_seen
     err = np.linalg.norm(det.uv - uv, axis=1)
     assert np.nanmedian(err) < 0.3 and np.nanmax(err) < 1.5  # every label right: a wrong one is a spacing off
 
@@ -407,18 +417,11 @@ def test_faint_rings_over_a_textured_background_are_found_by_the_ring_filter(dis
     """A slow, distant board over half a second: its circles are faint rings of events among a textured
     background's streaks. Neither the blob detector nor the smoothed image's peaks give the board; the ring
     filter's strongest responses hold most circles, and they are labelled right, at their sub-pixel peaks."""
-    from plsgraph.frontend.detect import neighbour_distance
-
-    board = load_board("acircles_4x11_a2")
-    uv = _board_view(board, distance)
-    radius = 0.5 * board.circle_diameter / (np.sqrt(2) * board.square_size) * float(np.median(neighbour_distance(uv)))
+    board, uv, radius = _distant_board(distance)
     rng = np.random.default_rng(seed)
     img = _with_texture(_ring_events(uv, radius, per_ring=60, noise=2000, rng=rng), 300, rng)
     assert not detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, peaks=True).ok
-    det = detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, rings=True)
-    assert det.ok and det.n_seen >= 30
-    err = np.linalg.norm(det.uv - uv, axis=1)
-    assert np.nanmedian(err) < 0.3 and np.nanmax(err) < 1.5  # every label right: a wrong one is a spacing off
+    _assert_labelled_right(detect_circle_grid(img, board, CAM, foreground="bright", blur_sigma=0.8, rings=True), uv, 30)
 
 
 def test_rings_in_texture_alone_label_no_board():
