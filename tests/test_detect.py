@@ -451,3 +451,18 @@ def test_a_ring_labelling_of_the_gaps_between_the_circles_is_refused():
         gap_uv = cv2.perspectiveTransform(gaps.reshape(-1, 1, 2), H).reshape(-1, 2)
         assert ring_gaps_weaker(resp, uv, board)
         assert not ring_gaps_weaker(resp, gap_uv, board)
+
+
+@pytest.mark.parametrize("shape", [(260, 346), (101, 77)])
+def test_ring_response_through_one_transform_equals_filtering_each_radius(shape):
+    """The larger ring kernels share one Fourier transform of the image (zero-padded: a linear filter); the
+    response equals filtering the image with each kernel directly, zero outside the image."""
+    import cv2
+
+    from plsgraph.frontend.detect import RING_RADII_PX, _ring_kernel, ring_margin, ring_response
+
+    img = np.random.default_rng(shape[0]).poisson(0.5, shape).astype(np.float32)
+    direct = np.max([cv2.filter2D(img, -1, _ring_kernel(r), borderType=cv2.BORDER_CONSTANT) for r in RING_RADII_PX],
+                    axis=0)
+    m = ring_margin()
+    np.testing.assert_allclose(ring_response(img)[m:-m, m:-m], direct[m:-m, m:-m], atol=1e-5)

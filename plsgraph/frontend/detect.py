@@ -143,13 +143,46 @@ def _ring_kernel(radius: float) -> np.ndarray:
     return k
 
 
+#: Ring kernels up to this size are applied directly (cv2.filter2D); larger ones share one Fourier transform of the
+#: image (filter2D would transform the image again for each: 2.5 ms per radius on a DAVIS346 image, against 0.3 ms
+#: for the small kernels it applies directly; all seven radii 13 -> 3 ms).
+RING_DIRECT_MAX = 11
+
+
+@lru_cache(maxsize=8)
+def _ring_spectra(shape: tuple[int, int], radii: tuple[float, ...]) -> tuple[tuple[int, int], tuple]:
+    """The padded transform size for an image of ``shape`` and the spectra of the ring kernels of ``radii`` larger
+    than RING_DIRECT_MAX, each centred on the origin (zero padding: a linear, not circular, filter)."""
+    big = [float(r) for r in radii if _ring_kernel(float(r)).shape[0] > RING_DIRECT_MAX]
+    half = max((_ring_kernel(r).shape[0] // 2 for r in big), default=0)
+    size = (cv2.getOptimalDFTSize(shape[0] + half), cv2.getOptimalDFTSize(shape[1] + half))
+    spectra = []
+    for r in big:
+        k = _ring_kernel(r)
+        h = k.shape[0] // 2
+        pad = np.zeros(size, np.float32)
+        pad[: k.shape[0], : k.shape[1]] = k
+        spectra.append(cv2.dft(np.roll(pad, (-h, -h), axis=(0, 1))))  # packed (CCS): a real image's half
+    return size, tuple(spectra)
+
+
 def ring_response(weight: np.ndarray, radii: tuple[float, ...] = RING_RADII_PX) -> np.ndarray:
     """The largest ring-filter response over ``radii`` at each pixel (float32, the image's shape). Within
     ``ring_margin(radii)`` px of the border it is 0: there the image's edge looks like a ring's outside."""
     w = np.asarray(weight, dtype=np.float32)
     resp = np.full(w.shape, -np.inf, np.float32)
     for r in radii:
-        np.maximum(resp, cv2.filter2D(w, -1, _ring_kernel(float(r)), borderType=cv2.BORDER_CONSTANT), out=resp)
+        k = _ring_kernel(float(r))
+        if k.shape[0] <= RING_DIRECT_MAX:
+            np.maximum(resp, cv2.filter2D(w, -1, k, borderType=cv2.BORDER_CONSTANT), out=resp)
+    size, spectra = _ring_spectra(w.shape, tuple(float(r) for r in radii))
+    if spectra:
+        pad = np.zeros(size, np.float32)
+        pad[: w.shape[0], : w.shape[1]] = w
+        image = cv2.dft(pad)
+        for spec in spectra:  # the kernels are symmetric: their correlation is their convolution
+            out = cv2.idft(cv2.mulSpectrums(image, spec, 0), flags=cv2.DFT_SCALE | cv2.DFT_REAL_OUTPUT)
+            np.maximum(resp, out[: w.shape[0], : w.shape[1]], out=resp)
     m = ring_margin(radii)
     resp[:m], resp[-m:], resp[:, :m], resp[:, -m:] = 0.0, 0.0, 0.0, 0.0
     return resp
