@@ -453,7 +453,7 @@ def test_a_ring_labelling_of_the_gaps_between_the_circles_is_refused():
         assert not ring_gaps_weaker(resp, gap_uv, board)
 
 
-@pytest.mark.parametrize("shape", [(260, 346), (101, 77)])
+@pytest.mark.parametrize("shape", [(260, 346), (101, 77), (19, 40), (8, 346), (1, 50), (5, 5)])
 def test_ring_response_through_one_transform_equals_filtering_each_radius(shape):
     """The larger ring kernels share one Fourier transform of the image (zero-padded: a linear filter); the
     response equals filtering the image with each kernel directly, zero outside the image."""
@@ -465,4 +465,14 @@ def test_ring_response_through_one_transform_equals_filtering_each_radius(shape)
     direct = np.max([cv2.filter2D(img, -1, _ring_kernel(r), borderType=cv2.BORDER_CONSTANT) for r in RING_RADII_PX],
                     axis=0)
     m = ring_margin()
-    np.testing.assert_allclose(ring_response(img)[m:-m, m:-m], direct[m:-m, m:-m], atol=1e-5)
+    resp = ring_response(img)
+    assert resp.shape == shape and np.all(resp[:m] == 0) and np.all(resp[:, -m:] == 0)
+    np.testing.assert_allclose(resp[m:-m, m:-m], direct[m:-m, m:-m], atol=1e-5)
+
+
+@pytest.mark.parametrize("shape", [(8, 346), (5, 5), (30, 30)])
+def test_small_images_give_no_board_not_an_error(shape):
+    from plsgraph.frontend.detect import REASON_OK
+
+    img = np.random.default_rng(1).poisson(1.0, shape).astype(float)
+    assert detect_circle_grid(img, load_board("acircles_4x11_a2"), CAM, rings=True).reason != REASON_OK

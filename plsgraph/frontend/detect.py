@@ -155,7 +155,7 @@ def _ring_spectra(shape: tuple[int, int], radii: tuple[float, ...]) -> tuple[tup
     than RING_DIRECT_MAX, each centred on the origin (zero padding: a linear, not circular, filter)."""
     big = [float(r) for r in radii if _ring_kernel(float(r)).shape[0] > RING_DIRECT_MAX]
     half = max((_ring_kernel(r).shape[0] // 2 for r in big), default=0)
-    size = (cv2.getOptimalDFTSize(shape[0] + half), cv2.getOptimalDFTSize(shape[1] + half))
+    size = tuple(cv2.getOptimalDFTSize(max(n + half, 2 * half + 1)) for n in shape)
     spectra = []
     for r in big:
         k = _ring_kernel(r)
@@ -170,6 +170,9 @@ def ring_response(weight: np.ndarray, radii: tuple[float, ...] = RING_RADII_PX) 
     """The largest ring-filter response over ``radii`` at each pixel (float32, the image's shape). Within
     ``ring_margin(radii)`` px of the border it is 0: there the image's edge looks like a ring's outside."""
     w = np.asarray(weight, dtype=np.float32)
+    m = ring_margin(radii)
+    if min(w.shape) <= 2 * m:  # all of it within the margin
+        return np.zeros(w.shape, np.float32)
     resp = np.full(w.shape, -np.inf, np.float32)
     for r in radii:
         k = _ring_kernel(float(r))
@@ -183,7 +186,6 @@ def ring_response(weight: np.ndarray, radii: tuple[float, ...] = RING_RADII_PX) 
         for spec in spectra:  # the kernels are symmetric: their correlation is their convolution
             out = cv2.idft(cv2.mulSpectrums(image, spec, 0), flags=cv2.DFT_SCALE | cv2.DFT_REAL_OUTPUT)
             np.maximum(resp, out[: w.shape[0], : w.shape[1]], out=resp)
-    m = ring_margin(radii)
     resp[:m], resp[-m:], resp[:, :m], resp[:, -m:] = 0.0, 0.0, 0.0, 0.0
     return resp
 
@@ -285,7 +287,7 @@ def _blob_detector(image_shape: tuple[int, int], blob_color: int) -> cv2.SimpleB
     p.minDistBetweenBlobs = 2.0
     p.filterByArea = True
     p.minArea = 3.0
-    p.maxArea = 0.05 * image_shape[0] * image_shape[1]
+    p.maxArea = max(p.minArea, 0.05 * image_shape[0] * image_shape[1])  # tiny images: OpenCV wants min <= max
     p.filterByCircularity = False  # motion smears circles into ellipses and crescents
     p.filterByConvexity = True
     p.minConvexity = 0.6
