@@ -111,12 +111,12 @@ def test_an_isolated_find_of_a_slow_board_is_checked_across_the_gaps():
     assert bad[i] and bad.sum() == 1
 
 
-def _slow_lattice(rng, t: np.ndarray, unit: float = 7.0) -> np.ndarray:
-    """The asymmetric 4 x 11 grid's circles (label 4 i + j at ((2 j + i % 2) u, i u)) drifting at 3 px/s, with
-    0.2 px of noise: (m, 44, 2)."""
+def _slow_lattice(rng, t: np.ndarray, unit: float = 7.0, velocity=(3.0, 1.0)) -> np.ndarray:
+    """The asymmetric 4 x 11 grid's circles (label 4 i + j at ((2 j + i % 2) u, i u)) drifting at ``velocity``
+    (px/s, default 3 px/s), with 0.2 px of noise: (m, 44, 2)."""
     i, j = np.divmod(np.arange(44), 4)
     grid = np.c_[(2 * j + i % 2) * unit, i * unit] + np.array([120.0, 60.0])
-    drift = np.array([3.0, 1.0])[None, None] * t[:, None, None]
+    drift = np.array(velocity, dtype=float)[None, None] * t[:, None, None]
     return grid[None] + drift + rng.normal(0, 0.2, (t.size, 44, 2))
 
 
@@ -149,3 +149,41 @@ def test_runs_equally_long_in_two_labellings_are_both_refused():
     uv[np.ix_(late, np.arange(36))] = uv[np.ix_(late, np.arange(8, 44))]
     uv[np.ix_(late, np.arange(36, 44))] = np.nan
     assert inconsistent_frames(t, uv).all()
+
+
+def _relabel(uv: np.ndarray, rows: np.ndarray, shift: int) -> None:
+    """Frames ``rows`` labelled ``shift`` labels off: label k shows circle k + shift (unseen where none)."""
+    src = np.arange(44) + shift
+    ok = (src >= 0) & (src < 44)
+    moved = np.full((int(np.count_nonzero(rows)), 44, 2), np.nan)
+    moved[:, ok] = uv[rows][:, src[ok]]
+    uv[rows] = moved
+
+
+def test_two_wrong_runs_off_in_opposite_directions_are_both_refused():
+    """A run four labels off, a right run, a run four labels off the other way: the two wrong runs are not in one
+    labelling (a step and its inverse are not the same step), so the right run, the longest, is kept."""
+    rng = np.random.default_rng(7)
+    t = np.r_[np.arange(3) / 30, 0.3 + np.arange(4) / 30, 0.7 + np.arange(3) / 30]
+    uv = _slow_lattice(rng, t)
+    first, last = t < 0.2, t > 0.6
+    _relabel(uv, first, 4)
+    _relabel(uv, last, -4)
+    np.testing.assert_array_equal(inconsistent_frames(t, uv), first | last)
+
+
+def test_points_missing_next_to_the_gap_do_not_condemn_a_right_run():
+    """A board moving one lattice vector per 0.3 s gap, with most circles unseen in the frames beside the ends of
+    the gap (the speed comes from the circles seen in both frames)."""
+    rng = np.random.default_rng(8)
+    t = np.r_[np.arange(6) / 30, 0.5 + np.arange(6) / 30]
+    uv = _slow_lattice(rng, t, velocity=(7.0 / 0.3, 7.0 / 0.3))
+    uv[[4, 7], :27] = np.nan  # the second-to-last frame of the first run, the second of the next
+    assert not inconsistent_frames(t, uv).any()
+
+
+def test_single_frames_between_gaps_are_not_compared_without_a_speed():
+    rng = np.random.default_rng(9)
+    t = np.array([0.0, 0.3, 0.6])
+    uv = _slow_lattice(rng, t, velocity=(7.0 / 0.3, 7.0 / 0.3))  # one lattice vector per gap
+    assert not inconsistent_frames(t, uv).any()

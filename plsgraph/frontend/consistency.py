@@ -15,9 +15,11 @@ less than a spacing between them (a slow board's isolated finds); one without is
 Consecutive wrong frames vouch for each other: a slow board labelled afresh after a gap, one lattice step off, is
 then tracked in that labelling for several frames. So where two runs of frames meet across a short gap, each run's
 board is carried to the middle of the gap at its own speed; when the two disagree by most of a spacing in their
-labels but their circles coincide once the labels are ignored, one run is a lattice step off. Runs joined by such
-tests form chains, each run either in the first run's labelling or a step off it; the labelling fewer frames of
-the chain have is refused (both on a tie).
+labels but their circles coincide once the labels are ignored, one run is a lattice step off, and which of its
+labels name which of the other's is read off the circles. Runs joined by such tests form chains; composing those
+maps along the chain gives each run's labels in the first run's terms, runs that agree there share a labelling,
+and every labelling but the one with the most frames is refused (all of them when the most are tied). A run of one
+frame is carried at its neighbouring run's speed; two single frames are not compared.
 """
 
 from __future__ import annotations
@@ -111,26 +113,23 @@ SHIFT_LABELLED_SPACINGS = 0.75
 SHIFT_UNLABELLED_SPACINGS = 0.35
 
 
-def _carried(idx: list[int], t: np.ndarray, uv: np.ndarray, t_to: float) -> tuple[np.ndarray, float]:
-    """The board of the run's end frame ``idx[0]`` carried to ``t_to`` at the speed of the line through it and
-    ``idx[1]`` (still when the run has one frame; points missing in either stay where they are): (uv, largest
-    median move in pixels)."""
-    a = idx[0]
-    if len(idx) < 2:
-        return uv[a], 0.0
-    b = idx[1]
-    v = (uv[a] - uv[b]) / (t[a] - t[b])
-    v = np.where(np.isfinite(v), v, 0.0)
-    step = v * (t_to - t[a])
-    seen = np.all(np.isfinite(uv[a]), axis=1)
-    move = float(np.median(np.linalg.norm(step[seen], axis=1))) if seen.any() else 0.0
-    return uv[a] + step, move
+def _velocity(i: int, j: int | None, t: np.ndarray, uv: np.ndarray) -> np.ndarray | None:
+    """Each point's image velocity (N, 2) from frames ``i`` and ``j`` (px/s); points not seen in both move at the
+    median velocity of those that are. None without a second frame, a time between them or two points seen in
+    both."""
+    if j is None or t[i] == t[j]:
+        return None
+    v = (uv[i] - uv[j]) / (t[i] - t[j])
+    seen = np.all(np.isfinite(v), axis=1)
+    if np.count_nonzero(seen) < 2:
+        return None
+    return np.where(seen[:, None], v, np.median(v[seen], axis=0))
 
 
 def shifted_runs(t: np.ndarray, uv: np.ndarray, keep: np.ndarray, *, max_dt_s: float = MAX_DT_S,
                  min_points: int = 6) -> np.ndarray:
-    """Mask (m,) of the frames among ``keep`` refused because their run of frames is a lattice step off the run
-    it meets across a short gap (see the module's doc)."""
+    """Mask (m,) of the frames among ``keep`` refused because their run of frames holds the board under other
+    labels than the runs it is chained to across short gaps, and those have more frames (see the module's doc)."""
     t = np.asarray(t, dtype=float)
     uv = np.asarray(uv, dtype=float)
     out = np.zeros(t.size, dtype=bool)
@@ -140,51 +139,83 @@ def shifted_runs(t: np.ndarray, uv: np.ndarray, keep: np.ndarray, *, max_dt_s: f
     cut = np.flatnonzero(np.diff(t[kept]) > max_dt_s) + 1
     runs = np.split(kept, cut)
     finite = np.all(np.isfinite(uv), axis=2)
-    # Each boundary between consecutive runs: 0 (the runs agree), 1 (a lattice step apart) or None (no test).
-    rel: list[int | None] = []
-    for r1, r2 in zip(runs[:-1], runs[1:], strict=True):
-        rel.append(_relation(r1, r2, t, uv, finite, min_points))
-    # Runs joined by tested boundaries form chains; within a chain each run is in the first run's labelling or a
-    # step off it, and the labelling fewer frames have is refused (both on a tie).
+    n = uv.shape[1]
+    # Each boundary between consecutive runs: None (no test), the identity (the runs agree) or the map (N,) from
+    # the later run's labels to the earlier run's labels of the same circles (-1: not seen in both).
+    rel = [_relation(r1, r2, t, uv, finite, min_points) for r1, r2 in zip(runs[:-1], runs[1:], strict=True)]
     start = 0
     for end in range(len(runs)):
         if end < len(rel) and rel[end] is not None:
             continue
         chain = runs[start:end + 1]
-        cls = np.cumsum([0] + [int(x) for x in rel[start:end]]) % 2
-        if cls.any():
-            frames = [sum(r.size for r, c in zip(chain, cls, strict=True) if c == k) for k in (0, 1)]
+        # Each run's labels as the chain's first run's labels (-1: unknown), composed along the chain.
+        perm = [np.arange(n)]
+        for m in rel[start:end]:
+            p = perm[-1]
+            perm.append(np.where(m >= 0, p[np.maximum(m, 0)], -1))
+        # Runs whose labels agree (on the circles known in both) share a class; the class with the most frames is
+        # kept, the others are refused (all of them when the most frames are tied).
+        reps: list[np.ndarray] = []
+        cls = []
+        for p in perm:
+            for c, q in enumerate(reps):
+                known = (p >= 0) & (q >= 0)
+                if np.count_nonzero(known) >= min_points and np.mean(p[known] == q[known]) >= 0.8:
+                    cls.append(c)
+                    break
+            else:
+                cls.append(len(reps))
+                reps.append(p)
+        if len(reps) > 1:
+            frames = np.bincount(cls, weights=[r.size for r in chain])
+            best = int(np.argmax(frames))
+            tied = np.count_nonzero(frames == frames[best]) > 1
             for r, c in zip(chain, cls, strict=True):
-                if frames[c] <= frames[1 - c]:
+                if tied or c != best:
                     out[r] = True
         start = end + 1
     return out
 
 
 def _relation(r1: np.ndarray, r2: np.ndarray, t: np.ndarray, uv: np.ndarray, finite: np.ndarray,
-              min_points: int) -> int | None:
-    """How the run ``r1`` and the next run ``r2`` meet: 0 they agree, 1 they are a lattice step apart, None the
-    gap cannot be tested (too long, a fast board, too few common circles, or the board moved across it)."""
+              min_points: int) -> np.ndarray | None:
+    """How the run ``r1`` and the next run ``r2`` meet: the map (N,) from ``r2``'s labels to ``r1``'s of the same
+    circles (the identity when they agree; -1 for circles not seen in both), or None when the gap cannot be tested
+    (too long, neither run with a speed, a fast board, too few common circles, or the board moved across it)."""
     a, b = int(r1[-1]), int(r2[0])
     if t[b] - t[a] > MAX_SHIFT_GAP_S:
         return None
     spacing = _spacing(uv[b])
     if not np.isfinite(spacing) or spacing <= 0:
         return None
+    va = _velocity(a, int(r1[-2]) if r1.size > 1 else None, t, uv)
+    vb = _velocity(b, int(r2[1]) if r2.size > 1 else None, t, uv)
+    if va is None and vb is None:
+        return None  # a single frame on each side: nothing says how the board moved across the gap
+    va = vb if va is None else va  # a run of one frame moves at its neighbour's speed
+    vb = va if vb is None else vb
     tm = 0.5 * (t[a] + t[b])
-    pa, move_a = _carried([a] + [int(j) for j in r1[-2:-1]], t, uv, tm)
-    pb, move_b = _carried([b] + [int(j) for j in r2[1:2]], t, uv, tm)
-    if max(move_a, move_b) > SHIFT_STILL_SPACINGS * spacing:
+    step_a, step_b = va * (tm - t[a]), vb * (tm - t[b])
+    move = max(float(np.median(np.linalg.norm(step_a[finite[a]], axis=1))),
+               float(np.median(np.linalg.norm(step_b[finite[b]], axis=1))))
+    if move > SHIFT_STILL_SPACINGS * spacing:
         return None  # a fast board: carrying it across the gap is no test
+    pa, pb = uv[a] + step_a, uv[b] + step_b
     both = finite[a] & finite[b]
     if np.count_nonzero(both) < min_points:
         return None
     labelled = float(np.median(np.linalg.norm(pa[both] - pb[both], axis=1)))
     if labelled <= SHIFT_LABELLED_SPACINGS * spacing:
-        return 0
-    qa, qb = pa[finite[a]], pb[finite[b]]
-    unlabelled = float(np.median(np.min(np.linalg.norm(qb[:, None] - qa[None], axis=-1), axis=1)))
-    return 1 if unlabelled < SHIFT_UNLABELLED_SPACINGS * spacing else None
+        return np.arange(uv.shape[1])
+    la, lb = np.flatnonzero(finite[a]), np.flatnonzero(finite[b])
+    d = np.linalg.norm(pb[lb][:, None] - pa[la][None], axis=-1)
+    nearest = d.min(axis=1)
+    if float(np.median(nearest)) >= SHIFT_UNLABELLED_SPACINGS * spacing:
+        return None  # the board itself moved (or turned) across the gap, not its labels
+    m = np.full(uv.shape[1], -1)
+    close = nearest < SHIFT_UNLABELLED_SPACINGS * spacing
+    m[lb[close]] = la[d.argmin(axis=1)[close]]
+    return m
 
 
 def _spacings(uv: np.ndarray, chunk: int = 512) -> np.ndarray:
