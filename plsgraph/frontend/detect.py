@@ -205,12 +205,18 @@ def ring_peaks(resp: np.ndarray, count: int, fraction: float = 0.1, min_dist_px:
     ys, xs = np.nonzero((resp >= local_max) & (resp > fraction * top))
     order = np.argsort(-resp[ys, xs], kind="stable")[: 4 * count]
     ys, xs = ys[order], xs[order]
+    # The strongest of maxima closer than min_dist_px (flat tops, ties): taken strongest first, each one kept
+    # suppresses the weaker ones near it. Integer pixel distances: exact.
+    yi, xi = ys.astype(np.int64), xs.astype(np.int64)
+    near = (yi[:, None] - yi[None, :]) ** 2 + (xi[:, None] - xi[None, :]) ** 2 < min_dist_px**2
+    suppressed = np.zeros(ys.size, bool)
     keep: list[int] = []
-    for i in range(ys.size):  # the strongest of maxima closer than min_dist_px (flat tops, ties)
-        if all((ys[i] - ys[j]) ** 2 + (xs[i] - xs[j]) ** 2 >= min_dist_px**2 for j in keep):
+    for i in range(ys.size):
+        if not suppressed[i]:
             keep.append(i)
             if len(keep) == count:
                 break
+            suppressed |= near[i]
     ys, xs = ys[keep], xs[keep]
     h, w = resp.shape
     inner = (xs > 0) & (xs < w - 1) & (ys > 0) & (ys < h - 1)
