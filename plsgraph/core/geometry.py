@@ -8,7 +8,6 @@ Every function accepts a single item or a stack along the leading axis.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 # The one implementation of these maps is the factor library's; re-exported here for the rest of plsgraph.
 from factors.lie import hat as hat
@@ -52,6 +51,8 @@ def rotation_error_deg(R_est: np.ndarray, R_gt: np.ndarray) -> np.ndarray:
 
 def random_rotation_zyx(rng: np.random.Generator, max_deg: float = 90.0) -> np.ndarray:
     """Rotation from ZYX Euler angles drawn uniformly in [-max_deg, max_deg] (the paper's protocol)."""
+    from scipy.spatial.transform import Rotation  # imported when needed: scipy.spatial costs 0.25 s to load
+
     angles = rng.uniform(-max_deg, max_deg, size=3)
     return Rotation.from_euler("ZYX", angles, degrees=True).as_matrix()
 
@@ -96,6 +97,8 @@ def interpolate_poses(t_query: np.ndarray, t: np.ndarray, T: np.ndarray) -> np.n
     tq = np.atleast_1d(np.asarray(t_query, dtype=float))
     if tq.size and (tq.min() < t[0] - 1e-12 or tq.max() > t[-1] + 1e-12):
         raise ValueError(f"query times [{tq.min():.6f}, {tq.max():.6f}] outside [{t[0]:.6f}, {t[-1]:.6f}]")
+    from scipy.spatial.transform import Rotation, Slerp  # imported when needed (see random_rotation_zyx)
+
     tq = np.clip(tq, t[0], t[-1])
     R = Slerp(t, Rotation.from_matrix(T[:, :3, :3]))(tq).as_matrix()
     p = np.stack([np.interp(tq, t, T[:, :3, 3][:, k]) for k in range(3)], axis=-1)
