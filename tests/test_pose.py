@@ -10,7 +10,7 @@ from plsgraph.core.camera import davis346_default
 from plsgraph.core.geometry import inv_T, make_T, rotation_error_deg, se3_exp, se3_log, so3_exp, transform_points
 from plsgraph.core.tracks import Detections
 from plsgraph.errors import InputError, InsufficientDataError
-from plsgraph.frontend.pose import camera_track_from_detections, reprojection_jacobian, solve_pnp
+from plsgraph.frontend.pose import camera_track_from_detections, frame_pose, reprojection_jacobian, solve_pnp
 
 BOARD = load_board("acircles_4x11")
 CAM = davis346_default()
@@ -129,6 +129,29 @@ def test_camera_track_keeps_good_frames_and_counts_rejections():
     np.testing.assert_allclose(track.T_board_cam[:, :3, 3], Ts[keep, :3, 3], atol=0.02)
     assert track.cov.shape == (n - 2, 6, 6) and track.detections is not None
     np.testing.assert_array_equal(track.detections.t, track.t)
+
+
+def test_poses_solved_elsewhere_give_the_same_track():
+    """Poses solved frame by frame beforehand (as the streaming front end's workers do) give the track PnP on the
+    whole set gives, refusals included; a list of the wrong length is refused."""
+    rng = np.random.default_rng(5)
+    n = 8
+    t = np.arange(n) / 30.0
+    Ts = np.array([pose_looking_at_board(0.7, (0.2, -0.3 + 0.05 * k, 0.1)) for k in range(n)])
+    uv = np.array([project(T) for T in Ts]) + rng.normal(0.0, 0.15, (n, BOARD.n_points, 2))
+    uv[2] = np.nan  # no points: refused
+    uv[6] = rng.uniform(0, 300, (BOARD.n_points, 2))  # garbage
+    dets = Detections(t, uv, BOARD.points)
+    est = [frame_pose(u, BOARD.points, CAM) for u in uv]
+    assert isinstance(est[2], str) and "points" in est[2]
+    a = camera_track_from_detections(dets, CAM)
+    b = camera_track_from_detections(dets, CAM, estimates=est)
+    assert len(a) == len(b) == n - 2 and a.info == b.info
+    for x, y in [(a.t, b.t), (a.T_board_cam, b.T_board_cam), (a.cov, b.cov), (a.rms_px, b.rms_px),
+                 (a.detections.uv, b.detections.uv)]:
+        np.testing.assert_array_equal(x, y)
+    with pytest.raises(InputError):
+        camera_track_from_detections(dets, CAM, estimates=est[:-1])
 
 
 def test_camera_track_raises_when_nothing_fits():

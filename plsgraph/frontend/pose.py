@@ -180,6 +180,22 @@ def transform_board(T_cam_board: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return pts @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
 
 
+def frame_pose(
+    uv: np.ndarray,
+    board_points: np.ndarray,
+    camera: CameraModel,
+    sigma_px: float | None = None,
+    outlier_px: float = 2.0,
+    min_points: int = MIN_POINTS,
+) -> PoseEstimate | str:
+    """:func:`solve_pnp` of one detection frame, or why it gave no pose (the message of its
+    :class:`InsufficientDataError`). Each frame's pose depends on that frame alone."""
+    try:
+        return solve_pnp(uv, board_points, camera, sigma_px=sigma_px, outlier_px=outlier_px, min_points=min_points)
+    except InsufficientDataError as exc:
+        return str(exc)
+
+
 def camera_track_from_detections(
     detections: Detections,
     camera: CameraModel,
@@ -189,8 +205,12 @@ def camera_track_from_detections(
     outlier_px: float = 2.0,
     min_points: int = MIN_POINTS,
     progress: Callable[[int, int], None] | None = None,
+    estimates: list[PoseEstimate | str] | None = None,
 ) -> CameraTrack:
     """PnP on every detection frame; frames that fail or fit worse than ``max_rms_px`` are dropped.
+
+    ``estimates`` (one per frame, from :func:`frame_pose` with the same settings, e.g. computed beside the
+    detection in a worker process) are used instead of solving again.
 
     The returned track keeps, in ``detections``, the accepted frames with rejected outlier points
     set to NaN, so the reprojection factors see exactly the points the poses came from.
@@ -204,23 +224,17 @@ def camera_track_from_detections(
     rms = np.zeros(m)
     uv_out = np.array(detections.uv, copy=True)
     rejected: Counter[str] = Counter()
+    if estimates is not None and len(estimates) != m:
+        raise InputError(f"PnP: {len(estimates)} precomputed poses for {m} detection frames")
     for k in range(m):
-        try:
-            est = solve_pnp(
-                detections.uv[k],
-                detections.board_points,
-                camera,
-                sigma_px=sigma_px,
-                outlier_px=outlier_px,
-                min_points=min_points,
-            )
-        except InsufficientDataError as exc:
+        est = estimates[k] if estimates is not None else \
+            frame_pose(detections.uv[k], detections.board_points, camera, sigma_px, outlier_px, min_points)
+        if progress is not None:
+            progress(k + 1, m)
+        if isinstance(est, str):
             rejected["pnp_failed"] += 1
-            log.debug("frame %d at t=%.4f: %s", k, detections.t[k], exc)
+            log.debug("frame %d at t=%.4f: %s", k, detections.t[k], est)
             continue
-        finally:
-            if progress is not None:
-                progress(k + 1, m)
         if est.rms_px > max_rms_px:
             rejected["rms_above_threshold"] += 1
             log.debug("frame %d at t=%.4f: reprojection RMS %.2f px > %.2f", k, detections.t[k], est.rms_px, max_rms_px)

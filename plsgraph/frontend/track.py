@@ -67,7 +67,7 @@ from .detect import (
     refine_centroids,
 )
 from .noise import drop_events, drop_pixels, flicker_events, hot_pixel_mask
-from .pose import camera_track_from_detections
+from .pose import camera_track_from_detections, frame_pose
 
 log = logging.getLogger(__name__)
 
@@ -809,9 +809,11 @@ def _keep_frames(info: dict, n: int, keep: np.ndarray) -> None:
 
 
 def _track_from_detections(
-    dets: Detections, info: dict, camera: CameraModel, max_rms_px: float, sigma_px: float | None
+    dets: Detections, info: dict, camera: CameraModel, max_rms_px: float, sigma_px: float | None,
+    estimates: list | None = None,
 ) -> CameraTrack:
-    """PnP on the detections and the front end's bookkeeping merged into the track's info."""
+    """PnP on the detections and the front end's bookkeeping merged into the track's info. ``estimates``: each
+    detection's pose if already solved (:func:`~plsgraph.frontend.pose.frame_pose`, same settings)."""
     c0 = time.perf_counter()
     skipped = Counter(info["skipped"])
     bad = inconsistent_frames(dets.t, dets.uv) if len(dets) else np.zeros(0, dtype=bool)
@@ -825,6 +827,8 @@ def _track_from_detections(
         _keep_frames(info, len(dets), ~bad)
         info["detected"] = int(info.get("detected", len(dets))) - int(bad.sum())
         dets = Detections(np.asarray(dets.t)[~bad], np.asarray(dets.uv)[~bad], dets.board_points)
+        if estimates is not None:
+            estimates = [e for e, b in zip(estimates, bad, strict=True) if not b]
         if not len(dets):
             exc = InsufficientDataError("no detection agrees with its neighbours in time; check the board definition")
             exc.frontend_info = info
@@ -834,12 +838,13 @@ def _track_from_detections(
     win = info.get("window_t")  # the window each detection was found in
     found_in = np.asarray(win, dtype=float) if win is not None and len(win) == len(dets) else np.asarray(dets.t)
     try:
-        track = camera_track_from_detections(dets, camera, max_rms_px=max_rms_px, sigma_px=sigma_px)
+        extra = {} if estimates is None else {"estimates": estimates}
+        track = camera_track_from_detections(dets, camera, max_rms_px=max_rms_px, sigma_px=sigma_px, **extra)
     except InsufficientDataError as exc:  # no frame gave a pose: the diagnosis still shows what each window gave
         _mark_outcomes(info, found_in, REASON_NO_POSE)
         exc.frontend_info = info
         raise
-    info["seconds"]["pnp"] = time.perf_counter() - c0
+    info["seconds"]["pnp"] = info["seconds"].get("pnp", 0.0) + time.perf_counter() - c0
     skipped.update(track.info.get("rejected", {}))
     info["skipped"] = dict(skipped)
     info["poses"] = len(track)
@@ -900,11 +905,17 @@ def time_order(t: np.ndarray, span: np.ndarray | None = None) -> np.ndarray:
     return order[np.r_[True, qs[1:] - qs[:-1] > 1]]  # one grid step apart still counts as the same stamp
 
 
-def _detect_span(args: tuple) -> tuple[Detections, dict]:
-    """One streamed span's windows (in this process or a worker)."""
-    buf, camera, board, rate_hz, kind, q, detect_options = args
-    return detect_in_events(buf, camera, board, rate_hz, kind, t_query_ns=q, require_detection=False,
-                            **detect_options)
+def _detect_span(args: tuple) -> tuple[Detections, dict, list]:
+    """One streamed span's windows (in this process or a worker), and each detection's pose
+    (:func:`~plsgraph.frontend.pose.frame_pose`: it depends on that detection alone, so it is solved where the
+    detection was made, in parallel with the other spans)."""
+    buf, camera, board, rate_hz, kind, q, detect_options, sigma_px = args
+    dets, part = detect_in_events(buf, camera, board, rate_hz, kind, t_query_ns=q, require_detection=False,
+                                  **detect_options)
+    c0 = time.perf_counter()
+    poses = [frame_pose(uv, dets.board_points, camera, sigma_px) for uv in dets.uv]
+    part["seconds"]["pnp"] = part["seconds"].get("pnp", 0.0) + time.perf_counter() - c0
+    return dets, part, poses
 
 
 def camera_track_from_event_chunks(
@@ -944,6 +955,7 @@ def camera_track_from_event_chunks(
     next_q: int | None = None
     t_parts: list[np.ndarray] = []
     uv_parts: list[np.ndarray] = []
+    pose_parts: list = []  # each detection's pose, solved beside it
     src_parts: list[str] = []
     span_parts: list[float] = []
     win_parts: list[float] = []
@@ -956,9 +968,10 @@ def camera_track_from_event_chunks(
     if expected_span_ns is not None:
         total = max(1, int((expected_span_ns[1] - expected_span_ns[0]) // period))
 
-    def absorb(dets: Detections, part: dict) -> None:
+    def absorb(dets: Detections, part: dict, poses: list) -> None:
         nonlocal info
         t_parts.append(dets.t)
+        pose_parts.extend(poses)
         uv_parts.append(dets.uv)
         src_parts.extend(part["detector"])
         span_parts.extend(part["span_windows"])
@@ -993,7 +1006,7 @@ def camera_track_from_event_chunks(
         nonlocal buf, next_q, pool
         q = np.arange(next_q, t_end, period, dtype=np.int64)
         if q.size:
-            args = (buf, camera, board, rate_hz, kind, q, detect_options)
+            args = (buf, camera, board, rate_hz, kind, q, detect_options, sigma_px)
             if workers > 1:
                 # Spans are independent (tracking restarts at each), so they can be detected side by side with
                 # the same result; at most ``workers`` spans are held at once, so memory stays bounded.
@@ -1049,6 +1062,7 @@ def camera_track_from_event_chunks(
         if keep.size < t.size:
             skipped["same_stamp"] += int(t.size - keep.size)
         t, uv, src, spans, wins = t[keep], uv[keep], src[keep], spans[keep], wins[keep]
+        pose_parts = [pose_parts[i] for i in keep]
     else:
         dropped_windows = np.zeros(0)
     info["detector"] = src.tolist()
@@ -1064,4 +1078,4 @@ def camera_track_from_event_chunks(
         raise _no_board(info.get("windows", 0), skipped, board, info)
     if progress is not None:
         progress(info["windows"], info["windows"])
-    return _track_from_detections(Detections(t, uv, board.points), info, camera, max_rms_px, sigma_px)
+    return _track_from_detections(Detections(t, uv, board.points), info, camera, max_rms_px, sigma_px, pose_parts)
