@@ -905,6 +905,10 @@ def time_order(t: np.ndarray, span: np.ndarray | None = None) -> np.ndarray:
     return order[np.r_[True, qs[1:] - qs[:-1] > 1]]  # one grid step apart still counts as the same stamp
 
 
+def _ready() -> None:
+    """A worker process's first task: loading this module (to unpickle the task) is what it is for."""
+
+
 def _detect_span(args: tuple) -> tuple[Detections, dict, list]:
     """One streamed span's windows (in this process or a worker), and each detection's pose
     (:func:`~plsgraph.frontend.pose.frame_pose`: it depends on that detection alone, so it is solved where the
@@ -1001,22 +1005,24 @@ def camera_track_from_event_chunks(
 
         if mp.current_process().daemon:  # e.g. a Dask or multiprocessing pool worker: it may not start processes
             workers = 1
+    if workers > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        # Started fresh ("spawn"), not forked: the calibrating process may have threads by now (the figure
+        # worker's), and a fork taken while one of them holds a lock can hang the child. Started before the first
+        # span is decoded, so that the workers have loaded the detector by the time it arrives.
+        pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
+        for _ in range(workers):
+            pool.submit(_ready)
 
     def detect(t_end: int) -> None:
         nonlocal buf, next_q, pool
         q = np.arange(next_q, t_end, period, dtype=np.int64)
         if q.size:
             args = (buf, camera, board, rate_hz, kind, q, detect_options, sigma_px)
-            if workers > 1:
+            if pool is not None:
                 # Spans are independent (tracking restarts at each), so they can be detected side by side with
                 # the same result; at most ``workers`` spans are held at once, so memory stays bounded.
-                if pool is None:
-                    import multiprocessing as mp
-                    from concurrent.futures import ProcessPoolExecutor
-
-                    # Started fresh ("spawn"), not forked: the calibrating process may have threads by now (the
-                    # figure worker's), and a fork taken while one of them holds a lock can hang the child.
-                    pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
                 pending.append(pool.submit(_detect_span, args))
                 while len(pending) >= workers + QUEUED_SPANS:
                     absorb(*pending.pop(0).result())
@@ -1025,26 +1031,26 @@ def camera_track_from_event_chunks(
             next_q = int(q[-1]) + period
         buf = buf.slice_time(next_q - keep_ns, np.iinfo(np.int64).max)
 
-    for ch in chunks:
-        if len(ch) == 0:
-            continue
-        if next_q is not None and ch.t_first < next_q - period:
-            late_events += int(np.count_nonzero(ch.t < next_q - period))  # their windows are already done
-        if buf is None:
-            buf = ch
-        elif ch.t_first >= buf.t_last:
-            buf = EventStream.concatenate([buf, ch])
-        else:  # packets that overlap in time: merge, so every window sees its events in order
-            joined = EventStream(*(np.concatenate([getattr(buf, a), getattr(ch, a)]) for a in "txyp"),
-                                 buf.width, buf.height)
-            buf = joined.sorted()
-        if next_q is None:
-            next_q = buf.t_first + period
-        if buf.t_last - reorder_ns - next_q >= span_ns:
-            detect(buf.t_last - reorder_ns)  # windows well before the newest event have all their events
-    if buf is None or len(buf) == 0:
-        raise InsufficientDataError("front end: the event stream is empty; check the recording's event topic")
-    try:
+    try:  # the worker processes end however this ends
+        for ch in chunks:
+            if len(ch) == 0:
+                continue
+            if next_q is not None and ch.t_first < next_q - period:
+                late_events += int(np.count_nonzero(ch.t < next_q - period))  # their windows are already done
+            if buf is None:
+                buf = ch
+            elif ch.t_first >= buf.t_last:
+                buf = EventStream.concatenate([buf, ch])
+            else:  # packets that overlap in time: merge, so every window sees its events in order
+                joined = EventStream(*(np.concatenate([getattr(buf, a), getattr(ch, a)]) for a in "txyp"),
+                                     buf.width, buf.height)
+                buf = joined.sorted()
+            if next_q is None:
+                next_q = buf.t_first + period
+            if buf.t_last - reorder_ns - next_q >= span_ns:
+                detect(buf.t_last - reorder_ns)  # windows well before the newest event have all their events
+        if buf is None or len(buf) == 0:
+            raise InsufficientDataError("front end: the event stream is empty; check the recording's event topic")
         detect(buf.t_last + period)
         while pending:
             absorb(*pending.pop(0).result())
