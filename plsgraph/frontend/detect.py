@@ -302,6 +302,12 @@ def _blob_detector(image_shape: tuple[int, int], blob_color: int) -> cv2.SimpleB
     return cv2.SimpleBlobDetector_create(p)
 
 
+def _norm(x: np.ndarray) -> np.ndarray:
+    """Euclidean norms along the last axis: what np.linalg.norm(x, axis=-1) computes (the same sum of squares and
+    root, the same numbers), without its argument handling, which costs more than the sum on these small arrays."""
+    return np.sqrt(np.add.reduce(x * x, axis=-1))
+
+
 def _fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
     """Homography dst ~ H src by the normalised DLT (no iterative refinement); None if degenerate.
 
@@ -310,7 +316,7 @@ def _fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
     """
     def frame(p: np.ndarray) -> np.ndarray:
         c = p.mean(axis=0)
-        d = float(np.mean(np.linalg.norm(p - c, axis=1)))
+        d = float(np.mean(_norm(p - c)))
         k = np.sqrt(2.0) / d if d > 1e-12 else 1.0
         return np.array([[k, 0.0, -k * c[0]], [0.0, k, -k * c[1]], [0.0, 0.0, 1.0]])
 
@@ -334,7 +340,7 @@ def _fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
 
 def neighbour_distance(uv: np.ndarray) -> np.ndarray:
     """Distance from each point to its nearest other point (n,)."""
-    d = np.linalg.norm(uv[:, None, :] - uv[None, :, :], axis=-1)
+    d = _norm(uv[:, None, :] - uv[None, :, :])
     np.fill_diagonal(d, np.inf)
     return d.min(axis=1)
 
@@ -406,7 +412,7 @@ def check_grid_order(
     if np.any(ph[:, 2] * np.sign(np.median(ph[:, 2])) <= 0):
         return REASON_ORDER, float("nan")
     pred = ph[:, :2] / ph[:, 2:]
-    err = np.linalg.norm(pred - q, axis=1)
+    err = _norm(pred - q)
     rms = float(np.sqrt(np.mean(err**2)))
     spacing = neighbour_distance(pred) if len(pred) > 1 else np.full(1, np.inf)
     if rms > max_rms_px or np.any(err > max_point_frac * spacing):
@@ -429,7 +435,7 @@ def board_is_symmetric(board: Board) -> bool:
     """
     P = board.points[:, :2]
     turned = P.min(axis=0) + P.max(axis=0) - P
-    d = np.linalg.norm(turned[:, None, :] - P[None, :, :], axis=-1)
+    d = _norm(turned[:, None, :] - P[None, :, :])
     return bool(np.all(d.min(axis=1) < 1e-9 * max(1.0, float(np.ptp(P)))))
 
 
@@ -480,7 +486,7 @@ _LATTICE_MAPS = np.array(
 def _grow_lattice(pts: np.ndarray, seed: int, nn: np.ndarray, tol: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
     """Integer lattice coordinates for the points reachable from ``seed``: (indices, coords)."""
     d = pts - pts[seed]
-    dist = np.linalg.norm(d, axis=1)
+    dist = _norm(d)
     near = np.flatnonzero((dist > 0) & (dist < 1.35 * nn[seed]))
     if near.size < 2:
         return np.zeros(0, int), np.zeros((0, 2), int)
@@ -495,17 +501,18 @@ def _grow_lattice(pts: np.ndarray, seed: int, nn: np.ndarray, tol: float = 0.3) 
     idx = np.zeros(0, int)
     lat = np.zeros((0, 2), int)
     radius = 1
+    pts_h = np.c_[pts, np.ones(len(pts))]
     for _ in range(40):
         try:
             Hinv = np.linalg.inv(H)
         except np.linalg.LinAlgError:
             break
-        ph = np.c_[pts, np.ones(len(pts))] @ Hinv.T
+        ph = pts_h @ Hinv.T
         if np.any(np.abs(ph[:, 2]) < 1e-12):
             break
         lc = ph[:, :2] / ph[:, 2:]
         a = np.round(lc).astype(int)
-        res = np.linalg.norm(lc - a, axis=1)
+        res = _norm(lc - a)
         ok = (res < tol) & (np.max(np.abs(a), axis=1) <= radius)
         cand = np.flatnonzero(ok)
         # One point per lattice site: the best-fitting one (sites keyed as one integer, |a| <= radius).
@@ -515,13 +522,13 @@ def _grow_lattice(pts: np.ndarray, seed: int, nn: np.ndarray, tol: float = 0.3) 
         new_idx = np.sort(order[first])
         grown = new_idx.size > idx.size
         idx, lat = new_idx, a[new_idx]
+        if not grown and radius >= 3:
+            break  # (the homography is not used after the loop: no refit)
         if idx.size >= 4:
             Hn = _fit_homography(lat.astype(np.float64), pts[idx])
             if Hn is None:
                 break
             H = Hn
-        if not grown and radius >= 3:
-            break
         radius = radius + 1 if radius < 2 else 2 * radius  # 1, 2, 4, 8, ...: few refits
     return idx, lat
 
@@ -551,7 +558,7 @@ def label_circle_grid(
     pts = np.asarray(points, dtype=float)
     if pts.shape[0] < min_points:
         return _fail(n, REASON_NOT_FOUND)
-    dm = np.linalg.norm(pts[:, None] - pts[None], axis=-1)
+    dm = _norm(pts[:, None] - pts[None])
     np.fill_diagonal(dm, np.inf)
     nn = dm.min(axis=1)
     # Seeds: points with at least 3 neighbours at about their nearest distance (inside the grid).
@@ -560,7 +567,7 @@ def label_circle_grid(
     if seeds.size == 0:
         return _fail(n, REASON_NOT_FOUND)
     centre = np.median(pts[seeds], axis=0)
-    seeds = seeds[np.argsort(np.linalg.norm(pts[seeds] - centre, axis=1))][:6]
+    seeds = seeds[np.argsort(_norm(pts[seeds] - centre))][:6]
     best_idx, best_lat = np.zeros(0, int), np.zeros((0, 2), int)
     for sd in seeds:
         if np.isin(sd, best_idx):  # growing from a point of the best lattice would find it again
@@ -834,7 +841,7 @@ def _shift_explains(uv: np.ndarray, free: np.ndarray, board: Board, H: np.ndarra
         bh = np.c_[beyond, np.ones(beyond.shape[0])] @ H.T
         ok = bh[:, 2] > 1e-9
         bp = bh[ok, :2] / bh[ok, 2:]
-        occupied_site = np.linalg.norm(bp[:, None, :] - free[None, :, :], axis=-1).min(axis=1) < 0.3 * spacing
+        occupied_site = _norm(bp[:, None, :] - free[None, :, :]).min(axis=1) < 0.3 * spacing
         gained = np.bincount(which[ok][occupied_site], minlength=stays.shape[0])
     return bool(np.any(edge < gained + 2))
 
@@ -845,7 +852,7 @@ def _unused(candidates: np.ndarray, uv: np.ndarray) -> np.ndarray:
     if candidates.shape[0] == 0 or q.shape[0] < 2:
         return candidates
     near = 0.25 * float(np.median(neighbour_distance(q)))
-    return candidates[np.linalg.norm(candidates[:, None, :] - q[None, :, :], axis=-1).min(axis=1) >= near]
+    return candidates[_norm(candidates[:, None, :] - q[None, :, :]).min(axis=1) >= near]
 
 
 def track_circle_grid(
@@ -880,7 +887,7 @@ def track_circle_grid(
         return _fail(n, REASON_NOT_FOUND)
     spacing = np.full(n, np.nan)
     spacing[ok_pred] = neighbour_distance(pred[ok_pred])
-    d = np.linalg.norm(pred[:, None, :] - pts[None, :, :], axis=-1)  # (N, k)
+    d = _norm(pred[:, None, :] - pts[None, :, :])  # (N, k)
     # Take out the common part of the prediction error first (the median offset to the nearest candidates).
     # If the prediction was off by half a spacing or more this may shift every label; the shift test below
     # is what refuses such a labelling.
@@ -888,7 +895,7 @@ def track_circle_grid(
     near = ok_pred & (d[np.arange(n), j0] < 0.6 * spacing)
     if np.count_nonzero(near) >= min_points:
         pred = pred + np.median((pts[j0] - pred)[near], axis=0)
-        d = np.linalg.norm(pred[:, None, :] - pts[None, :, :], axis=-1)
+        d = _norm(pred[:, None, :] - pts[None, :, :])
     j = np.argmin(np.where(ok_pred[:, None], d, np.inf), axis=1)
     dist = d[np.arange(n), j]
     hit = ok_pred & (dist < 0.3 * spacing)
@@ -910,7 +917,7 @@ def track_circle_grid(
     proj = ph[:, :2] / ph[:, 2:]
     sp = neighbour_distance(proj)
     if np.count_nonzero(~hit):
-        d2 = np.linalg.norm(proj[:, None, :] - pts[None, :, :], axis=-1)
+        d2 = _norm(proj[:, None, :] - pts[None, :, :])
         j2 = np.argmin(d2, axis=1)
         add = ~hit & (d2[np.arange(n), j2] < 0.2 * sp) & ~taken[j2]
         _, inv2, cnt2 = np.unique(j2[add], return_inverse=True, return_counts=True)

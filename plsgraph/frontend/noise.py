@@ -105,11 +105,15 @@ def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ
     seen = np.zeros((2 * h * w, segments), dtype=bool)
     seen[k, part] = True
     steady = judged & seen.all(axis=1)
+    # Only steady pixels can lock: the phase sums of the others are not needed (each sum adds the same events in the
+    # same order either way, so the steady pixels' sums are the same numbers).
+    on_steady = steady[k]
+    ks, ts = k[on_steady], t[on_steady]
     best = (0, None, None, None)  # (pixels, frequency, locked keys, their mean phase)
     for f in freqs_hz:
-        ang = (2.0 * np.pi * f) * t
-        c = np.bincount(k, np.cos(ang), minlength=2 * h * w)
-        s = np.bincount(k, np.sin(ang), minlength=2 * h * w)
+        ang = (2.0 * np.pi * f) * ts
+        c = np.bincount(ks, np.cos(ang), minlength=2 * h * w)
+        s = np.bincount(ks, np.sin(ang), minlength=2 * h * w)
         r = np.hypot(c, s) / np.maximum(counts, 1)
         locked = steady & (r >= locking) & (counts * r * r >= FLICKER_RAYLEIGH)
         n_pix = int(np.count_nonzero(locked.reshape(h * w, 2).any(axis=1)))
