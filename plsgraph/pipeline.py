@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -344,13 +345,17 @@ def build_tracks(run: Run, progress: ProgressFactory = no_progress) -> Run:
 
 
 def run_recording(
-    log_path: str | Path, options: CalibrationOptions, refine: bool = True, progress: ProgressFactory = no_progress
+    log_path: str | Path, options: CalibrationOptions, refine: bool = True, progress: ProgressFactory = no_progress,
+    after_tracks: Callable[[], None] | None = None,
 ) -> Run:
-    """The whole calibration of one recording. Raises typed errors on user mistakes."""
+    """The whole calibration of one recording. Raises typed errors on user mistakes. ``after_tracks`` is called
+    once the tracks are built (the front end, which keeps every processor busy, is done)."""
     run = Run(Path(log_path), options)
     run.truth = load_truth(options.truth)
     try:
         build_tracks(run, progress)
+        if after_tracks is not None:
+            after_tracks()
         return solve(run, refine, progress)
     except (DegenerateMotionError, InsufficientDataError) as exc:
         try:

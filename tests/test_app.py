@@ -96,6 +96,22 @@ def test_figures_drawn_by_the_worker_are_those_drawn_in_process(sim_run, tmp_pat
     assert rep["timing_s"]["figures"] >= 0 and not any("figure" in w for w in rep["warnings"])
 
 
+def test_a_worker_told_to_warm_up_early_draws_the_same_figures(sim_run, tmp_path):
+    """calibrate_to_dir tells the worker to warm up once the front end is done (warm() before send(); twice is
+    once); the figures are the same."""
+    _, result = sim_run
+    here, there = prepare_output_dir(tmp_path / "here"), prepare_output_dir(tmp_path / "there")
+    write_calibration(here, result)
+    with FigureWorker.start() as worker:
+        worker.warm()
+        worker.warm()
+        assert worker.available
+        write_calibration(there, result, worker)
+    for f in FIGURE_FILES:
+        assert (there / f).read_bytes() == (here / f).read_bytes()
+    FigureWorker().warm()  # a worker that never started: nothing to do
+
+
 def test_a_worker_that_died_costs_no_figure(sim_run, tmp_path):
     _, result = sim_run
     out = prepare_output_dir(tmp_path / "calib")

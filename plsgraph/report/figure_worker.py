@@ -1,21 +1,24 @@
 """The report's figures drawn in a second Python process, off the calibration's critical path.
 
-Importing matplotlib and drawing the first figure take about a second, the figures themselves as much again: all of
-it after the refinement, when nothing else is left to do. :class:`FigureWorker` starts a process when a calibration
-starts (when a processor is free for it: :func:`processor_free`); it loads matplotlib and draws a throw-away figure
-(fonts, caches) while the calibration runs, then waits. When the result is known, :meth:`FigureWorker.send` hands it
-the few arrays the figures show (:func:`plsgraph.report.figures.figure_inputs`) and the folder to draw into; the
-worker forks, so that two processes draw half of the figures each, while the calling process writes
-calibration.yaml and the robot files. The folder is the run's staging folder, so the whole-folder semantics of
-:mod:`plsgraph.report.output` hold: the figures are there before the folder is moved into place, or the folder is
-not moved at all.
+Importing matplotlib and drawing the first figure take about a second, the figures themselves as much again: all of it
+after the refinement, when nothing else is left to do. :class:`FigureWorker` starts a process when a calibration starts
+(when a processor is free for it: :func:`processor_free`) and waits. Told to (:meth:`FigureWorker.warm`, once the front
+end is done and the rest of the calibration leaves a processor idle), it loads matplotlib and draws a throw-away figure
+(fonts, caches), then waits again. (Warming up at once would take a second of processor time from the front end's worker
+processes, which keep both processors of a small machine busy.) When the result is known, :meth:`FigureWorker.send`
+hands it the few arrays the figures show (:func:`plsgraph.report.figures.figure_inputs`) and the folder to draw into;
+the worker forks, so that two processes draw half of the figures each, while the calling process writes calibration.yaml
+and the robot files. The folder is the run's staging folder, so the whole-folder semantics of
+:mod:`plsgraph.report.output` hold: the figures are there before the folder is moved into place, or the folder is not
+moved at all.
 
-Anything wrong with the worker (it cannot start, dies, hangs, answers nonsense) makes :meth:`FigureWorker.result`
-return None, and the caller draws the figures itself as before: the worker can cost time, never figures or numbers.
+Anything wrong with the worker (it cannot start, dies, hangs, answers nonsense) makes :meth:`FigureWorker.result` return
+None, and the caller draws the figures itself as before: the worker can cost time, never figures or numbers.
 
-Protocol: the parent writes one pickle ``(out_dir, inputs)`` to the worker's stdin and closes it; the worker writes
-one pickle ``(images, failures)`` (as :func:`~plsgraph.report.figures.render_figures` returns them) to its stdout and
-exits. End of input without a job means: nothing to draw, exit.
+Protocol: the parent writes the line ``warm``, then one pickle ``(out_dir, inputs)`` to the worker's stdin and closes
+it; the worker warms up when it reads the line, and writes one pickle ``(images, failures)`` (as
+:func:`~plsgraph.report.figures.render_figures` returns them) to its stdout and exits. End of input before the line or
+without a job means: nothing to draw, exit.
 """
 
 from __future__ import annotations
@@ -35,6 +38,8 @@ log = logging.getLogger(__name__)
 RENDER_TIMEOUT_S = 120.0
 # The worker's code: the same plsgraph as the caller's (its folder goes first on the path, see _env).
 _BOOT = "from plsgraph.report.figure_worker import serve; serve()"
+# The line that tells the worker to warm up; the job follows it.
+_WARM = b"warm\n"
 
 
 def _env() -> dict[str, str]:
@@ -132,6 +137,7 @@ class FigureWorker:
         self._thread = None
         self._reply: bytes | None = None
         self._error: BaseException | None = None
+        self._warmed = False
 
     @classmethod
     def start(cls) -> FigureWorker:
@@ -154,6 +160,17 @@ class FigureWorker:
     def available(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
 
+    def warm(self) -> None:
+        """Let the worker load matplotlib now (once; :meth:`send` does it too if this was not called)."""
+        if self._warmed or not self.available:
+            return
+        self._warmed = True
+        try:
+            self.proc.stdin.write(_WARM)
+            self.proc.stdin.flush()
+        except (OSError, ValueError) as exc:  # it died: send() finds it unavailable and the caller draws
+            log.debug("figure worker did not take the warm-up (%s)", exc)
+
     def send(self, out: Path, run: Any) -> None:
         """Hand the worker the figures of ``run`` to draw into ``out``; returns at once (the job is written from a
         helper thread). Collect them with :meth:`result`."""
@@ -165,7 +182,9 @@ class FigureWorker:
             self.close()
             return
         try:
-            job = pickle.dumps((str(out), figure_inputs(run)), protocol=pickle.HIGHEST_PROTOCOL)
+            job = (b"" if self._warmed else _WARM) + pickle.dumps((str(out), figure_inputs(run)),
+                                                                   protocol=pickle.HIGHEST_PROTOCOL)
+            self._warmed = True
         except Exception as exc:  # something that does not pickle: draw in this process
             log.debug("figure inputs do not pickle (%s); figures are drawn in this process", exc)
             self.close()
@@ -314,6 +333,8 @@ def serve() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the caller stops the worker; an interrupt is the caller's
     reply_fd = os.dup(1)
     os.dup2(2, 1)  # anything printed while drawing goes to stderr, not into the reply
+    if sys.stdin.buffer.readline() != _WARM:
+        return  # no job: the calibration ended before its figures (or the caller is not this module)
     from .figures import _plt
 
     try:
