@@ -45,11 +45,17 @@ class OdometryNoise:
     lateral_per_metre: float = 0.0006
     floor_m: float = 1e-4
     floor_rad: float = 1e-4
+    # Roll and pitch of an edge: (rad/sqrt(rad) turned, rad/sqrt(m), floor rad). Wheels say nothing about them: they
+    # are how much the floor's slope changes between knots, about 0.6 deg over a metre of travel (a floor undulating
+    # by half a degree over a metre or two), whatever the wheels slip. None takes the heading's terms (yaw_per_radian,
+    # yaw_per_metre, floor_rad), as before it was measured (docs/refinement.md, "The floor's tilt between knots").
+    tilt: tuple[float, float, float] | None = (0.0, 0.01, 1e-4)
 
     def __post_init__(self) -> None:
         vals = (self.sigma_per_metre, self.yaw_per_radian, self.yaw_per_metre, self.lateral_per_metre, self.floor_m,
-                self.floor_rad)
-        if not all(np.isfinite(v) and v >= 0 for v in vals) or self.floor_m <= 0 or self.floor_rad <= 0:
+                self.floor_rad, *(self.tilt or ()))
+        if not all(np.isfinite(v) and v >= 0 for v in vals) or self.floor_m <= 0 or self.floor_rad <= 0 \
+                or (self.tilt is not None and (len(self.tilt) != 3 or self.tilt[2] <= 0)):
             raise InputError("odometry noise: sigmas must be finite and >= 0, floors > 0")
 
 
@@ -67,9 +73,10 @@ def odometry_covariance(distance, angle, noise: OdometryNoise | None = None) -> 
     var_x = noise.sigma_per_metre**2 * d + noise.floor_m**2
     var_yaw = noise.yaw_per_radian**2 * a + noise.yaw_per_metre**2 * d + noise.floor_rad**2
     var_y = d**2 * var_yaw / 3.0 + noise.lateral_per_metre**2 * d + noise.floor_m**2
+    var_tilt = var_yaw if noise.tilt is None else noise.tilt[0]**2 * a + noise.tilt[1]**2 * d + noise.tilt[2]**2
     cov = np.zeros(d.shape + (6, 6))
-    cov[..., 0, 0] = var_yaw  # roll
-    cov[..., 1, 1] = var_yaw  # pitch
+    cov[..., 0, 0] = var_tilt  # roll
+    cov[..., 1, 1] = var_tilt  # pitch
     cov[..., 2, 2] = var_yaw
     cov[..., 3, 3] = var_x
     cov[..., 4, 4] = var_y

@@ -402,6 +402,12 @@ def _option_changes(items: list[str], ap: argparse.ArgumentParser) -> dict:
             out[name] = ast.literal_eval(text)
         except (ValueError, SyntaxError):
             ap.error(f"--set {item!r}: the value must be a Python literal (a number, True/False, None, a string)")
+        if name == "odometry_noise":  # a dict of OdometryNoise fields, e.g. "{'tilt': (0.0, 0.01, 1e-4)}"
+            from factors.odometry import OdometryNoise
+
+            if not isinstance(out[name], dict):
+                ap.error(f"--set {item!r}: odometry_noise takes a dict of OdometryNoise fields")
+            out[name] = OdometryNoise(**out[name])
     return out
 
 
@@ -533,7 +539,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--from-tracks", type=Path, metavar="DIR",
                     help="solve the tracks a --save-tracks study kept instead of simulating (refinement ablation)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                    help="with --from-tracks: a RefinementOptions field changed (repeatable)")
+                    help="with --from-tracks: a RefinementOptions field changed (repeatable; odometry_noise takes a "
+                         "dict of OdometryNoise fields)")
     a = ap.parse_args(argv)
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
     from plsgraph.sim.realism import EFFECTS
