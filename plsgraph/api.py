@@ -187,9 +187,14 @@ def calibrate_to_dir(
         use_worker = processor_free() if figure_worker is None else figure_worker
         with (FigureWorker.start() if use_worker else FigureWorker()) as figures:
             try:
-                # The figure worker warms up once the front end (parallel, every processor) is done.
+                # The figure worker warms up once the front end (parallel, every processor) is done, and draws the
+                # front end's figures while the rest of the calibration runs.
+                def after_tracks(run: Any) -> None:
+                    figures.warm()
+                    figures.early(stage, run)
+
                 result = calibration_result(run_recording(recording, _options(None, options, {}), refine=refine,
-                                                          progress=progress, after_tracks=figures.warm))
+                                                          progress=progress, after_tracks=after_tracks))
             except (DegenerateMotionError, InsufficientDataError) as exc:
                 # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
                 advice = FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else DIAGNOSIS_ADVICE

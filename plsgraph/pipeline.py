@@ -346,16 +346,16 @@ def build_tracks(run: Run, progress: ProgressFactory = no_progress) -> Run:
 
 def run_recording(
     log_path: str | Path, options: CalibrationOptions, refine: bool = True, progress: ProgressFactory = no_progress,
-    after_tracks: Callable[[], None] | None = None,
+    after_tracks: Callable[[Run], None] | None = None,
 ) -> Run:
-    """The whole calibration of one recording. Raises typed errors on user mistakes. ``after_tracks`` is called
+    """The whole calibration of one recording. Raises typed errors on user mistakes. ``after_tracks(run)`` is called
     once the tracks are built (the front end, which keeps every processor busy, is done)."""
     run = Run(Path(log_path), options)
     run.truth = load_truth(options.truth)
     try:
         build_tracks(run, progress)
         if after_tracks is not None:
-            after_tracks()
+            after_tracks(run)
         return solve(run, refine, progress)
     except (DegenerateMotionError, InsufficientDataError) as exc:
         try:

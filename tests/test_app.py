@@ -2,6 +2,7 @@
 
 import json
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -110,6 +111,53 @@ def test_a_worker_told_to_warm_up_early_draws_the_same_figures(sim_run, tmp_path
     for f in FIGURE_FILES:
         assert (there / f).read_bytes() == (here / f).read_bytes()
     FigureWorker().warm()  # a worker that never started: nothing to do
+
+
+@pytest.fixture(scope="module")
+def sample_result():
+    """The bundled rich sample calibrated (its run has the front end's coverage and the recording for the event
+    frames)."""
+    from realdata import SAMPLE
+
+    from plsgraph.pipeline import run_recording
+    from plsgraph.result import calibration_result
+
+    if not SAMPLE.exists():
+        pytest.skip("the sample recording is not in this checkout")
+    return calibration_result(run_recording(SAMPLE, CalibrationOptions.build(board="acircles_4x11_a2")))
+
+
+EARLY_FILES = ("coverage.png", "event_frames.png")
+
+
+def test_the_front_ends_figures_drawn_early_are_the_same(sample_result, tmp_path):
+    """calibrate_to_dir has the worker draw the coverage strip and the event frames while the refinement runs, into a
+    subfolder moved into the run's folder with the rest: the same pictures, and no subfolder left."""
+    here, there = prepare_output_dir(tmp_path / "here"), prepare_output_dir(tmp_path / "there")
+    write_calibration(here, sample_result)
+    with FigureWorker.start() as worker:
+        worker.early(there, sample_result.run)
+        write_calibration(there, sample_result, worker)
+    assert not (there / figure_worker.EARLY_DIR).exists()
+    assert sorted(p.name for p in there.iterdir()) == sorted(p.name for p in here.iterdir())
+    for f in (*FIGURE_FILES, *EARLY_FILES):
+        assert (there / f).read_bytes() == (here / f).read_bytes()
+    assert (there / "report.html").read_text() == (here / "report.html").read_text()
+
+
+def test_early_figures_of_a_worker_that_died_are_removed(sample_result, tmp_path):
+    out = prepare_output_dir(tmp_path / "calib")
+    worker = FigureWorker.start()
+    worker.early(out, sample_result.run)
+    deadline = time.monotonic() + 60
+    while not (out / figure_worker.EARLY_DIR / EARLY_FILES[1]).exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert (out / figure_worker.EARLY_DIR / EARLY_FILES[1]).exists()  # drawn before the final job
+    worker.proc.kill()  # dies before the final job
+    write_calibration(out, sample_result, worker)  # drawn in this process instead
+    assert not (out / figure_worker.EARLY_DIR).exists()
+    for f in (*FIGURE_FILES, *EARLY_FILES):
+        assert (out / f).stat().st_size > 1000
 
 
 def test_a_worker_that_died_costs_no_figure(sim_run, tmp_path):

@@ -15,10 +15,17 @@ moved at all.
 Anything wrong with the worker (it cannot start, dies, hangs, answers nonsense) makes :meth:`FigureWorker.result` return
 None, and the caller draws the figures itself as before: the worker can cost time, never figures or numbers.
 
-Protocol: the parent writes the line ``warm``, then one pickle ``(out_dir, inputs)`` to the worker's stdin and closes
-it; the worker warms up when it reads the line, and writes one pickle ``(images, failures)`` (as
-:func:`~plsgraph.report.figures.render_figures` returns them) to its stdout and exits. End of input before the line or
-without a job means: nothing to draw, exit.
+The figures of the front end alone (the coverage strip, the event frames: :data:`EARLY`) can be drawn while the
+refinement runs (:meth:`FigureWorker.early`, right after the warm-up): into a subfolder of the run's folder, moved into
+it with the others once all are drawn, removed if the worker does not finish.
+
+Protocol: the parent writes the line ``warm``, then jobs, each an 8-byte little-endian length and a pickle
+``(out_dir, inputs, which, final)``, and closes stdin after the final one; the worker warms up when it reads the line,
+draws a job that is not final (the early figures) into its ``out_dir`` at once, draws the final job's figures
+(``which``: indices into figures.FIGURES, None for all) in two processes, moves the early ones into the final job's
+folder, and writes one pickle ``(images, failures)`` (as :func:`~plsgraph.report.figures.render_figures` returns
+them, for all the figures) to its stdout and exits. End of input before the line or before a final job means:
+nothing to draw, exit.
 """
 
 from __future__ import annotations
@@ -38,8 +45,26 @@ log = logging.getLogger(__name__)
 RENDER_TIMEOUT_S = 120.0
 # The worker's code: the same plsgraph as the caller's (its folder goes first on the path, see _env).
 _BOOT = "from plsgraph.report.figure_worker import serve; serve()"
-# The line that tells the worker to warm up; the job follows it.
+# The line that tells the worker to warm up; the jobs follow it.
 _WARM = b"warm\n"
+#: Indices into figures.FIGURES of the figures that show only the front end (coverage strip, event frames).
+EARLY = (5, 6)
+#: The subfolder of the run's folder the early figures are drawn into.
+EARLY_DIR = ".figures-early"
+
+
+def _frame(job: tuple) -> bytes:
+    data = pickle.dumps(job, protocol=pickle.HIGHEST_PROTOCOL)
+    return len(data).to_bytes(8, "little") + data
+
+
+def _read_frame(f) -> tuple | None:
+    head = f.read(8)
+    if len(head) < 8:
+        return None
+    n = int.from_bytes(head, "little")
+    data = f.read(n)
+    return pickle.loads(data) if len(data) == n else None
 
 
 def _env() -> dict[str, str]:
@@ -138,6 +163,7 @@ class FigureWorker:
         self._reply: bytes | None = None
         self._error: BaseException | None = None
         self._warmed = False
+        self._early: tuple | None = None  # (writer thread, folder, which) of the early figures
 
     @classmethod
     def start(cls) -> FigureWorker:
@@ -171,19 +197,52 @@ class FigureWorker:
         except (OSError, ValueError) as exc:  # it died: send() finds it unavailable and the caller draws
             log.debug("figure worker did not take the warm-up (%s)", exc)
 
-    def send(self, out: Path, run: Any) -> None:
-        """Hand the worker the figures of ``run`` to draw into ``out``; returns at once (the job is written from a
-        helper thread). Collect them with :meth:`result`."""
+    def early(self, out: Path, run: Any) -> None:
+        """Have the worker draw the front end's figures (:data:`EARLY`) of ``run`` now, while the calibration goes
+        on (once, before :meth:`send`; the folder ``out`` is the one :meth:`send` will get)."""
         import threading
 
         from .figures import figure_inputs
 
+        if self._early is not None or self._thread is not None or not self.available:
+            return
+        folder = Path(out) / EARLY_DIR
+        try:
+            job = (b"" if self._warmed else _WARM) + _frame((str(folder), figure_inputs(run), EARLY, False))
+        except Exception as exc:  # something that does not pickle: they are drawn with the others
+            log.debug("figure inputs do not pickle (%s); the early figures are drawn with the others", exc)
+            return
+        self._warmed = True
+        stdin = self.proc.stdin
+
+        def write() -> None:  # the worker reads it once warm: the pipe holds less than the job
+            try:
+                stdin.write(job)
+                stdin.flush()
+            except (OSError, ValueError) as exc:  # it died: result() finds out and the caller draws
+                log.debug("figure worker did not take the early figures (%s)", exc)
+
+        thread = threading.Thread(target=write, name="plsgraph-figures-early", daemon=True)
+        thread.start()
+        self._early = (thread, folder, EARLY)
+
+    def send(self, out: Path, run: Any) -> None:
+        """Hand the worker the figures of ``run`` to draw into ``out`` (those :meth:`early` did not take); returns at
+        once (the job is written from a helper thread). Collect them with :meth:`result`."""
+        import threading
+
+        from .figures import FIGURES, figure_inputs
+
         if not self.available:
             self.close()
             return
+        early = self._early
+        if early is not None and Path(out) / EARLY_DIR != early[1]:
+            self.close()  # another folder than the early figures': draw in this process
+            return
+        which = None if early is None else tuple(i for i in range(len(FIGURES)) if i not in early[2])
         try:
-            job = (b"" if self._warmed else _WARM) + pickle.dumps((str(out), figure_inputs(run)),
-                                                                   protocol=pickle.HIGHEST_PROTOCOL)
+            job = (b"" if self._warmed else _WARM) + _frame((str(out), figure_inputs(run), which, True))
             self._warmed = True
         except Exception as exc:  # something that does not pickle: draw in this process
             log.debug("figure inputs do not pickle (%s); figures are drawn in this process", exc)
@@ -193,6 +252,8 @@ class FigureWorker:
 
         def talk() -> None:
             try:
+                if early is not None:
+                    early[0].join(RENDER_TIMEOUT_S)  # its job first: one writer at a time
                 self._reply = proc.communicate(job, timeout=RENDER_TIMEOUT_S)[0]
             except Exception as exc:  # reported by result()
                 self._error = exc
@@ -230,7 +291,17 @@ class FigureWorker:
         return lines[-1] if lines else "(no message)"
 
     def close(self) -> None:
-        """Stop the worker if it still runs (it then draws nothing more) and wait for it to end."""
+        """Stop the worker if it still runs (it then draws nothing more) and wait for it to end. Early figures it
+        drew but did not move into the run's folder are removed (nothing it wrote unfinished is trusted)."""
+        try:
+            self._stop()
+        finally:
+            if self._early is not None:
+                import shutil
+
+                shutil.rmtree(self._early[1], ignore_errors=True)
+
+    def _stop(self) -> None:
         proc, self.proc = self.proc, None
         if proc is not None:
             if proc.poll() is None:
@@ -277,26 +348,33 @@ def _warm_up(plt) -> None:
 
 
 # The figures split over two processes when the worker forks (indices into figures.FIGURES, about equal drawing
-# time each): trajectories, observability and the event frames here, the others in the fork.
+# time each): trajectories, observability and the event frames here, the others in the fork. Without the early
+# figures (drawn already): trajectories, the time-offset curve and observability here (0.34 s on the 20 s benchmark
+# recording), the residuals and the methods in the fork (0.32 s).
 _HERE = (0, 3, 6)
+_HERE_LATE = (0, 2, 3)
 
 
-def _split() -> tuple[tuple[int, ...], tuple[int, ...]]:
+def _split(which: Any = None) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The figures ``which`` (indices into figures.FIGURES, None for all) split into this process's and the fork's:
+    :data:`_HERE` here when the early figures are among them, else :data:`_HERE_LATE`."""
     from .figures import FIGURES
 
-    here = tuple(i for i in _HERE if i < len(FIGURES))
-    return here, tuple(i for i in range(len(FIGURES)) if i not in here)
+    which = tuple(range(len(FIGURES))) if which is None else tuple(which)
+    mine = _HERE if set(EARLY) <= set(which) else _HERE_LATE
+    here = tuple(i for i in which if i in mine)
+    return here, tuple(i for i in which if i not in here)
 
 
-def _render_in_two(out: Path, inputs: Any) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
+def _render_in_two(out: Path, inputs: Any, which: Any = None) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
     """render_figures over two processes: the warm worker forks (no second start-up, matplotlib already loaded),
     each draws its share, the fork's answer comes back through a pipe. Without fork, or if the fork fails to answer,
     this process draws the rest itself. The result is in the order of figures.FIGURES, as render_figures gives it."""
     from .figures import FIGURES, render_figures
 
     if not hasattr(os, "fork"):
-        return render_figures(out, inputs)
-    _here, _forked = _split()
+        return render_figures(out, inputs, which)
+    _here, _forked = _split(which)
     r, w = os.pipe()
     pid = os.fork()
     if pid == 0:  # the fork: draw its share, answer, and end without running the parent's cleanup
@@ -327,7 +405,7 @@ def _render_in_two(out: Path, inputs: Any) -> tuple[list[tuple[str, str]], list[
 
 
 def serve() -> None:
-    """The worker process: warm up, read one job from stdin, draw it, answer on stdout."""
+    """The worker process: warm up, read the jobs from stdin, draw them, answer on stdout."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the caller stops the worker; an interrupt is the caller's
@@ -341,10 +419,28 @@ def serve() -> None:
         _warm_up(_plt())
     except Exception:  # the real figures will say what is wrong
         pass
-    data = sys.stdin.buffer.read()
-    if not data:
-        return  # no job: the calibration ended without figures
-    out, inputs = pickle.loads(data)
-    result = _render_in_two(Path(out), inputs)
-    with os.fdopen(reply_fd, "wb") as f:
-        f.write(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
+    import shutil
+
+    from .figures import FIGURES, render_figures
+
+    drawn: list[tuple[Path, tuple]] = []  # (folder, (images, failures)) of the early jobs
+    while True:
+        job = _read_frame(sys.stdin.buffer)
+        if job is None:
+            return  # no final job: the calibration ended without figures
+        out, inputs, which, final = job
+        if not final:
+            Path(out).mkdir(parents=True, exist_ok=True)
+            drawn.append((Path(out), render_figures(Path(out), inputs, which)))
+            continue
+        images, failures = _render_in_two(Path(out), inputs, which)
+        for folder, (imgs, fails) in drawn:
+            for _caption, name in imgs:
+                os.replace(folder / name, Path(out) / name)
+            shutil.rmtree(folder, ignore_errors=True)
+            images, failures = images + imgs, failures + fails
+        order = {caption: i for i, (caption, _) in enumerate(FIGURES)}
+        result = sorted(images, key=lambda x: order[x[0]]), sorted(failures, key=lambda x: order[x[0]])
+        with os.fdopen(reply_fd, "wb") as f:
+            f.write(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
+        return
