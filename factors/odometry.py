@@ -53,7 +53,7 @@ class OdometryNoise:
 
     def __post_init__(self) -> None:
         vals = (self.sigma_per_metre, self.yaw_per_radian, self.yaw_per_metre, self.lateral_per_metre, self.floor_m,
-                self.floor_rad, *(self.tilt or ()))
+                self.floor_rad, *(() if self.tilt is None else tuple(self.tilt)))
         if not all(np.isfinite(v) and v >= 0 for v in vals) or self.floor_m <= 0 or self.floor_rad <= 0 \
                 or (self.tilt is not None and (len(self.tilt) != 3 or self.tilt[2] <= 0)):
             raise InputError("odometry noise: sigmas must be finite and >= 0, floors > 0")

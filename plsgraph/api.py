@@ -188,13 +188,13 @@ def calibrate_to_dir(
         with (FigureWorker.start() if use_worker else FigureWorker()) as figures:
             try:
                 # The figure worker warms up once the front end (parallel, every processor) is done, and draws the
-                # front end's figures while the rest of the calibration runs.
-                def after_tracks(run: Any) -> None:
+                # event frames (final tracks) while the rest of the calibration runs.
+                def tracks_final(run: Any) -> None:
                     figures.warm()
                     figures.early(stage, run)
 
                 result = calibration_result(run_recording(recording, _options(None, options, {}), refine=refine,
-                                                          progress=progress, after_tracks=after_tracks))
+                                                          progress=progress, tracks_final=tracks_final))
             except (DegenerateMotionError, InsufficientDataError) as exc:
                 # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
                 advice = FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else DIAGNOSIS_ADVICE

@@ -305,11 +305,19 @@ def run_refinement(run: Run, progress: ProgressFactory) -> Any:
     return res
 
 
-def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress) -> Run:
-    """Closed form, then (optionally) the refinement it seeds, on a run whose tracks are set."""
+def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress,
+          tracks_final: Callable[[Run], None] | None = None) -> Run:
+    """Closed form, then (optionally) the refinement it seeds, on a run whose tracks are set. ``tracks_final(run)``
+    is called once the tracks are final (cut at gaps), before the closed form; what it raises is logged, not raised
+    (it is for work beside the calibration, e.g. figures)."""
     from .gaps import cut_at_gaps
 
     cut_at_gaps(run)  # never across a gap the robot moved across: the longest stretch without one, or an error
+    if tracks_final is not None:
+        try:
+            tracks_final(run)
+        except Exception as exc:  # noqa: BLE001 - work beside the calibration must not cost the calibration
+            log.warning("after the tracks: %s", exc)
     try:
         cf = run_closed_form(run)
     except InsufficientDataError as exc:
@@ -346,17 +354,15 @@ def build_tracks(run: Run, progress: ProgressFactory = no_progress) -> Run:
 
 def run_recording(
     log_path: str | Path, options: CalibrationOptions, refine: bool = True, progress: ProgressFactory = no_progress,
-    after_tracks: Callable[[Run], None] | None = None,
+    tracks_final: Callable[[Run], None] | None = None,
 ) -> Run:
-    """The whole calibration of one recording. Raises typed errors on user mistakes. ``after_tracks(run)`` is called
-    once the tracks are built (the front end, which keeps every processor busy, is done)."""
+    """The whole calibration of one recording. Raises typed errors on user mistakes. ``tracks_final(run)`` is called
+    once the tracks are final (see :func:`solve`): the front end, which keeps every processor busy, is done."""
     run = Run(Path(log_path), options)
     run.truth = load_truth(options.truth)
     try:
         build_tracks(run, progress)
-        if after_tracks is not None:
-            after_tracks(run)
-        return solve(run, refine, progress)
+        return solve(run, refine, progress, tracks_final)
     except (DegenerateMotionError, InsufficientDataError) as exc:
         try:
             exc.coverage = diagnosis_coverage(run, exc)

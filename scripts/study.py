@@ -407,7 +407,10 @@ def _option_changes(items: list[str], ap: argparse.ArgumentParser) -> dict:
 
             if not isinstance(out[name], dict):
                 ap.error(f"--set {item!r}: odometry_noise takes a dict of OdometryNoise fields")
-            out[name] = OdometryNoise(**out[name])
+            try:
+                out[name] = OdometryNoise(**out[name])
+            except (TypeError, ValueError) as exc:
+                ap.error(f"--set {item!r}: {exc}")
     return out
 
 

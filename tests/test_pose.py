@@ -152,6 +152,9 @@ def test_poses_solved_elsewhere_give_the_same_track():
         np.testing.assert_array_equal(x, y)
     with pytest.raises(InputError):
         camera_track_from_detections(dets, CAM, estimates=est[:-1])
+    # Any other error of a frame solved ahead is raised when the frame is used (as solving it then would).
+    with pytest.raises(RuntimeError, match="solver broke"):
+        camera_track_from_detections(dets, CAM, estimates=[*est[:4], RuntimeError("solver broke"), *est[5:]])
 
 
 def test_camera_track_raises_when_nothing_fits():

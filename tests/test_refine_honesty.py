@@ -338,6 +338,14 @@ def test_the_floors_tilt_between_knots_is_not_wheel_slip():
     assert np.all(np.abs(err) <= 3 * np.radians(res.sigma_rot_deg))
 
 
+def test_the_covariance_graph_keeps_the_measured_factors():
+    from plsgraph.refine.graph import _covariance_odometry_factor
+
+    assert _covariance_odometry_factor((9.0, 4.0, 2.0), 3.0) == (9.0, 4.0, 2.0)  # adapted: it holds the correlation
+    assert _covariance_odometry_factor((1.0, 1.0, 2.0), 3.0) == (3.0, 3.0, 2.0)  # the tilt's own factor kept
+    assert _covariance_odometry_factor(1.0, 3.0) == (3.0, 3.0, 3.0)  # nothing adapted: all by the correlation
+
+
 def test_edge_tilt_is_scaled_only_by_its_own_factor():
     noise = OdometryNoise()
     c0 = odometry_covariance(0.05, 0.1, noise)

@@ -187,13 +187,16 @@ def frame_pose(
     sigma_px: float | None = None,
     outlier_px: float = 2.0,
     min_points: int = MIN_POINTS,
-) -> PoseEstimate | str:
-    """:func:`solve_pnp` of one detection frame, or why it gave no pose (the message of its
-    :class:`InsufficientDataError`). Each frame's pose depends on that frame alone."""
+) -> PoseEstimate | str | Exception:
+    """:func:`solve_pnp` of one detection frame; why it gave no pose (the message of its
+    :class:`InsufficientDataError`); or any other error it raised, kept to be raised if the frame is used (a frame
+    solved ahead may yet be dropped). Each frame's pose depends on that frame alone."""
     try:
         return solve_pnp(uv, board_points, camera, sigma_px=sigma_px, outlier_px=outlier_px, min_points=min_points)
     except InsufficientDataError as exc:
         return str(exc)
+    except Exception as exc:  # noqa: BLE001 - raised by camera_track_from_detections if the frame is kept
+        return exc
 
 
 def camera_track_from_detections(
@@ -205,7 +208,7 @@ def camera_track_from_detections(
     outlier_px: float = 2.0,
     min_points: int = MIN_POINTS,
     progress: Callable[[int, int], None] | None = None,
-    estimates: list[PoseEstimate | str] | None = None,
+    estimates: list[PoseEstimate | str | Exception] | None = None,
 ) -> CameraTrack:
     """PnP on every detection frame; frames that fail or fit worse than ``max_rms_px`` are dropped.
 
@@ -231,6 +234,8 @@ def camera_track_from_detections(
             frame_pose(detections.uv[k], detections.board_points, camera, sigma_px, outlier_px, min_points)
         if progress is not None:
             progress(k + 1, m)
+        if isinstance(est, Exception):
+            raise est
         if isinstance(est, str):
             rejected["pnp_failed"] += 1
             log.debug("frame %d at t=%.4f: %s", k, detections.t[k], est)

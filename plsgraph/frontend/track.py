@@ -1005,15 +1005,6 @@ def camera_track_from_event_chunks(
 
         if mp.current_process().daemon:  # e.g. a Dask or multiprocessing pool worker: it may not start processes
             workers = 1
-    if workers > 1:
-        from concurrent.futures import ProcessPoolExecutor
-
-        # Started fresh ("spawn"), not forked: the calibrating process may have threads by now (the figure
-        # worker's), and a fork taken while one of them holds a lock can hang the child. Started before the first
-        # span is decoded, so that the workers have loaded the detector by the time it arrives.
-        pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
-        for _ in range(workers):
-            pool.submit(_ready)
 
     def detect(t_end: int) -> None:
         nonlocal buf, next_q, pool
@@ -1032,6 +1023,15 @@ def camera_track_from_event_chunks(
         buf = buf.slice_time(next_q - keep_ns, np.iinfo(np.int64).max)
 
     try:  # the worker processes end however this ends
+        if workers > 1:
+            from concurrent.futures import ProcessPoolExecutor
+
+            # Started fresh ("spawn"), not forked: the calibrating process may have threads by now (the figure
+            # worker's), and a fork taken while one of them holds a lock can hang the child. Started before the
+            # first span is decoded, so that the workers have loaded the detector by the time it arrives.
+            pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
+            for _ in range(workers):
+                pool.submit(_ready)
         for ch in chunks:
             if len(ch) == 0:
                 continue

@@ -659,8 +659,9 @@ _HEADING_NOISE = ("yaw_per_radian", "yaw_per_metre", "floor_rad")
 
 def _scaled_noise(noise: OdometryNoise, var_factor: float | tuple[float, ...], keep_tilt: bool = False
                   ) -> OdometryNoise:
-    """``noise`` with its variances multiplied by ``var_factor``, or by (heading, distance) factors: the heading's
-    terms (which also carry roll and pitch) by the first, the distance terms by the second."""
+    """``noise`` with its variances multiplied by ``var_factor``, or by (heading, distance[, tilt]) factors: the
+    heading's terms by the first, the distance terms by the second. The edges' roll and pitch (``noise.tilt``) are
+    scaled by the heading's factor, or with ``keep_tilt`` only by the third factor when there is one."""
     import dataclasses
 
     fh, fd, *ft = (var_factor, var_factor) if np.isscalar(var_factor) else var_factor
@@ -679,6 +680,15 @@ def _scaled_noise(noise: OdometryNoise, var_factor: float | tuple[float, ...], k
 def _largest(var_factor: float | tuple[float, ...]) -> float:
     """The largest of the odometry's variance factors (heading, distance; the floor's tilt, if adapted, too)."""
     return float(np.max(var_factor))
+
+
+def _covariance_odometry_factor(odo_var: float | tuple[float, ...], tau: float) -> float | tuple[float, ...]:
+    """The odometry variance factor of the covariance's graph: the adapted one when the wheels' factor was raised
+    (it holds their correlation), else the residuals' autocorrelation time ``tau`` for the wheels' terms and for the
+    edges' tilt unless its own factor was measured."""
+    if _slip(odo_var) > 1.0:
+        return odo_var
+    return (tau, tau, odo_var[2] if isinstance(odo_var, tuple) and len(odo_var) > 2 else tau)
 
 
 def _slip(var_factor: float | tuple[float, ...]) -> float:
@@ -706,7 +716,7 @@ def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: Refin
                                        opt.robust_k):
         graph.add(f)
     noise = opt.odometry_noise if np.all(np.asarray(odo_var) == 1.0) else \
-        _scaled_noise(opt.odometry_noise, odo_var, keep_tilt=not opt.scale_odometry_tilt and not np.isscalar(odo_var))
+        _scaled_noise(opt.odometry_noise, odo_var, keep_tilt=not opt.scale_odometry_tilt)
     d, a = path_increments(prob.base_track.t, prob.base_track.T_world_base, prob.knot_idx)
     if prob.steps is not None:
         for f in make_scaled_odometry_factors(keys, KEY_SCALE, prob.steps, prob.knot_idx, d, a, noise):
@@ -1211,8 +1221,8 @@ def refine(
                 cov_graph = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
                                          inflation["reprojection_autocorrelation_time"],
                                          # an adapted odometry variance already holds the correlation
-                                         odo_var if _largest(odo_var) > 1.0
-                                         else inflation["odometry_autocorrelation_time"],
+                                         _covariance_odometry_factor(odo_var,
+                                                                     inflation["odometry_autocorrelation_time"]),
                                          planar_var)[0]
                 cov_plain = _calibration_covariance(final_graph, values, C, chi2, opt)[1]
             cov, cov_base, joint = _calibration_covariance(cov_graph, values, C, chi2, opt, with_scale=True)

@@ -15,8 +15,8 @@ moved at all.
 Anything wrong with the worker (it cannot start, dies, hangs, answers nonsense) makes :meth:`FigureWorker.result` return
 None, and the caller draws the figures itself as before: the worker can cost time, never figures or numbers.
 
-The figures of the front end alone (the coverage strip, the event frames: :data:`EARLY`) can be drawn while the
-refinement runs (:meth:`FigureWorker.early`, right after the warm-up): into a subfolder of the run's folder, moved into
+The figure that needs only the final tracks (the event frames: :data:`EARLY`) can be drawn while the closed form and the
+refinement run (:meth:`FigureWorker.early`, right after the warm-up): into a subfolder of the run's folder, moved into
 it with the others once all are drawn, removed if the worker does not finish.
 
 Protocol: the parent writes the line ``warm``, then jobs, each an 8-byte little-endian length and a pickle
@@ -47,8 +47,10 @@ RENDER_TIMEOUT_S = 120.0
 _BOOT = "from plsgraph.report.figure_worker import serve; serve()"
 # The line that tells the worker to warm up; the jobs follow it.
 _WARM = b"warm\n"
-#: Indices into figures.FIGURES of the figures that show only the front end (coverage strip, event frames).
-EARLY = (5, 6)
+#: Indices into figures.FIGURES of the figures that can be drawn before the calibration ends: the event frames (they
+#: show the final tracks' detections on the recording's events). The coverage strip cannot: it counts windows of a
+#: still robot with the refined time offset.
+EARLY = (6,)
 #: The subfolder of the run's folder the early figures are drawn into.
 EARLY_DIR = ".figures-early"
 
@@ -198,8 +200,8 @@ class FigureWorker:
             log.debug("figure worker did not take the warm-up (%s)", exc)
 
     def early(self, out: Path, run: Any) -> None:
-        """Have the worker draw the front end's figures (:data:`EARLY`) of ``run`` now, while the calibration goes
-        on (once, before :meth:`send`; the folder ``out`` is the one :meth:`send` will get)."""
+        """Have the worker draw the figures :data:`EARLY` of ``run`` now, while the calibration goes on (once, before
+        :meth:`send`, on the run's final tracks; the folder ``out`` is the one :meth:`send` will get)."""
         import threading
 
         from .figures import figure_inputs
@@ -349,8 +351,8 @@ def _warm_up(plt) -> None:
 
 # The figures split over two processes when the worker forks (indices into figures.FIGURES, about equal drawing
 # time each): trajectories, observability and the event frames here, the others in the fork. Without the early
-# figures (drawn already): trajectories, the time-offset curve and observability here (0.34 s on the 20 s benchmark
-# recording), the residuals and the methods in the fork (0.32 s).
+# figures (the event frames, drawn already): trajectories, the time-offset curve and observability here (0.34 s on the
+# 20 s benchmark recording), the residuals, the methods and the coverage strip in the fork (0.41 s).
 _HERE = (0, 3, 6)
 _HERE_LATE = (0, 2, 3)
 

@@ -50,6 +50,8 @@ def write_calibration(out: Path, result: Any, figures: Any = None) -> list[Path]
     pending = figures is not None and figures.available
     if pending:
         figures.send(out, result.run)  # drawn in the worker while the files below are written
+    elif figures is not None:
+        figures.close()  # a worker that ended: nothing it wrote is kept
     waited = time.perf_counter() - t0
     write_calibration_yaml(out / "calibration.yaml", report["calibration"])
     robot = write_robot_files(out, result)  # a flagged result gets comment-only files that say why
