@@ -188,6 +188,17 @@ def test_turn_angle_search_finds_td_whatever_the_track_width():
     assert abs(found[1] - rec.track_width_nominal / rec.track_width) < 0.05  # the turn scale s_w
 
 
+def _drive(fx, seed: int):
+    """15 s rich drive simulated with the effects ``fx``; odometry with the nominal intrinsics, 0.3 px detections,
+    a seed rotation about a degree off: (recording, base track, camera track, seed T_base_cam)."""
+    rec = simulate_robot("rich", duration=15, seed=seed, realism=fx)
+    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius_nominal,
+                                  rec.track_width_nominal)
+    track = camera_track_from_detections(rec.detections(0.3, seed=seed + 10), rec.camera)
+    seed_T = make_T(so3_exp(np.radians([0.5, -0.5, 1.0])) @ rec.T_base_cam[:3, :3], np.zeros(3))
+    return rec, base, track, seed_T
+
+
 @lru_cache(maxsize=4)
 def _slip_case(seed: int, slip_sigma: float):
     """15 s rich drive with wheel slip correlated over 0.5 s (each wheel's gain wanders by slip_sigma, more when
@@ -195,12 +206,7 @@ def _slip_case(seed: int, slip_sigma: float):
     fx = only("wheel_slip")
     fx = dataclasses.replace(fx, robot=dataclasses.replace(fx.robot, slip_sigma=slip_sigma, slip_tau_s=0.5,
                                                            slip_turn_gain=2.0))
-    rec = simulate_robot("rich", duration=15, seed=seed, realism=fx)
-    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius_nominal,
-                                  rec.track_width_nominal)
-    track = camera_track_from_detections(rec.detections(0.3, seed=seed + 10), rec.camera)
-    seed_T = make_T(so3_exp(np.radians([0.5, -0.5, 1.0])) @ rec.T_base_cam[:3, :3], np.zeros(3))
-    return rec, base, track, seed_T
+    return _drive(fx, seed)
 
 
 @pytest.mark.parametrize("seed", [0, 2])
@@ -269,12 +275,7 @@ def _floor_case(slope_deg: float, seed: int = 2):
     odometry, 0.3 px detections."""
     fx = only("floor")
     fx = dataclasses.replace(fx, scene=dataclasses.replace(fx.scene, floor_slope_deg=slope_deg))
-    rec = simulate_robot("rich", duration=15, seed=seed, realism=fx)
-    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius_nominal,
-                                  rec.track_width_nominal)
-    track = camera_track_from_detections(rec.detections(0.3, seed=seed + 10), rec.camera)
-    seed_T = make_T(so3_exp(np.radians([0.5, -0.5, 1.0])) @ rec.T_base_cam[:3, :3], np.zeros(3))
-    return rec, base, track, seed_T
+    return _drive(fx, seed)
 
 
 def test_uneven_floor_loosens_the_planar_prior():
@@ -312,12 +313,7 @@ def _floor_slip_case(seed: int):
     fx = only("floor")
     fx = dataclasses.replace(fx, scene=dataclasses.replace(fx.scene, floor_slope_deg=0.8),
                              robot=dataclasses.replace(fx.robot, slip_sigma=0.08, slip_tau_s=0.5, slip_turn_gain=2.0))
-    rec = simulate_robot("rich", duration=15, seed=seed, realism=fx)
-    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius_nominal,
-                                  rec.track_width_nominal)
-    track = camera_track_from_detections(rec.detections(0.3, seed=seed + 10), rec.camera)
-    seed_T = make_T(so3_exp(np.radians([0.5, -0.5, 1.0])) @ rec.T_base_cam[:3, :3], np.zeros(3))
-    return rec, base, track, seed_T
+    return _drive(fx, seed)
 
 
 def test_the_floors_tilt_between_knots_is_not_wheel_slip():
