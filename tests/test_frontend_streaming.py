@@ -87,3 +87,28 @@ def test_spans_detected_in_parallel_give_the_same_track():
     assert one.info["window_outcomes"] == two.info["window_outcomes"]
     assert one.info["skipped"] == two.info["skipped"] and one.info["detector"] == two.info["detector"]
     assert one.info["span_windows"] == two.info["span_windows"]
+
+
+def test_poses_solved_in_the_workers_are_those_solved_after_them():
+    """With two worker processes each detection's PnP is solved in the worker that found it (streamed or in memory):
+    the track is the one PnP in the calling process gives, bit for bit."""
+    from plsgraph.frontend.track import _track_from_detections, detect_in_events
+
+    board = load_board("acircles_4x11_a2")
+    camera = read_recording(SAMPLE, with_events=False).camera
+    stream = read_events(SAMPLE).slice_time(0, read_events(SAMPLE).t_first + 3_000_000_000)
+    beside = camera_track_from_events(stream, camera, board, kind="count", workers=2)
+    dets, info = detect_in_events(stream, camera, board, 30.0, "count", workers=2)
+    after = _track_from_detections(dets, info, camera, 1.5, None)
+    assert len(beside) == len(after) > 50 and "_poses" not in beside.info
+    for a, b in [(beside.t, after.t), (beside.T_board_cam, after.T_board_cam), (beside.cov, after.cov),
+                 (beside.rms_px, after.rms_px), (beside.detections.uv, after.detections.uv)]:
+        np.testing.assert_array_equal(a, b)
+    chunks = (c for c in iter_event_chunks(SAMPLE, chunk_events=100_000) if c.t_first < stream.t_last)
+    streamed = camera_track_from_event_chunks((c.slice_time(0, stream.t_last + 1) for c in chunks), camera, board,
+                                              kind="count", span_s=1.0, history_s=0.5, workers=2)
+    single = camera_track_from_event_chunks(
+        (c.slice_time(0, stream.t_last + 1) for c in iter_event_chunks(SAMPLE, chunk_events=100_000)
+         if c.t_first < stream.t_last), camera, board, kind="count", span_s=1.0, history_s=0.5, workers=1)
+    for a, b in [(streamed.t, single.t), (streamed.T_board_cam, single.T_board_cam), (streamed.cov, single.cov)]:
+        np.testing.assert_array_equal(a, b)

@@ -543,23 +543,29 @@ class _WindowJob:
         return t_out, uv_out, skipped, secs, n_events, retries, src_out, outcome, span_out, win_out
 
 
+# The bookkeeping key of the poses solved in the worker processes (detect_in_events' ``pnp``).
+_POSES = "_poses"
 # The job of the current parallel run; forked workers inherit it instead of receiving a pickled copy.
 _JOB: tuple | None = None
 
 
 def _run_chunk(bounds: tuple[int, int]):
-    job, t_query, i0s, i1s = _JOB
+    job, t_query, i0s, i1s, pnp = _JOB
     a, b = bounds
-    return job.run(t_query[a:b], i0s[a:b], i1s[a:b])
+    part = job.run(t_query[a:b], i0s[a:b], i1s[a:b])
+    if pnp is None:
+        return part, None
+    return part, [frame_pose(uv, job.board.points, job.camera, pnp["sigma_px"]) for uv in part[1]]
 
 
-def _run_parallel(job: _WindowJob, t_query, i0s, i1s, workers: int, progress) -> list:
-    """Contiguous chunks of windows on ``workers`` forked processes (the stream is shared, not copied)."""
+def _run_parallel(job: _WindowJob, t_query, i0s, i1s, workers: int, progress, pnp: dict | None = None) -> list:
+    """Contiguous chunks of windows on ``workers`` forked processes (the stream is shared, not copied): a list of
+    (part, poses), poses None unless ``pnp`` ({"sigma_px": ...}) asks for each detection's pose beside it."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
     global _JOB
-    _JOB = (job, t_query, i0s, i1s)
+    _JOB = (job, t_query, i0s, i1s, pnp)
     edges = np.linspace(0, t_query.size, workers + 1).round().astype(int)  # one run per worker: tracking state
     chunks = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
     try:
@@ -613,6 +619,7 @@ def detect_in_events(
     t_query_ns: np.ndarray | None = None,
     require_detection: bool = True,
     mask_hot_pixels: bool | None = None,
+    pnp: dict | None = None,
 ) -> tuple[Detections, dict]:
     """Board detections in event surfaces at ``rate_hz``; see :func:`camera_track_from_events`.
 
@@ -620,6 +627,8 @@ def detect_in_events(
     times, as the streaming front end does per span. With ``require_detection`` False a stream without any
     detection gives empty detections instead of an error. ``mask_hot_pixels`` (default
     :data:`MASK_HOT_PIXELS`) drops the events of pixels that fire like hot pixels (:mod:`.noise`) first.
+    ``pnp`` ({"sigma_px": ...}): with ``workers`` > 1, each detection's pose is solved in the worker that found it
+    (:func:`~plsgraph.frontend.pose.frame_pose`) and kept in the bookkeeping for :func:`camera_track_from_events`.
     Returns the detections (board-point order, NaN for unseen points) and the bookkeeping dict.
     """
     kind = resolve_kind(kind)
@@ -663,10 +672,14 @@ def detect_in_events(
         tag_blur_sigma,
     )
     workers = max(1, min(int(workers), t_query.size))
+    poses: list | None = None  # each detection's pose, when solved in the worker processes (``pnp``)
     if workers == 1:
         parts = [job.run(t_query, i0s, i1s, progress)]
     else:
-        parts = _run_parallel(job, t_query, i0s, i1s, workers, progress)
+        solved = _run_parallel(job, t_query, i0s, i1s, workers, progress, pnp)
+        parts = [part for part, _ in solved]
+        if pnp is not None:
+            poses = [e for _, part_poses in solved for e in part_poses]
     skipped: Counter[str] = Counter()
     secs = {"surfaces": 0.0, "detection": 0.0, "blobs": 0.0}
     t_out, uv_out, src_out, span_out, win_out = [], [], [], [], []
@@ -693,6 +706,8 @@ def detect_in_events(
             same_stamp_windows = [win_out[i] for i in np.setdiff1d(np.arange(len(t_out)), keep)]
         t_out, uv_out, src_out, span_out, win_out = ([x[i] for i in keep]
                                                      for x in (t_out, uv_out, src_out, span_out, win_out))
+        if poses is not None:
+            poses = [poses[i] for i in keep]
     if progress is not None:
         progress(t_query.size, t_query.size)
     info = {
@@ -726,6 +741,8 @@ def detect_in_events(
         )
     if not t_out and require_detection:
         raise _no_board(t_query.size, skipped, board, info)
+    if poses is not None:
+        info[_POSES] = poses  # taken out by camera_track_from_events
     dets = Detections(np.asarray(t_out), np.asarray(uv_out).reshape(-1, n, 2), board.points)
     return dets, info
 
@@ -781,8 +798,9 @@ def camera_track_from_events(
         tag_blur_sigma=tag_blur_sigma,
         workers=workers,
         progress=progress,
+        pnp={"sigma_px": sigma_px},
     )
-    return _track_from_detections(dets, info, camera, max_rms_px, sigma_px)
+    return _track_from_detections(dets, info, camera, max_rms_px, sigma_px, info.pop(_POSES, None))
 
 
 #: The window outcome of a detection PnP gave no pose for (it failed, or its reprojection RMS was too large).
