@@ -124,18 +124,24 @@ def test_unknown_height_is_written_as_zero_with_a_note():
 
 
 # ------------------------------------------------------------------------------------ causes, simulated
+def _drive(fx, seed: int, duration: float = 15.0):
+    """A rich drive simulated with the effects ``fx``; odometry with the nominal intrinsics, 0.3 px detections,
+    a seed rotation about a degree off: (recording, base track, camera track, seed T_base_cam)."""
+    rec = simulate_robot("rich", duration=duration, seed=seed, realism=fx)
+    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius_nominal,
+                                  rec.track_width_nominal)
+    track = camera_track_from_detections(rec.detections(0.3, seed=seed + 10), rec.camera)
+    seed_T = make_T(so3_exp(np.radians([0.5, -0.5, 1.0])) @ rec.T_base_cam[:3, :3], np.zeros(3))
+    return rec, base, track, seed_T
+
+
 @lru_cache(maxsize=4)
 def _case(effect: str, seed: int = 3):
     """A 12 s rich recording of the ideal simulator with one robot effect; odometry with the NOMINAL intrinsics."""
     fx = only(effect)
     if effect == "odom_jitter":
         fx = dataclasses.replace(fx, robot=dataclasses.replace(fx.robot, odom_jitter_s=0.003, odom_rate_hz=25.0))
-    rec = simulate_robot("rich", duration=12, seed=seed, realism=fx)
-    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius_nominal,
-                                  rec.track_width_nominal)
-    track = camera_track_from_detections(rec.detections(0.3, seed=seed + 10), rec.camera)
-    seed_T = make_T(so3_exp(np.radians([0.5, -0.5, 1.0])) @ rec.T_base_cam[:3, :3], np.zeros(3))
-    return rec, base, track, seed_T
+    return _drive(fx, seed, duration=12.0)
 
 
 def _errors(rec, res):
@@ -186,17 +192,6 @@ def test_turn_angle_search_finds_td_whatever_the_track_width():
     found = turn_angle_td_search(track, base, rec.td + 0.4, 0.5)
     assert found is not None and abs(found[0] - rec.td) < 0.01  # a seed: the graph refines it
     assert abs(found[1] - rec.track_width_nominal / rec.track_width) < 0.05  # the turn scale s_w
-
-
-def _drive(fx, seed: int):
-    """15 s rich drive simulated with the effects ``fx``; odometry with the nominal intrinsics, 0.3 px detections,
-    a seed rotation about a degree off: (recording, base track, camera track, seed T_base_cam)."""
-    rec = simulate_robot("rich", duration=15, seed=seed, realism=fx)
-    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius_nominal,
-                                  rec.track_width_nominal)
-    track = camera_track_from_detections(rec.detections(0.3, seed=seed + 10), rec.camera)
-    seed_T = make_T(so3_exp(np.radians([0.5, -0.5, 1.0])) @ rec.T_base_cam[:3, :3], np.zeros(3))
-    return rec, base, track, seed_T
 
 
 @lru_cache(maxsize=4)

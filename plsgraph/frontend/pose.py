@@ -13,6 +13,7 @@ import logging
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -180,19 +181,13 @@ def transform_board(T_cam_board: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return pts @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
 
 
-def frame_pose(
-    uv: np.ndarray,
-    board_points: np.ndarray,
-    camera: CameraModel,
-    sigma_px: float | None = None,
-    outlier_px: float = 2.0,
-    min_points: int = MIN_POINTS,
-) -> PoseEstimate | str | Exception:
-    """:func:`solve_pnp` of one detection frame; why it gave no pose (the message of its
-    :class:`InsufficientDataError`); or any other error it raised, kept to be raised if the frame is used (a frame
-    solved ahead may yet be dropped). Each frame's pose depends on that frame alone."""
+def frame_pose(uv: np.ndarray, board_points: np.ndarray, camera: CameraModel, **options: Any
+               ) -> PoseEstimate | str | Exception:
+    """:func:`solve_pnp` of one detection frame (``options``: its keyword settings); why it gave no pose (the
+    message of its :class:`InsufficientDataError`); or any other error it raised, kept to be raised if the frame is
+    used (a frame solved ahead may yet be dropped). Each frame's pose depends on that frame alone."""
     try:
-        return solve_pnp(uv, board_points, camera, sigma_px=sigma_px, outlier_px=outlier_px, min_points=min_points)
+        return solve_pnp(uv, board_points, camera, **options)
     except InsufficientDataError as exc:
         return str(exc)
     except Exception as exc:  # noqa: BLE001 - raised by camera_track_from_detections if the frame is kept
@@ -231,7 +226,8 @@ def camera_track_from_detections(
         raise InputError(f"PnP: {len(estimates)} precomputed poses for {m} detection frames")
     for k in range(m):
         est = estimates[k] if estimates is not None else \
-            frame_pose(detections.uv[k], detections.board_points, camera, sigma_px, outlier_px, min_points)
+            frame_pose(detections.uv[k], detections.board_points, camera, sigma_px=sigma_px, outlier_px=outlier_px,
+                       min_points=min_points)
         if progress is not None:
             progress(k + 1, m)
         if isinstance(est, Exception):

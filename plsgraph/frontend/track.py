@@ -555,7 +555,7 @@ def _run_chunk(bounds: tuple[int, int]):
     part = job.run(t_query[a:b], i0s[a:b], i1s[a:b])
     if pnp is None:
         return part, None
-    return part, [frame_pose(uv, job.board.points, job.camera, pnp["sigma_px"]) for uv in part[1]]
+    return part, [frame_pose(uv, job.board.points, job.camera, sigma_px=pnp["sigma_px"]) for uv in part[1]]
 
 
 def _run_parallel(job: _WindowJob, t_query, i0s, i1s, workers: int, progress, pnp: dict | None = None) -> list:
@@ -935,7 +935,7 @@ def _detect_span(args: tuple) -> tuple[Detections, dict, list]:
     dets, part = detect_in_events(buf, camera, board, rate_hz, kind, t_query_ns=q, require_detection=False,
                                   **detect_options)
     c0 = time.perf_counter()
-    poses = [frame_pose(uv, dets.board_points, camera, sigma_px) for uv in dets.uv]
+    poses = [frame_pose(uv, dets.board_points, camera, sigma_px=sigma_px) for uv in dets.uv]
     part["seconds"]["pnp"] = part["seconds"].get("pnp", 0.0) + time.perf_counter() - c0
     return dets, part, poses
 
