@@ -245,17 +245,22 @@ class EdgeMotions:
 
 def make_scaled_odometry_factors(
     keys, scale_key: int, steps: PlanarSteps, knot_index: np.ndarray, distance: np.ndarray, angle: np.ndarray,
-    noise: OdometryNoise | None = None,
+    noise: OdometryNoise | None = None, noise_scale: float | None = None,
 ) -> list[gtsam.CustomFactor]:
     """Between-factors between consecutive knots whose measured motion is the odometry rescaled by the
     2-vector at ``scale_key`` = (s_v, s_w) (arc-length and heading-change factors, see :class:`PlanarSteps`).
 
-    Error as GTSAM's BetweenFactorPose3: ``Log(M(s)^-1 X_a^-1 X_b)``.
+    Error as GTSAM's BetweenFactorPose3: ``Log(M(s)^-1 X_a^-1 X_b)``. With ``noise_scale`` = s_v0, the arc-length
+    scale the noise model (``distance``, ``angle``) was computed at, the translation error is divided by
+    s_v / s_v0: the noise is then that of the measured odometry, not of the rescaled motion, so a smaller scale
+    cannot shrink the noise along with the motion (a least-squares scale fitted to a noisy regressor comes out
+    low by about the regressor's relative variance). ``None`` (the default) gives the plain error.
     """
     cov = odometry_covariance(distance, angle, noise)
     k = np.asarray(knot_index, dtype=int)
     edges = EdgeMotions(steps, k)  # shared: computed once per (s_v, s_w) for all the factors
     out = []
+    ref = None if noise_scale is None else float(noise_scale)
     for i in range(k.size - 1):
 
         def error(this, values, H, i=i):
@@ -267,12 +272,21 @@ def make_scaled_odometry_factors(
             Z = Xa.between(Xb)
             E = gtsam.Pose3(M).between(Z)
             e = gtsam.Pose3.Logmap(E)
+            if ref is not None:
+                rv = float(s[0]) / ref
+                w = np.array([1.0, 1.0, 1.0, 1.0 / rv, 1.0 / rv, 1.0 / rv])
             if H is not None:
                 Jinv = gtsam.Pose3.LogmapDerivative(E)
                 H[0] = -Jinv @ Z.inverse().AdjointMap()
                 H[1] = Jinv
                 H[2] = -Jinv @ E.inverse().AdjointMap() @ D
-            return e
+                if ref is not None:
+                    H[0] = w[:, None] * H[0]
+                    H[1] = w[:, None] * H[1]
+                    Hs = w[:, None] * H[2]
+                    Hs[3:, 0] -= e[3:] / (rv * float(s[0]))  # d(1 / rv) / d s_v = -1 / (rv^2 s_v0) = -1 / (rv s_v)
+                    H[2] = Hs
+            return e if ref is None else w * e
 
         nm = gtsam.noiseModel.Gaussian.Covariance(cov[i])
         out.append(gtsam.CustomFactor(nm, [int(keys[i]), int(keys[i + 1]), int(scale_key)], error))

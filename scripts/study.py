@@ -267,6 +267,10 @@ def _errors(run, truth: dict) -> dict:
                 "wheel_radius_err_pct": 100 * (odo["wheel_radius_m"] / truth["wheel_radius_true"] - 1),
                 "track_width_err_pct": 100 * (odo["track_width_m"] / truth["track_width_effective"] - 1),
             }
+            truths = (("wheel_radius", truth["wheel_radius_true"]), ("track_width", truth["track_width_effective"]))
+            for name, true in truths:
+                if odo.get(f"{name}_sigma_m"):
+                    refined["odometry"][f"{name}_z"] = (odo[f"{name}_m"] - true) / odo[f"{name}_sigma_m"]
         out["refined"] = refined
     return out
 
@@ -476,6 +480,10 @@ def summarize(runs: list[dict]) -> dict:
                                                          if x is not None], 50),
         "refined_track_width_abs_err_pct_median": _pct([abs(x) for x in col("refined.odometry.track_width_err_pct")
                                                         if x is not None], 50),
+        "odometry_z_within_3_fraction": {
+            name: float(np.mean(np.abs(v) <= 3)) if v else None
+            for name in ("wheel_radius", "track_width")
+            for v in [[x for x in col(f"refined.odometry.{name}_z") if x is not None]]},
         "refined_not_worse_fraction": (sum(1 for c, f in pairs if f <= c) / len(pairs)) if pairs else None,
         "z_within_3_fraction": float(np.mean(np.abs(z) <= 3)) if z.size else None,
         "z_within_3_fraction_per_axis": {a: float(np.mean(np.abs(z[:, i]) <= 3)) for i, a in enumerate(AXES)}

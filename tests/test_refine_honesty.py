@@ -26,6 +26,7 @@ from plsgraph.refine.graph import (
     disagreement_with_seed,
     refine,
     regular_stamps,
+    speed_scale_jackknife,
     turn_angle_td_search,
 )
 from plsgraph.report.files import calibration_dict, ros_static_transform
@@ -47,21 +48,57 @@ def test_planar_steps_rescale_like_integrating_scaled_wheels():
     assert np.abs(steps.poses(T[0], 1.04, 0.6) - T2).max() < 2e-5  # 0.8 m of track
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_scaled_odometry_factor_jacobians(seed):
+@pytest.mark.parametrize("seed, noise_scale", [(0, 1.0), (1, None), (2, 0.97), (3, None)])
+def test_scaled_odometry_factor_jacobians(seed, noise_scale):
     rng = np.random.default_rng(seed)
     x, y, th = integrate_planar(0.01 + 0.004 * rng.normal(size=40), 0.03 * rng.normal(size=40))
     T = make_T(rot_z(th), np.stack([x, y, 0 * x], 1))
     knots = np.arange(0, 41, 5)
     keys = [gtsam.symbol("x", i) for i in range(knots.size)]
     S = gtsam.symbol("s", 0)
-    fs = make_scaled_odometry_factors(keys, S, PlanarSteps.from_poses(T), knots, np.full(8, 0.05), np.full(8, 0.1))
+    fs = make_scaled_odometry_factors(keys, S, PlanarSteps.from_poses(T), knots, np.full(8, 0.05), np.full(8, 0.1),
+                                      noise_scale=noise_scale)
     v = gtsam.Values()
     for i, k in enumerate(keys):
         v.insert(k, gtsam.Pose3(T[knots[i]]).retract(0.02 * rng.normal(size=6)))
     v.insert(S, np.array([1.03, 0.7]))
     for f in fs[:3]:
         assert_jacobians(f, v)
+
+
+def _knots_on_scaled_odometry(seg_scales, s_w=0.6, seed=5, edges=200):
+    """Odometry steps, knot indices and knots whose edges are the odometry's at arc-length scale seg_scales[j]
+    in the j-th of len(seg_scales) equal stretches (slip that holds for a stretch)."""
+    rng = np.random.default_rng(seed)
+    n = 5 * edges
+    x, y, th = integrate_planar(rng.uniform(0.002, 0.012, n), 0.02 * np.sin(np.arange(n) / 40.0))
+    steps = PlanarSteps.from_poses(make_T(rot_z(th), np.stack([x, y, 0 * x], 1)))
+    knots = np.arange(0, n + 1, 5)
+    per_edge = np.repeat(np.asarray(seg_scales, dtype=float), edges // len(seg_scales))
+    edge = EdgeMotions(steps, knots)
+    T = [np.eye(4)]
+    for i, s_v in enumerate(per_edge):
+        T.append(T[-1] @ edge.at(float(s_v), s_w)[0][i])
+    return steps, knots, np.array(T)
+
+
+def test_speed_scale_jackknife_is_zero_for_one_scale_and_measures_the_spread_of_stretch_scales():
+    """The arc-length scale's second opinion: knots that follow the odometry at one scale give no spread; with a
+    slip that changes from stretch to stretch, the jackknife sigma matches the spread of the whole recording's
+    least-squares scale over many draws (what the graph's marginal, counting edges as independent, misses)."""
+    steps, knots, T = _knots_on_scaled_odometry([0.97] * 10)
+    assert speed_scale_jackknife(T, steps, knots, 0.6, 10) < 1e-9
+    rng = np.random.default_rng(0)
+    whole, jk = [], []
+    for _ in range(60):
+        steps, knots, T = _knots_on_scaled_odometry(1.0 + 0.02 * rng.normal(size=10))
+        z = np.einsum("nij,nj->ni", np.linalg.inv(T[:-1]), T[1:, :, 3])[:, 0]
+        m = EdgeMotions(steps, knots).at(1.0, 0.6)[0][:, 0, 3]
+        whole.append(np.sum(z * m) / np.sum(m * m))
+        jk.append(speed_scale_jackknife(T, steps, knots, 0.6, 10))
+    spread = np.std(whole)
+    assert 0.7 * spread < np.sqrt(np.mean(np.square(jk))) < 1.4 * spread
+    assert speed_scale_jackknife(T[:15], steps, knots[:15], 0.6, 10) is None  # too few edges for 10 stretches
 
 
 def test_edge_motions_of_all_edges_at_once_equal_each_edge_alone():

@@ -35,6 +35,7 @@ import gtsam
 import numpy as np
 
 from factors.odometry import (
+    EdgeMotions,
     OdometryNoise,
     PlanarSteps,
     make_odometry_factors,
@@ -97,6 +98,11 @@ class RefinementOptions:
     estimate_odometry_scale: bool = True
     speed_scale_prior_sigma: float = 0.05  # relative (wheel radius)
     turn_scale_prior_sigma: float = 1.0  # relative (track width)
+    # The odometry edges' translation error divided by the arc-length scale (the noise of the measured odometry,
+    # not of the rescaled motion; see make_scaled_odometry_factors). Measured on two studies' tracks: the wheel
+    # radius's median bias -0.8 -> -0.6 % and -0.6 -> -0.3 %, its median |error| 1.03 -> 0.83 % and 0.81 -> 0.97 %,
+    # the rotation's 95th percentile 2.9 -> 3.2 deg on one: off (docs/refinement.md, "The wheel radius's bias").
+    odometry_noise_in_measurement: bool = False
     scale_rebuild_tol: float = 1e-3  # rebuild the odometry detail between knots when a scale moved this much
     # Odometry stamps that jitter about a regular clock (the message stamped on arrival, the wheels sampled on a
     # timer) are put back on that clock: jittered stamps bias td and the lever arm (docs/refinement.md).
@@ -170,6 +176,12 @@ class RefinementOptions:
     # marginals do not hold (the td of a study recording moved by 17 ms against a marginal sigma of 1 ms;
     # docs/refinement.md).
     add_noise_model_sensitivity: bool = True
+    # Second opinion on the arc-length scale (the effective wheel radius): a jackknife over this many stretches of
+    # the recording of the scale that fits the refined knots' forward motion to the odometry's. Wheel slip
+    # correlated over seconds makes the whole recording's slip an error the graph's marginal does not hold: its
+    # sigma was exceeded 3x on 11 and 7 % of two studies' runs (docs/refinement.md, "The wheel radius's sigma").
+    # The larger sigma is reported. 0 disables it.
+    scale_jackknife_segments: int = 10
     max_odometry_noise_factor: float = 400.0
     freeze_unobservable: bool = True  # hold directions the data does not observe at the seed (see refine)
     freeze_ratio: float = OBSERVABLE_RATIO  # posterior/prior sigma above which a direction is held at the seed
@@ -719,7 +731,8 @@ def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: Refin
         _scaled_noise(opt.odometry_noise, odo_var, keep_tilt=not opt.scale_odometry_tilt)
     d, a = path_increments(prob.base_track.t, prob.base_track.T_world_base, prob.knot_idx)
     if prob.steps is not None:
-        for f in make_scaled_odometry_factors(keys, KEY_SCALE, prob.steps, prob.knot_idx, d, a, noise):
+        for f in make_scaled_odometry_factors(keys, KEY_SCALE, prob.steps, prob.knot_idx, d, a, noise,
+                                              noise_scale=prob.scale[0] if opt.odometry_noise_in_measurement else None):
             graph.add(f)
         sig = np.array([opt.speed_scale_prior_sigma, opt.turn_scale_prior_sigma])
         graph.add(gtsam.PriorFactorVector(KEY_SCALE, np.ones(2), gtsam.noiseModel.Diagonal.Sigmas(sig)))
@@ -1242,6 +1255,16 @@ def refine(
             cov_base = cov_base * np.outer(k, k)
         Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
         cov = Ji @ cov_base @ Ji.T
+    scale_jk = None
+    if joint is not None and prob.steps is not None and opt.scale_jackknife_segments >= 2:
+        s_now = values.atVector(KEY_SCALE)
+        scale_jk = speed_scale_jackknife(T_knots, prob.steps, prob.knot_idx, float(s_now[1]),
+                                         opt.scale_jackknife_segments)
+        if scale_jk is not None:
+            k = max(scale_jk / max(float(np.sqrt(joint[7, 7])), 1e-300), 1.0)
+            ks = np.ones(joint.shape[0])
+            ks[7] = k
+            joint = joint * np.outer(ks, ks)
         report = observability_report(cov_base, prior_info, converged=True, regularized=True,
                                       planar_motion=opt.planar, prior_notes=_prior_notes(opt, frozen))
     elif opt.marginals:
@@ -1295,7 +1318,8 @@ def refine(
                       if isinstance(odo_var, tuple) else {}),
                    "noise_model_sensitivity": None if sensitivity is None else dict(zip(
                        ("roll", "pitch", "yaw", "x", "y", "z", "td"), sensitivity.tolist(), strict=True)),
-                   "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])}},
+                   "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])},
+                   "speed_scale_jackknife_sigma": scale_jk},
         td_searched=None if td_seed == td_given else float(td_seed),
     )
 
@@ -1326,6 +1350,32 @@ def autocorrelation_time(x: np.ndarray, max_lag: int = 60) -> float:
             break
         tau += 2.0 * rho
     return float(tau)
+
+
+def speed_scale_jackknife(T_knots: np.ndarray, steps: PlanarSteps, knot_idx: np.ndarray, s_w: float,
+                          segments: int = 10) -> float | None:
+    """Jackknife sigma of the arc-length scale s_v over ``segments`` consecutive stretches of knots.
+
+    Per odometry edge, the knots' forward motion (x of X_a^-1 X_b) against the nominal odometry's at the turn scale
+    ``s_w``; the scale is their least-squares ratio. Leaving out one stretch at a time, the spread of the ratios
+    holds errors correlated within a stretch (wheel slip over seconds) that the graph's marginal counts as
+    independent. None when the edges hardly move (fewer than two stretches with motion).
+    """
+    T = np.asarray(T_knots, dtype=float)
+    if T.shape[0] < 2 * segments + 1:
+        return None
+    z = np.einsum("nij,nj->ni", np.linalg.inv(T[:-1]), T[1:, :, 3])[:, 0]  # forward motion of the knots
+    M = EdgeMotions(steps, np.asarray(knot_idx, dtype=int)).at(1.0, s_w)[0]
+    m = M[:, 0, 3]
+    if not (np.all(np.isfinite(z)) and np.all(np.isfinite(m))):
+        return None
+    part = np.array_split(np.arange(m.size), segments)
+    zm = np.array([np.sum(z[i] * m[i]) for i in part])
+    mm = np.array([np.sum(m[i] ** 2) for i in part])
+    if np.count_nonzero(mm > 1e-3 * mm.sum()) < 2:
+        return None
+    loo = (zm.sum() - zm) / np.maximum(mm.sum() - mm, 1e-300)
+    return float(np.sqrt((segments - 1) / segments * np.sum((loo - loo.mean()) ** 2)))
 
 
 def noise_model_sensitivity(C: np.ndarray, td: float, C_held: np.ndarray, td_held: float) -> np.ndarray:
