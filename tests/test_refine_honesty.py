@@ -66,12 +66,13 @@ def test_scaled_odometry_factor_jacobians(seed, noise_scale):
         assert_jacobians(f, v)
 
 
-def _knots_on_scaled_odometry(seg_scales, s_w=0.6, seed=5, edges=200):
+def _knots_on_scaled_odometry(seg_scales, s_w=0.6, seed=5, edges=200, ds=None):
     """Odometry steps, knot indices and knots whose edges are the odometry's at arc-length scale seg_scales[j]
-    in the j-th of len(seg_scales) equal stretches (slip that holds for a stretch)."""
+    in the j-th of len(seg_scales) equal stretches (slip that holds for a stretch); ``ds`` the step lengths."""
     rng = np.random.default_rng(seed)
     n = 5 * edges
-    x, y, th = integrate_planar(rng.uniform(0.002, 0.012, n), 0.02 * np.sin(np.arange(n) / 40.0))
+    ds = rng.uniform(0.002, 0.012, n) if ds is None else ds
+    x, y, th = integrate_planar(ds, 0.02 * np.sin(np.arange(n) / 40.0))
     steps = PlanarSteps.from_poses(make_T(rot_z(th), np.stack([x, y, 0 * x], 1)))
     knots = np.arange(0, n + 1, 5)
     per_edge = np.repeat(np.asarray(seg_scales, dtype=float), edges // len(seg_scales))
@@ -99,6 +100,37 @@ def test_speed_scale_jackknife_is_zero_for_one_scale_and_measures_the_spread_of_
     spread = np.std(whole)
     assert 0.7 * spread < np.sqrt(np.mean(np.square(jk))) < 1.4 * spread
     assert speed_scale_jackknife(T[:15], steps, knots[:15], 0.6, 10) is None  # too few edges for 10 stretches
+
+
+def test_speed_scale_jackknife_leaves_out_stretches_where_the_robot_stands():
+    """A stretch that hardly drives tells nothing about the scale (its ratio is noise over noise): it takes no part,
+    and with fewer than two driving stretches there is no second opinion."""
+    scales = [1.0, 1.02] + [0.5] * 8  # the standing stretches' scales would dominate the spread if they counted
+    ds = np.random.default_rng(1).uniform(0.002, 0.012, 1000)
+    ds[200:] = 1e-5  # 100 steps (20 edges) per stretch: the robot stands after the first two stretches
+    steps, knots, T = _knots_on_scaled_odometry(scales, ds=ds)
+    # Two driving stretches: the leave-one-out scales are each other's, the jackknife sigma half their difference.
+    assert speed_scale_jackknife(T, steps, knots, 0.6, 10) == pytest.approx(0.01, rel=1e-6)
+    ds[100:] = 1e-5
+    steps, knots, T = _knots_on_scaled_odometry(scales, ds=ds)
+    assert speed_scale_jackknife(T, steps, knots, 0.6, 10) is None
+
+
+@pytest.mark.parametrize("change", [{"scale_jackknife_segments": 0}, {"estimate_odometry_scale": False}, {}])
+def test_the_observability_report_is_given_with_and_without_the_scale_jackknife(change):
+    """The jackknife's inflation of the speed scale's sigma comes after the observability report, whatever the
+    options: a converged solve with a covariance always has its report."""
+    rec, base, track, seed_T = _case("odom_jitter")
+    res = refine(track, base, rec.camera, seed_T, rec.td + 0.005, RefinementOptions(**change),
+                 seed_odometry_scale=(1.0, 1.0))
+    assert res.converged and res.cov is not None
+    assert res.observability is not None and res.observability.converged
+    jk = res.inflation.get("speed_scale_jackknife_sigma")
+    if change:
+        assert jk is None
+    else:
+        o = res.odometry
+        assert jk is not None and o["wheel_radius_sigma_m"] >= o["wheel_radius_nominal_m"] * jk * (1 - 1e-9)
 
 
 def test_edge_motions_of_all_edges_at_once_equal_each_edge_alone():

@@ -732,7 +732,7 @@ def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: Refin
     d, a = path_increments(prob.base_track.t, prob.base_track.T_world_base, prob.knot_idx)
     if prob.steps is not None:
         for f in make_scaled_odometry_factors(keys, KEY_SCALE, prob.steps, prob.knot_idx, d, a, noise,
-                                              noise_scale=prob.scale[0] if opt.odometry_noise_in_measurement else None):
+                                              noise_scale=1.0 if opt.odometry_noise_in_measurement else None):
             graph.add(f)
         sig = np.array([opt.speed_scale_prior_sigma, opt.turn_scale_prior_sigma])
         graph.add(gtsam.PriorFactorVector(KEY_SCALE, np.ones(2), gtsam.noiseModel.Diagonal.Sigmas(sig)))
@@ -1255,20 +1255,21 @@ def refine(
             cov_base = cov_base * np.outer(k, k)
         Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
         cov = Ji @ cov_base @ Ji.T
-    scale_jk = None
-    if joint is not None and prob.steps is not None and opt.scale_jackknife_segments >= 2:
-        s_now = values.atVector(KEY_SCALE)
-        scale_jk = speed_scale_jackknife(T_knots, prob.steps, prob.knot_idx, float(s_now[1]),
-                                         opt.scale_jackknife_segments)
-        if scale_jk is not None:
-            k = max(scale_jk / max(float(np.sqrt(joint[7, 7])), 1e-300), 1.0)
-            ks = np.ones(joint.shape[0])
-            ks[7] = k
-            joint = joint * np.outer(ks, ks)
         report = observability_report(cov_base, prior_info, converged=True, regularized=True,
                                       planar_motion=opt.planar, prior_notes=_prior_notes(opt, frozen))
     elif opt.marginals:
         report = not_converged_report("the optimisation did not converge" if not converged else "marginals failed")
+    scale_jk = None
+    if joint is not None and prob.steps is not None and opt.scale_jackknife_segments >= 2:
+        # Second opinion on the arc-length scale (see speed_scale_jackknife): the larger sigma is reported.
+        s_now = values.atVector(KEY_SCALE)
+        scale_jk = speed_scale_jackknife(T_knots, prob.steps, prob.knot_idx, float(s_now[1]),
+                                         opt.scale_jackknife_segments)
+        sig_v = float(np.sqrt(max(float(joint[7, 7]), 0.0)))
+        if scale_jk is not None and np.isfinite(sig_v) and scale_jk > sig_v:
+            ks = np.ones(joint.shape[0])
+            ks[7] = scale_jk / sig_v if sig_v > 0 else 1.0
+            joint = joint * np.outer(ks, ks)
     t_marg = time.perf_counter() - t1
     priors = {
         "regularisation": {"sigma_rot_rad": opt.reg_sigma_rot, "sigma_trans_m": opt.reg_sigma_trans,
@@ -1352,6 +1353,9 @@ def autocorrelation_time(x: np.ndarray, max_lag: int = 60) -> float:
     return float(tau)
 
 
+MIN_JACKKNIFE_STRETCH_M = 0.05  # forward or back, summed over a stretch's edges
+
+
 def speed_scale_jackknife(T_knots: np.ndarray, steps: PlanarSteps, knot_idx: np.ndarray, s_w: float,
                           segments: int = 10) -> float | None:
     """Jackknife sigma of the arc-length scale s_v over ``segments`` consecutive stretches of knots.
@@ -1359,7 +1363,7 @@ def speed_scale_jackknife(T_knots: np.ndarray, steps: PlanarSteps, knot_idx: np.
     Per odometry edge, the knots' forward motion (x of X_a^-1 X_b) against the nominal odometry's at the turn scale
     ``s_w``; the scale is their least-squares ratio. Leaving out one stretch at a time, the spread of the ratios
     holds errors correlated within a stretch (wheel slip over seconds) that the graph's marginal counts as
-    independent. None when the edges hardly move (fewer than two stretches with motion).
+    independent. None when fewer than two stretches drive :data:`MIN_JACKKNIFE_STRETCH_M` or more.
     """
     T = np.asarray(T_knots, dtype=float)
     if T.shape[0] < 2 * segments + 1:
@@ -1372,10 +1376,15 @@ def speed_scale_jackknife(T_knots: np.ndarray, steps: PlanarSteps, knot_idx: np.
     part = np.array_split(np.arange(m.size), segments)
     zm = np.array([np.sum(z[i] * m[i]) for i in part])
     mm = np.array([np.sum(m[i] ** 2) for i in part])
-    if np.count_nonzero(mm > 1e-3 * mm.sum()) < 2:
+    # Stretches where the robot hardly drives tell nothing about the scale (their ratio is noise over noise): only
+    # those that drive at least MIN_JACKKNIFE_STRETCH_M forward or back take part.
+    moving = np.array([np.sum(np.abs(m[i])) >= MIN_JACKKNIFE_STRETCH_M for i in part])
+    g = int(np.count_nonzero(moving))
+    if g < 2:
         return None
-    loo = (zm.sum() - zm) / np.maximum(mm.sum() - mm, 1e-300)
-    return float(np.sqrt((segments - 1) / segments * np.sum((loo - loo.mean()) ** 2)))
+    zm, mm = zm[moving], mm[moving]
+    loo = (zm.sum() - zm) / (mm.sum() - mm)
+    return float(np.sqrt((g - 1) / g * np.sum((loo - loo.mean()) ** 2)))
 
 
 def noise_model_sensitivity(C: np.ndarray, td: float, C_held: np.ndarray, td_held: float) -> np.ndarray:
