@@ -100,8 +100,9 @@ class RefinementOptions:
     turn_scale_prior_sigma: float = 1.0  # relative (track width)
     # The odometry edges' translation error divided by the arc-length scale (the noise of the measured odometry,
     # not of the rescaled motion; see make_scaled_odometry_factors). Measured on two studies' tracks: the wheel
-    # radius's median bias -0.8 -> -0.6 % and -0.6 -> -0.3 %, its median |error| 1.03 -> 0.83 % and 0.81 -> 0.97 %,
-    # the rotation's 95th percentile 2.9 -> 3.2 deg on one: off (docs/refinement.md, "The wheel radius's bias").
+    # radius's median bias -0.8 -> -0.6 % and -0.6 -> -0.3 %, its median |error| 1.03 -> 0.83 % and 0.81 -> 0.96 %,
+    # the rotation's 95th percentile 2.9 -> 3.2 deg on one: off (docs/refinement.md, "The wheel radius's sigma and
+    # its bias").
     odometry_noise_in_measurement: bool = False
     scale_rebuild_tol: float = 1e-3  # rebuild the odometry detail between knots when a scale moved this much
     # Odometry stamps that jitter about a regular clock (the message stamped on arrival, the wheels sampled on a
@@ -179,7 +180,8 @@ class RefinementOptions:
     # Second opinion on the arc-length scale (the effective wheel radius): a jackknife over this many stretches of
     # the recording of the scale that fits the refined knots' forward motion to the odometry's. Wheel slip
     # correlated over seconds makes the whole recording's slip an error the graph's marginal does not hold: its
-    # sigma was exceeded 3x on 11 and 7 % of two studies' runs (docs/refinement.md, "The wheel radius's sigma").
+    # sigma was exceeded 3x on 11 and 7 % of two studies' runs (docs/refinement.md, "The wheel radius's sigma and
+    # its bias").
     # The larger sigma is reported. 0 disables it.
     scale_jackknife_segments: int = 10
     max_odometry_noise_factor: float = 400.0
