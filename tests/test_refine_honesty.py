@@ -133,6 +133,20 @@ def test_the_observability_report_is_given_with_and_without_the_scale_jackknife(
         assert jk is not None and o["wheel_radius_sigma_m"] >= o["wheel_radius_nominal_m"] * jk * (1 - 1e-9)
 
 
+def test_the_graph_can_be_restricted_to_some_detectors_detections():
+    """``detectors``: only the frames of the named front-end detectors (camera_track.info["detector"]) enter the
+    graph; None (the default) keeps every frame."""
+    rec, base, track, seed_T = _case("odom_jitter")
+    src = np.where(np.arange(len(track.detections)) % 3 == 0, "blobs", "rims").tolist()
+    marked = dataclasses.replace(track, info={**track.info, "detector": src})
+    all_frames = refine(marked, base, rec.camera, seed_T, rec.td + 0.005)
+    rims = refine(marked, base, rec.camera, seed_T, rec.td + 0.005, RefinementOptions(detectors=("rims",)))
+    n_rims = src.count("rims")
+    assert rims.converged and all_frames.converged
+    assert rims.n_frames + rims.n_frames_rejected <= n_rims < all_frames.n_frames
+    assert rims.n_frames >= n_rims - 3  # a few frames may fall outside the odometry or be rejected
+
+
 def test_edge_motions_of_all_edges_at_once_equal_each_edge_alone():
     """The odometry factors' shared, vectorized edge motions (prefix sums over a long track that turns many times)
     against the edge-by-edge sums, motion and derivative, at nominal and rescaled odometry."""

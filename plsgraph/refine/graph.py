@@ -88,6 +88,9 @@ class RefinementOptions:
     # as one. Off: on the study it made the rotation worse (median 0.46 -> 0.51 deg, one run 2.1 -> 10.4 deg with
     # an honest 14 deg yaw sigma; docs/refinement.md, "Detections of slow boards").
     weight_by_span: bool = False
+    # The front end's detectors whose detections the graph uses (camera_track.info["detector"]: "rims", "blobs",
+    # "image"); None: all.
+    detectors: tuple[str, ...] | None = None
     robust: str | None = "huber"  # "huber", "cauchy" or None
     robust_k: float = 1.5  # threshold relative to a frame's expected whitened norm (see reprojection_noise)
     min_points: int = 6
@@ -516,6 +519,9 @@ def _prepare(
     t_odo = base_track.t
     inside = (tau >= t_odo[0]) & (tau <= t_odo[-1])
     keep = (n_valid >= opt.min_points) & inside
+    src = camera_track.info.get("detector")
+    if opt.detectors is not None and src is not None and len(src) == len(det):
+        keep &= np.isin(np.asarray(src, dtype=str), list(opt.detectors))
     try:
         from ..odometry.wheels import in_gap
 
