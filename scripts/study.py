@@ -251,7 +251,15 @@ def _errors(run, truth: dict) -> dict:
             "td_err_ms": 1e3 * (ref.td - td_gt),
             "txy_err_m": float(np.linalg.norm(ref.T_base_cam[:2, 3] - T_gt[:2, 3])),
             "err": dict(zip(AXES, e.tolist(), strict=True)),
+            # what the reported sigmas are made of: the fit's chi2/dof and the second opinions applied
+            "chi2_per_dof": float(ref.chi2_per_dof),
+            "inflation": {k: v for k, v in (ref.inflation or {}).items() if isinstance(v, int | float | dict)},
         }
+        from plsgraph.gate import _estimated_scales, _path_scales
+
+        path, est = _path_scales(ref, run.base_track), _estimated_scales(ref)
+        if path is not None:  # the refined path against the (scaled) odometry's, as the gate measures it
+            refined["path_scales"] = [p / e for p, e in zip(path, est, strict=True)] if est else list(path)
         if cov is not None:
             idx = [0, 1, 2, 3, 4, 6]
             sig = np.sqrt(np.diag(cov)[idx])
