@@ -299,6 +299,9 @@ def run_refinement(run: Run, progress: ProgressFactory) -> Any:
         res = refine(run.camera_track, run.base_track, run.camera, seed, cf.td, opts, progress=bar,
                      seed_odometry_scale=s0 if all(0.2 < x < 5.0 for x in s0) else None)
     run.warn(*res.warnings)
+    from .gate import path_warnings
+
+    run.warn(*path_warnings(res, run.base_track))  # slip one radius and track do not describe (not a problem)
     run.discarded["refinement_frames_rejected"] = int(res.n_frames_rejected)
     run.discarded["refinement_frames_dropped"] = int(res.n_frames_dropped)
     run.refinement = res
