@@ -267,7 +267,9 @@ class RefinementResult:
     disagreement: dict = field(default_factory=dict)
     inflation: dict = field(default_factory=dict)  # autocorrelation times and the covariance factor applied
     # td the refinement started from when the turn-angle search replaced the closed form's (a wrong correlation
-    # peak); None when the closed form's td was kept. Comparisons of td with "the seed" use this one.
+    # peak) and the refinement ended nearer it than the closed form's; None when the closed form's td was kept, or
+    # when the refinement came back nearer it (the search's peak was the wrong one). Comparisons of td with "the
+    # seed" use this one.
     td_searched: float | None = None
 
     @property
@@ -1290,6 +1292,16 @@ def refine(
         "frozen_directions": [dict(zip(AXES, np.round(f / np.linalg.norm(f), 4).tolist(), strict=True))
                               for f in frozen],
     }
+    td_ref = td_seed
+    if td_seed != td_given and abs(td - td_given) < abs(td - td_seed):
+        # The refinement, started at the search's offset, ended nearer the closed form's: the search's peak was the
+        # wrong one, and the closed form (its rotation too) is the reference the result is checked against again.
+        td_ref = td_given
+        warnings = [w for w in warnings if w != search_note]
+        warnings.append(f"the turn-angle search put the time offset at {1e3 * td_seed:+.1f} ms, "
+                        f"{1e3 * abs(td_seed - td_given):.0f} ms from the closed form's {1e3 * td_given:+.1f} ms; the "
+                        f"refinement started there and ended at {1e3 * td:+.1f} ms, nearer the closed form's: the "
+                        "search's peak was the wrong one")
     for w in warnings:
         log.warning(w)
     return RefinementResult(
@@ -1319,8 +1331,8 @@ def refine(
         seed_T_base_cam=C_seed,
         seed_td=td_given,
         odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
-        disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_seed, opt,
-                                                                          rotation=td_seed == td_given),
+        disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_ref, opt,
+                                                                          rotation=td_ref == td_given),
         inflation={**inflation, "odometry_variance_factor": _slip(odo_var),
                    **({"odometry_variance_factors": dict(zip(("heading", "distance", "tilt")[:len(odo_var)], odo_var,
                                                              strict=True))}
@@ -1329,7 +1341,7 @@ def refine(
                        ("roll", "pitch", "yaw", "x", "y", "z", "td"), sensitivity.tolist(), strict=True)),
                    "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])},
                    "speed_scale_jackknife_sigma": scale_jk},
-        td_searched=None if td_seed == td_given else float(td_seed),
+        td_searched=None if td_ref == td_given else float(td_seed),
     )
 
 
