@@ -44,7 +44,10 @@ def _estimated_scales(refinement: Any) -> tuple[float, float] | None:
     odo = getattr(refinement, "odometry", None) or {}
     if refinement is None or not refinement.converged or "speed_scale" not in odo:
         return None
-    return float(odo["speed_scale"]), float(odo["turn_scale"])
+    try:
+        return float(odo["speed_scale"]), float(odo["turn_scale"])
+    except (KeyError, TypeError, ValueError):
+        return None
 
 
 def _estimated_geometry(refinement: Any) -> tuple[float | None, float | None]:
@@ -152,12 +155,14 @@ def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
                     f"the refined camera position x/y is {100 * d_xy:.1f} cm from the closed form's "
                     f"(limit {100 * lim:.1f} cm)"
                 )
-        td_seed = cf.td if getattr(ref, "td_searched", None) is None else ref.td_searched  # a wrong peak replaced
+        searched = getattr(ref, "td_searched", None)  # a wrong closed-form peak the turn-angle search replaced
+        td_seed = cf.td if searched is None else searched
         d_td = abs(float(td_seed) - float(ref.td))
         lim = TD_DISAGREE_S + 3 * float(sig[6])
         if d_td > lim:
+            whose = "the closed form's" if searched is None else "the turn-angle search's it started from"
             problems.append(
-                f"the refined time offset is {1e3 * d_td:.1f} ms from the closed form's (limit {1e3 * lim:.1f} ms)"
+                f"the refined time offset is {1e3 * d_td:.1f} ms from {whose} (limit {1e3 * lim:.1f} ms)"
             )
     for q, z in (getattr(ref, "disagreement", None) or {}).items():
         problems.append(f"refinement and closed form disagree on {q} by {z:.1f} sigma; check the recording (motion, "
@@ -184,31 +189,49 @@ def _path_problems(ref: Any, base_track: Any, est: tuple[float, float] | None) -
         return [], []
     s_v, s_w = scales
     if est is not None:  # the refinement scaled the odometry on purpose: only a stretch beyond that counts
+        if not (np.all(np.isfinite(est)) and min(est) > 0):
+            return [], []  # no usable estimate: _odometry_problems says so
         s_v, s_w = s_v / est[0], s_w / est[1]
-    lim_v, lim_w = (SPEED_SCALE_LIMIT, TURN_SCALE_LIMIT) if est is not None else (PATH_SPEED_LIMIT, PATH_TURN_LIMIT)
     problems: list[str] = []
     warnings: list[str] = []
-    if abs(s_v - 1) > lim_v:
+    if est is None:
+        if abs(s_v - 1) > PATH_SPEED_LIMIT:
+            problems.append(
+                f"to fit the camera the refinement had to stretch the odometry's path by x{s_v:.3f} (limit "
+                f"{PATH_SPEED_LIMIT:.0%}): the wheel radius (--wheel-radius) or the board's size does not match"
+            )
+        if abs(s_w - 1) > PATH_TURN_LIMIT:
+            problems.append(
+                f"to fit the camera the refinement had to scale the odometry's turns by x{s_w:.3f} (limit "
+                f"{PATH_TURN_LIMIT:.0%}): the track width (--track-width) does not match the robot's effective one"
+            )
+        return problems, warnings
+    # With the radius and track estimated: what is left is the odometry not following the robot.
+    raised = float((getattr(ref, "inflation", None) or {}).get("odometry_variance_factor", 1.0) or 1.0) > 1.0
+    followed = ("; the refinement followed the camera there and its sigmas include the odometry's raised noise"
+                if raised else "; the refinement followed the camera there")
+    if abs(s_v - 1) > SPEED_SCALE_LIMIT:
         problems.append(
-            f"to fit the camera the refinement had to stretch the odometry's path by x{s_v:.3f} (limit "
-            f"{lim_v:.0%}): the wheel radius (--wheel-radius) or the board's size does not match"
+            f"the refined path is x{s_v:.3f} as long as the odometry's even with the estimated wheel radius (limit "
+            f"{SPEED_SCALE_LIMIT:.0%}): the odometry does not follow the robot's motion (wheels slipping most of the "
+            "time, or the wrong odometry)"
         )
     elif abs(s_v - 1) > PATH_SPEED_LIMIT:
         warnings.append(
             f"the refined path is x{s_v:.3f} as long as the odometry's even with the estimated wheel radius (more "
-            f"than {PATH_SPEED_LIMIT:.0%}): the wheels slipped unevenly; the refinement followed the camera there and "
-            "its sigmas include the odometry's raised noise"
+            f"than {PATH_SPEED_LIMIT:.0%}): the wheels slipped unevenly{followed}"
         )
-    if abs(s_w - 1) > lim_w:
+    if abs(s_w - 1) > TURN_SCALE_LIMIT:
         problems.append(
-            f"to fit the camera the refinement had to scale the odometry's turns by x{s_w:.3f} (limit "
-            f"{lim_w:.0%}): the track width (--track-width) does not match the robot's effective one"
+            f"the refined path turns x{s_w:.3f} as much as the odometry's even with the estimated track width (limit "
+            f"{TURN_SCALE_LIMIT:.0%}): the odometry does not follow the robot's turns (wheels slipping most of the "
+            "time, or the wrong odometry)"
         )
     elif abs(s_w - 1) > PATH_TURN_LIMIT:
         warnings.append(
             f"the refined path turns x{s_w:.3f} as much as the odometry's even with the estimated track width (more "
-            f"than {PATH_TURN_LIMIT:.0%}): the wheels' slip changed with the turning (as on skid-steer robots); the "
-            "refinement followed the camera there and its sigmas include the odometry's raised noise"
+            f"than {PATH_TURN_LIMIT:.0%}): the wheels' slip changed with the turning (as on skid-steer robots)"
+            f"{followed}"
         )
     return problems, warnings
 

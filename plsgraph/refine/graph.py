@@ -404,10 +404,11 @@ def regular_stamps(t: np.ndarray, gap_factor: float = 2.5, max_dev: float = 0.45
 
 
 def turn_angle_td_search(camera_track: CameraTrack, base_track: BaseTrack, td0: float, half: float,
-                         interval_s: float = 0.25, step: float = 0.005) -> tuple[float, float, float] | None:
+                         interval_s: float = 0.25, step: float = 0.005
+                         ) -> tuple[float, float, float, float] | None:
     """td (s) within ``td0 +- half`` at which the camera's and the base's turn angles over ``interval_s`` agree
-    best, the turn-rate scale s_w that matches them, and the relative residual there; None when the recording
-    has too little turning or the best td lies at the border of the range.
+    best, the turn-rate scale s_w that matches them, the (robust) cost there and the cost at ``td0``; None when
+    the recording has too little turning or the best td lies at the border of the range.
 
     The angle the camera turns between two of its poses equals the angle the base turns (a rigid mount, planar
     motion), whatever R_base_cam; the odometry's angle is off by the turn scale s_w, which is fitted per
@@ -468,7 +469,7 @@ def turn_angle_td_search(camera_track: CameraTrack, base_track: BaseTrack, td0: 
         if den > 0:
             td += 0.5 * (step / 10) * (y0 - y2) / den
     val, s_w = cost(td)
-    return td, s_w, val
+    return td, s_w, val, float(c[int(round(half / step))])
 
 
 def _select_knots(base_track: BaseTrack, t_lo: float, t_hi: float, rate: float | None) -> np.ndarray:
@@ -1292,16 +1293,23 @@ def refine(
         "frozen_directions": [dict(zip(AXES, np.round(f / np.linalg.norm(f), 4).tolist(), strict=True))
                               for f in frozen],
     }
-    td_ref = td_seed
+    td_ref, compare_rotation = td_seed, td_seed == td_given
     if td_seed != td_given and abs(td - td_given) < abs(td - td_seed):
-        # The refinement, started at the search's offset, ended nearer the closed form's: the search's peak was the
-        # wrong one, and the closed form (its rotation too) is the reference the result is checked against again.
+        # The refinement, started at the search's offset, ended nearer the closed form's. Within what their sigmas
+        # allow of it, the search's peak was the wrong one and the closed form (its rotation too) is the reference
+        # the result is checked against again; farther, it agrees with neither, and the nearer one (the closed
+        # form's) is the reference for td only: a rotation solved at a td that far off is none.
         td_ref = td_given
+        sig_td = float(np.sqrt(cov_base[6, 6])) if cov_base is not None else 0.0
+        back = abs(td - td_given) <= 3.0 * float(np.hypot(sig_td, opt.seed_sigma_td))
+        compare_rotation = back
         warnings = [w for w in warnings if w != search_note]
+        where = ("nearer the closed form's: the search's peak was the wrong one" if back else
+                 f"{1e3 * abs(td - td_given):.0f} ms from the closed form's and farther from the search's: it agrees "
+                 "with neither")
         warnings.append(f"the turn-angle search put the time offset at {1e3 * td_seed:+.1f} ms, "
                         f"{1e3 * abs(td_seed - td_given):.0f} ms from the closed form's {1e3 * td_given:+.1f} ms; the "
-                        f"refinement started there and ended at {1e3 * td:+.1f} ms, nearer the closed form's: the "
-                        "search's peak was the wrong one")
+                        f"refinement started there and ended at {1e3 * td:+.1f} ms, {where}")
     for w in warnings:
         log.warning(w)
     return RefinementResult(
@@ -1332,7 +1340,7 @@ def refine(
         seed_td=td_given,
         odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
         disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_ref, opt,
-                                                                          rotation=td_ref == td_given),
+                                                                          rotation=compare_rotation),
         inflation={**inflation, "odometry_variance_factor": _slip(odo_var),
                    **({"odometry_variance_factors": dict(zip(("heading", "distance", "tilt")[:len(odo_var)], odo_var,
                                                              strict=True))}
