@@ -122,39 +122,61 @@ def test_refined_far_from_closed_form_is_named_per_quantity(sim):
     assert not any("refined rotation" in p for p in problems_of(cf, ref))
 
 
-def _turned(ref, factor: float):
-    """``ref`` with its knots' heading changes scaled by ``factor`` (positions and tilt kept)."""
+def _bent(ref, turn: float = 1.0, length: float = 1.0):
+    """``ref`` with its knots' heading changes scaled by ``turn`` and their steps by ``length`` (tilt kept)."""
     from dataclasses import replace
 
     Tk = np.array(ref.T_world_base, dtype=float)
     yaw = np.unwrap(np.arctan2(Tk[:, 1, 0], Tk[:, 0, 0]))
-    turn = yaw[0] + factor * (yaw - yaw[0]) - yaw
-    c, s = np.cos(turn), np.sin(turn)
-    Rz = np.zeros((len(turn), 3, 3))
+    d = yaw[0] + turn * (yaw - yaw[0]) - yaw
+    c, s = np.cos(d), np.sin(d)
+    Rz = np.zeros((len(d), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0
     Tk[:, :3, :3] = Rz @ Tk[:, :3, :3]
+    Tk[:, :2, 3] = Tk[0, :2, 3] + length * (Tk[:, :2, 3] - Tk[0, :2, 3])
     return replace(ref, T_world_base=Tk)
 
 
+def _ratio(texts, pattern: str) -> float | None:
+    """The x<number> of the first text matching ``pattern`` (a regex with one group for the number)."""
+    import re
+
+    for t in texts:
+        m = re.search(pattern, t)
+        if m:
+            return float(m.group(1))
+    return None
+
+
 def test_a_path_bent_beyond_the_estimated_track_is_a_warning_up_to_the_gross_limit(sim):
-    # With the odometry's radius and track estimated, a refined path that turns a few per cent less than the scaled
-    # odometry is slip one effective track does not describe (a warning); far beyond, a problem. Without estimated
-    # scales the strict limit stays a problem.
+    # With the odometry's radius and track estimated, a refined path that turns a few per cent less (or runs a few
+    # per cent longer) than the scaled odometry is slip one effective track and radius do not describe: a warning;
+    # far beyond, a problem. Without estimated scales the strict limits stay problems.
     from dataclasses import replace
 
     from plsgraph.gate import path_warnings
 
     r = _calibrate(sim)
     cf, ref, base = r.run.closed_form, r.run.refinement, r.run.base_track
-    turns = "scale the odometry's turns"
-    assert not any(turns in p for p in problems_of(cf, ref, base_track=base)) and not path_warnings(ref, base)
-    bent = _turned(ref, 0.9)
-    assert not any(turns in p for p in problems_of(cf, bent, base_track=base))
+    turns, longer = r"turns x(\d\.\d+)", r"is x(\d\.\d+) as long"
+    assert not any("refined path" in p for p in problems_of(cf, ref, base_track=base))
+    assert not path_warnings(ref, base)
+    bent = _bent(ref, turn=0.9)
+    assert not any("refined path" in p or "odometry's turns" in p for p in problems_of(cf, bent, base_track=base))
     (w,) = path_warnings(bent, base)
-    assert "turns x0.9" in w and "slip" in w
-    assert any(turns in p for p in problems_of(cf, _turned(ref, 0.6), base_track=base))
+    assert _ratio([w], turns) == pytest.approx(0.9, abs=0.005) and "slip" in w and "track width" in w
+    far = problems_of(cf, _bent(ref, turn=0.6), base_track=base)
+    assert _ratio(far, turns) == pytest.approx(0.6, abs=0.005)
+    stretched = _bent(ref, length=1.04)
+    (w,) = path_warnings(stretched, base)
+    assert _ratio([w], longer) == pytest.approx(1.04, abs=0.005) and "wheel radius" in w
+    assert not any("refined path" in p for p in problems_of(cf, stretched, base_track=base))
+    assert _ratio(problems_of(cf, _bent(ref, length=1.2), base_track=base), longer) == pytest.approx(1.2, abs=0.005)
     plain = replace(bent, odometry={})  # no estimated scales: the odometry's own turns must hold
-    assert any(turns in p for p in problems_of(cf, plain, base_track=base)) and not path_warnings(plain, base)
+    assert _ratio(problems_of(cf, plain, base_track=base), r"turns by x(\d\.\d+)") == pytest.approx(0.9, abs=0.005)
+    assert not path_warnings(plain, base)
+    broken = replace(bent, odometry={**bent.odometry, "turn_scale": None})  # no usable estimate: nothing to divide
+    assert path_warnings(broken, base) == [] and isinstance(problems_of(cf, broken, base_track=base), list)
 
 
 def test_turn_dependent_slip_is_warned_not_flagged():
@@ -189,7 +211,7 @@ def test_a_wrong_turn_angle_search_does_not_flag_a_refinement_that_came_back(sim
 
     r0 = _calibrate(sim)  # the real search: it replaced the closed form's td, and the refinement stayed near it
     assert r0.run.refinement.td_searched is not None and r0.ok
-    monkeypatch.setattr(graph, "turn_angle_td_search", lambda cam, base, td0, half, **kw: (td0 + 0.15, 1.0, 0.1))
+    monkeypatch.setattr(graph, "turn_angle_td_search", lambda cam, base, td0, half, **kw: (td0 + 0.15, 1.0, 0.1, 0.1))
     r = _calibrate(sim)
     s = sim[0]
     assert r.run.refinement.td_searched is None  # the closed form's td is the reference again
@@ -197,6 +219,26 @@ def test_a_wrong_turn_angle_search_does_not_flag_a_refinement_that_came_back(sim
     assert r.ok, r.problems
     assert any("search's peak was the wrong one" in w for w in r.warnings)
     assert not any("wrong correlation peak" in w for w in r.warnings)  # the closed form is not blamed
+
+
+def test_a_refinement_far_from_both_td_seeds_is_flagged_without_the_rotation_check(sim, monkeypatch):
+    # Closed form 80 ms off, search 200 ms beyond it: the refinement finds the truth, nearer the closed form's td but
+    # far outside what their sigmas allow. It agrees with neither: td is flagged against the closed form's, and the
+    # closed form's rotation (solved at a td that far off) is not used as a reference.
+    import plsgraph.calib.closed_form as closed_form
+    import plsgraph.refine.graph as graph
+
+    s = sim[0]
+    plain = closed_form.calibrate_closed_form
+    monkeypatch.setattr(closed_form, "calibrate_closed_form",
+                        lambda cam, base, *a, **kw: plain(cam, base, *a, **{**kw, "td": s.td + 0.08}))
+    monkeypatch.setattr(graph, "turn_angle_td_search", lambda cam, base, td0, half, **kw: (td0 + 0.2, 1.0, 0.1, 0.1))
+    r = _calibrate(sim)
+    ref = r.run.refinement
+    assert abs(ref.td - s.td) < 3 * np.sqrt(r.covariance[6, 6])
+    assert not r.ok and any("time offset" in p and "closed form's" in p for p in r.problems)
+    assert set(ref.disagreement) <= {"td"}  # no roll/pitch/yaw against the closed form solved 80 ms off
+    assert any("agrees with neither" in w for w in r.warnings)
 
 
 # ---------------------------------------------------------------------------------------------- gaps
