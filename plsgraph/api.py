@@ -114,7 +114,8 @@ def diagnose(
         cut_at_gaps(run)  # the same data calibrate would use
         cf = run_closed_form(run)
     except (DegenerateMotionError, InsufficientDataError) as exc:
-        return Diagnosis(str(recording), False, (str(exc),), (MOTION_ADVICE_DEFAULT,), **counts)
+        return Diagnosis(str(recording), False, (str(exc),), (MOTION_ADVICE_DEFAULT,), **counts,
+                         warnings=tuple(run.warnings))
     verdicts = []
     if cf.R_base_cam is not None:
         try:
@@ -125,7 +126,8 @@ def diagnose(
     obs = observability_rows(run)
     good = not problems
     return Diagnosis(str(recording), good, tuple(problems), tuple(motion_advice(cf, obs)), dict(cf.excitation),
-                     dict(cf.observable), tuple(obs), tuple(cf.degenerate_reasons), **counts)
+                     dict(cf.observable), tuple(obs), tuple(cf.degenerate_reasons), **counts,
+                     warnings=tuple(run.warnings))
 
 
 def compare(
@@ -151,7 +153,8 @@ def compare(
     from .gate import problems_of_run
 
     problems = tuple(problems_of_run(run))
-    return Comparison(str(recording), tuple(table.rows), failed, table.markdown, ok=not problems, problems=problems)
+    return Comparison(str(recording), tuple(table.rows), failed, table.markdown, ok=not problems, problems=problems,
+                      warnings=tuple(run.warnings))
 
 
 def calibrate_to_dir(

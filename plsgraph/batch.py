@@ -52,7 +52,8 @@ def _batch_item(item: tuple[str, str, CalibrationOptions, bool], seed: int = 0) 
         c = rep["calibration"] or {}  # None when the motion only allowed a diagnosis
         row = {"recording": log_path, "status": "ok" if res["ok"] else "flagged", "source": c.get("source"),
                "rpy_deg": c.get("rpy_deg"), "translation_m": c.get("translation_m"),
-               "time_offset_s": c.get("time_offset_s"), "problems": rep["problems"]}
+               "time_offset_s": c.get("time_offset_s"), "problems": rep["problems"],
+               "warnings": rep.get("warnings", [])}
         if "truth_errors" in rep:
             row["truth_errors"] = rep["truth_errors"]
     except PlsgraphError as exc:
@@ -124,8 +125,9 @@ def run_batch(
         [{"recording": Path(r["recording"]).name, "status": r["status"], "seconds": r.get("seconds"),
           "roll": (r.get("rpy_deg") or [None] * 3)[0], "pitch": (r.get("rpy_deg") or [None] * 3)[1],
           "yaw": (r.get("rpy_deg") or [None] * 3)[2], "td_ms": None if r.get("time_offset_s") is None
-          else 1e3 * r["time_offset_s"], "error": r.get("error", "; ".join(r.get("problems", [])))} for r in rows],
-        ["recording", "status", "roll", "pitch", "yaw", "td_ms", "seconds", "error"],
+          else 1e3 * r["time_offset_s"], "warnings": len(r.get("warnings", [])),
+          "error": r.get("error", "; ".join(r.get("problems", [])))} for r in rows],
+        ["recording", "status", "roll", "pitch", "yaw", "td_ms", "seconds", "warnings", "error"],
     )
     write_text(out / "summary.md", table + "\n")
     ok = all(r["status"] == "ok" for r in rows)

@@ -107,6 +107,7 @@ class Diagnosis:
     degenerate_reasons: tuple[str, ...] = ()
     camera_frames: int = 0
     odometry_samples: int = 0
+    warnings: tuple[str, ...] = ()  # what the run said along the way (as calibrate's report.json "warnings")
 
     def to_dict(self) -> dict:
         return to_jsonable({
@@ -114,6 +115,7 @@ class Diagnosis:
             "excitation": self.excitation, "observable_closed_form": self.observable_closed_form,
             "observability": list(self.observability), "degenerate_reasons": list(self.degenerate_reasons),
             "camera_frames": self.camera_frames, "odometry_samples": self.odometry_samples,
+            "warnings": list(self.warnings),
         })
 
 
@@ -127,10 +129,11 @@ class Comparison:
     markdown: str
     ok: bool = True
     problems: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()  # what the run said along the way (as calibrate's report.json "warnings")
 
     def to_dict(self) -> dict:
         return to_jsonable({"recording": self.recording, "ok": self.ok, "problems": list(self.problems),
-                            "rows": list(self.rows), "failed": self.failed})
+                            "warnings": list(self.warnings), "rows": list(self.rows), "failed": self.failed})
 
 
 # ------------------------------------------------------------------------------------------------ building

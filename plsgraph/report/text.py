@@ -81,6 +81,7 @@ def diagnosis_text(d: Any) -> str:
         lines.append("observability after refinement:")
         lines += [f"  {o['status']:<13} {o['direction']:<40} {o['note']}" for o in d.observability]
     lines += [f"problem: {p}" for p in d.problems]
+    lines += [f"warning: {w}" for w in getattr(d, "warnings", ())[:12]]
     lines.append("verdict: " + ("good enough" if d.ok else "NOT good enough"))
     lines += [f"advice: {a}" for a in d.advice]
     return "\n".join(lines)
@@ -93,4 +94,6 @@ def comparison_text(c: Any) -> str:
         text += "\n\nno answer from: " + "; ".join(f"{n}: {e}" for n, e in c.failed.items())
     if getattr(c, "problems", ()):
         text += "\n\nFLAGGED (the refined result is not fit to use):\n" + "\n".join(f"  - {p}" for p in c.problems)
+    if getattr(c, "warnings", ()):
+        text += f"\n\nwarnings ({len(c.warnings)}):\n" + "\n".join(f"  - {w}" for w in c.warnings[:12])
     return text
