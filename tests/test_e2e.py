@@ -89,6 +89,26 @@ def test_batch_local_one_failure_does_not_stop_the_rest(recording, tmp_path):
     assert (out / "rich" / "calibration.yaml").exists()
 
 
+def test_diagnose_compare_and_batch_carry_calibrates_warnings(recording, tmp_path, capsys):
+    # A wheel radius 5 % off is estimated and applied, with a warning in calibrate's report.json; diagnose, compare and
+    # batch used to drop every warning (only problems reached them).
+    flags = ["--board", "acircles_4x11_a2", "--wheel-radius", "0.103"]
+    assert main(["calibrate", str(recording), *flags, "--out", str(tmp_path / "one")]) == 0
+    capsys.readouterr()
+    said = json.loads((tmp_path / "one" / "report.json").read_text())["warnings"]
+    assert any("wheel radius" in w for w in said)
+    assert main(["diagnose", str(recording), *flags, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["warnings"] == said
+    assert main(["compare", str(recording), *flags, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["warnings"] == said
+    assert main(["diagnose", str(recording), *flags]) == 0
+    assert f"warning: {said[0]}" in capsys.readouterr().out
+    assert main(["batch", str(recording), *flags, "--out", str(tmp_path / "batch")]) == 0
+    (row,) = json.loads((tmp_path / "batch" / "summary.json").read_text())["recordings"]
+    assert row["warnings"] == said
+    assert "| warnings |" in (tmp_path / "batch" / "summary.md").read_text().replace("  ", " ")
+
+
 def test_batch_on_a_dask_cluster(recording, tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as c:
