@@ -255,6 +255,11 @@ def _errors(run, truth: dict) -> dict:
             "chi2_per_dof": float(ref.chi2_per_dof),
             "inflation": {k: v for k, v in (ref.inflation or {}).items() if isinstance(v, int | float | dict)},
         }
+        held = getattr(ref, "held_solution", None)
+        if held is not None:  # the solve before the noise model's adaptation, against the truth
+            refined["held_err"] = dict(zip(AXES, np.r_[so3_log(held[0][:3, :3] @ T_gt[:3, :3].T),
+                                                     held[0][:2, 3] - T_gt[:2, 3], held[1] - td_gt].tolist(),
+                                           strict=True))
         from plsgraph.gate import _estimated_scales, _path_scales
 
         path, est = _path_scales(ref, run.base_track), _estimated_scales(ref)

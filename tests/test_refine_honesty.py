@@ -24,6 +24,7 @@ from plsgraph.refine.graph import (
     _scaled_noise,
     autocorrelation_time,
     disagreement_with_seed,
+    noise_model_sensitivity,
     refine,
     regular_stamps,
     speed_scale_jackknife,
@@ -449,3 +450,6 @@ def test_what_the_noise_model_adaptation_moved_is_added_to_the_variance():
     # With the model as given (no adaptation) there is nothing to add.
     held = refine(track, base, rec.camera, seed_T, rec.td, RefinementOptions(adapt_odometry_noise=False))
     assert held.inflation["noise_model_sensitivity"] is None
+    # The solve the move is measured from is kept (the study compares it with the truth).
+    C_held, td_held = res.held_solution
+    np.testing.assert_allclose(noise_model_sensitivity(res.T_base_cam, res.td, C_held, td_held), d, atol=1e-12)

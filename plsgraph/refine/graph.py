@@ -271,6 +271,9 @@ class RefinementResult:
     # when the refinement came back nearer it (the search's peak was the wrong one). Comparisons of td with "the
     # seed" use this one.
     td_searched: float | None = None
+    # (T_base_cam, td) solved under the model's own noise, before the noise model was adapted (None when it was not):
+    # what the sensitivity second opinion compares with
+    held_solution: tuple | None = None
 
     @property
     def R_base_cam(self) -> np.ndarray:
@@ -1350,6 +1353,7 @@ def refine(
                    "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])},
                    "speed_scale_jackknife_sigma": scale_jk},
         td_searched=None if td_ref == td_given else float(td_seed),
+        held_solution=held_solution,
     )
 
 
