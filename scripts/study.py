@@ -69,17 +69,20 @@ def _realism(kind: str, effect: str | None, rng: np.random.Generator):
 
 
 def _board_in_view(sim, t_cam: np.ndarray) -> np.ndarray:
-    """Whole printed board inside the image at camera stamps (simulation seconds)."""
+    """Whole printed board inside the image, seen from its printed side, at camera stamps (simulation seconds)."""
     from plsgraph.core.geometry import inv_T
 
-    T_cam_board = inv_T(sim.camera_poses_at(t_cam))
+    T_board_cam = sim.camera_poses_at(t_cam)
+    T_cam_board = inv_T(T_board_cam)
     pts = sim.board_true.points if getattr(sim, "board_true", None) is not None else sim.board.points
     p = np.einsum("mij,nj->mni", T_cam_board[:, :3, :3], pts) + T_cam_board[:, None, :3, 3]
     front = p[..., 2] > 1e-3
     uv = sim.camera.project(np.where(front[..., None], p, [0.0, 0.0, 1.0]).reshape(-1, 3)).reshape(p.shape[:2] + (2,))
     inside = front & (uv[..., 0] >= 0) & (uv[..., 0] <= sim.camera.width - 1) & (uv[..., 1] >= 0) & (
         uv[..., 1] <= sim.camera.height - 1)
-    return inside.all(axis=1)
+    z = T_board_cam[:, 2, 3]  # from behind the board is blank (circle grids are printed on its -z face)
+    printed_side = (z < 0) if sim.board.pattern == "asymmetric_circles" else (z > 0)
+    return inside.all(axis=1) & printed_side
 
 
 def _true_pixels(sim, t_cam: np.ndarray) -> np.ndarray:

@@ -60,6 +60,40 @@ def test_rendered_circle_centres_match_projection(board):
     assert np.abs(centres.reshape(-1, 2) - uv).max() < 0.3
 
 
+def test_a_circle_grid_seen_from_behind_is_blank(board):
+    # A joystick drive of the third validation study went round the board and saw it from behind for 1.4 s; the
+    # renderer drew the pattern mirrored there, and the front end labelled it (mirror check and all) as the board
+    # seen from the front: 42 wrong detections. The back of a print is blank.
+    cam = davis346_default()
+    front = _facing(board, 0.45, (0.2, -0.3, 0.1))
+    back = _facing(board, 0.45, (0.2, -0.3, 0.1), flip=True)
+    assert front[2, 3] < 0 < back[2, 3]  # circle grids are printed on the board's -z face
+    img_front, img_back = render_intensity_u8(front, cam, board), render_intensity_u8(back, cam, board)
+    assert cv2.findCirclesGrid(img_front, board.pattern_size, flags=cv2.CALIB_CB_ASYMMETRIC_GRID)[0]
+    assert not cv2.findCirclesGrid(img_back, board.pattern_size, flags=cv2.CALIB_CB_ASYMMETRIC_GRID)[0]
+    uv = cam.project(transform_points(inv_T(back), board.points))
+    inside = (uv[:, 0] > 5) & (uv[:, 0] < cam.width - 5) & (uv[:, 1] > 5) & (uv[:, 1] < cam.height - 5)
+    assert inside.all()  # the board is in the image, and blank: no dark ink where the circles would be
+    x, y = np.round(uv).astype(int).T
+    assert img_back[y, x].min() > 0.8 * img_front.max()
+
+
+def test_the_truth_counts_a_board_seen_from_behind_as_not_visible():
+    from plsgraph.sim.robot import simulate_robot
+
+    s = simulate_robot("rich", duration=4.0, seed=0, realism="ideal")
+    uv, inside = s.project_truth()
+    assert inside.any()
+    z = s.T_board_cam[:, 2, 3]
+    assert np.all(z < 0)  # this drive stays in front of the board
+    import dataclasses
+
+    flipped = s.T_board_cam.copy()
+    # The same views turned by 180 degrees about the board's x axis: the camera on the other side, facing it.
+    flipped[:, :3, :] = np.diag([1.0, -1.0, -1.0]) @ flipped[:, :3, :]
+    assert not dataclasses.replace(s, T_board_cam=flipped).project_truth()[1].any()
+
+
 def _tags_and_truth(img, T, cam, grid, border_bits: int = 1):
     """aruco tag36h11 corners and ids in ``img``, and the true corner pixels on a (2 rows, 2 cols) grid."""
     params = cv2.aruco.DetectorParameters()

@@ -2,13 +2,15 @@
 
 For each pixel the undistorted viewing ray (precomputed once per camera from the camera model) is
 intersected with the board plane z = 0 in the board frame; the board coordinates of the hit decide the
-reflectance. The scene is a flat, two-sided target on a textured wall in the same plane:
+reflectance. The scene is a flat target on a textured wall in the same plane:
 
 * the board: white paper (``white``) with black ink (``black``) circles or AprilTags, and a white
   ``margin`` around the pattern;
 * the wall around it: grey (``background``) with a smooth sinusoidal texture, so that the board's edge
   and the surroundings also produce events, as they do in a real room;
-* rays that miss the plane (it is behind the camera or seen edge-on) see flat grey.
+* rays that miss the plane (it is behind the camera or seen edge-on) see flat grey;
+* seen from behind (from the side the pattern is not printed on) the board is blank backing (``white``, no ink):
+  a camera driven around a board on a stand sees its back, never a mirror image of its pattern.
 
 Anti-aliasing is analytic: each ray carries a footprint (the size of its pixel on the board plane,
 from depth, focal length and incidence) and circle and rectangle edges are box-filtered over it with a
@@ -19,7 +21,8 @@ AprilGrid orientation: tag k (row k // cols, column k % cols, Kalibr numbering) 
 [c p, c p + size] x [r p, r p + size] with p = (1 + spacing) size, printed on the board's +z face with
 the marker image's top row at the tag's largest y. Seen from the +z side (board y up in the image) the
 tags read correctly; OpenCV's aruco corner 0 (marker top-left) is then the board point (x0, y0 + size).
-Seen from the -z side they are mirrored, as the back of a real print would not show them at all.
+Seen from the -z side the board is blank, as the back of a real print is. Circle grids are printed on the -z face
+(x right, y down as printed, so +z points away from the viewer).
 """
 
 from __future__ import annotations
@@ -210,8 +213,15 @@ class BoardRenderer:
         fade = np.exp((k * w) ** 2 * np.float32(-1.0 / 24.0))
         return p.background * (1.0 + p.background_texture * tex * fade)
 
-    def reflectance(self, X: np.ndarray, Y: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """Reflectance of board-plane points (X, Y) seen with footprint w (all same shape)."""
+    def seen_from_back(self, T_board_cam: np.ndarray) -> bool:
+        """True when the camera (pose ``T_board_cam``) is on the side of the board its pattern is not printed on:
+        circle grids are printed on the -z face, AprilGrids on the +z face."""
+        z = float(np.asarray(T_board_cam)[2, 3])  # the camera's position along the board's normal
+        return z > 0 if self.board.pattern == "asymmetric_circles" else z < 0
+
+    def reflectance(self, X: np.ndarray, Y: np.ndarray, w: np.ndarray, back: bool = False) -> np.ndarray:
+        """Reflectance of board-plane points (X, Y) seen with footprint w (all same shape); ``back``: the board is
+        seen from behind (blank backing, no pattern)."""
         p = self.params
         centre = (0.5 * (self.board_lo + self.board_hi)).astype(X.dtype)
         half = (0.5 * (self.board_hi - self.board_lo)).astype(X.dtype)
@@ -223,8 +233,11 @@ class BoardRenderer:
         ib = np.flatnonzero(on_board)
         if ib.size:
             out *= 1.0 - on_board
-            ink = self._ink(X[ib], Y[ib], w[ib])
-            out[ib] += on_board[ib] * (p.white + (p.black - p.white) * ink)
+            if back:
+                out[ib] += on_board[ib] * p.white
+            else:
+                ink = self._ink(X[ib], Y[ib], w[ib])
+                out[ib] += on_board[ib] * (p.white + (p.black - p.white) * ink)
         return out
 
     def _ink(self, X: np.ndarray, Y: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -257,7 +270,7 @@ class BoardRenderer:
         np.maximum(dz, self._ray_norm * np.float32(1e-3), out=dz)
         w = s * self._w_scale / np.sqrt(dz)
         np.maximum(w, np.float32(1e-9), out=w)
-        refl = self.reflectance(X, Y, w)
+        refl = self.reflectance(X, Y, w, back=self.seen_from_back(T))
         if not all_hit:
             refl[~hit] = self.params.background
         img = refl.reshape(self.camera.height, self.camera.width, self.ss * self.ss)

@@ -197,7 +197,8 @@ class SimRecording:
         }
 
     def project_truth(self) -> tuple[np.ndarray, np.ndarray]:
-        """Noise-free pixels (m, N, 2) of the board points and a mask (m, N) of those inside the image."""
+        """Noise-free pixels (m, N, 2) of the board points and a mask (m, N) of those inside the image and seen from
+        the printed side (from behind the board is blank, as the renderer draws it)."""
         T_cam_board = inv_T(self.T_board_cam)
         pts = self.board.points if self.board_scale == 1.0 else self.board_true.points
         p_cam = np.einsum("mij,nj->mni", T_cam_board[:, :3, :3], pts) + T_cam_board[:, None, :3, 3]
@@ -205,8 +206,12 @@ class SimRecording:
         in_front = p_cam[..., 2] > 1e-3
         safe = np.where(in_front[..., None], p_cam, np.array([0.0, 0.0, 1.0]))
         uv = self.camera.project(safe.reshape(-1, 3)).reshape(m, n, 2)
+        # The camera's position along the board's normal: circle grids are printed on the -z face, AprilGrids on +z.
+        z = np.asarray(self.T_board_cam)[:, 2, 3]
+        printed_side = (z < 0) if self.board.pattern == "asymmetric_circles" else (z > 0)
         inside = (
             in_front
+            & printed_side[:, None]
             & (uv[..., 0] >= 0)
             & (uv[..., 0] <= self.camera.width - 1)
             & (uv[..., 1] >= 0)
