@@ -210,29 +210,20 @@ def _path_problems(ref: Any, base_track: Any, est: tuple[float, float] | None) -
     raised = float((getattr(ref, "inflation", None) or {}).get("odometry_variance_factor", 1.0) or 1.0) > 1.0
     followed = ("; the refinement followed the camera there and its sigmas include the odometry's raised noise"
                 if raised else "; the refinement followed the camera there")
-    if abs(s_v - 1) > SPEED_SCALE_LIMIT:
-        problems.append(
-            f"the refined path is x{s_v:.3f} as long as the odometry's even with the estimated wheel radius (limit "
-            f"{SPEED_SCALE_LIMIT:.0%}): the odometry does not follow the robot's motion (wheels slipping most of the "
-            "time, or the wrong odometry)"
-        )
-    elif abs(s_v - 1) > PATH_SPEED_LIMIT:
-        warnings.append(
-            f"the refined path is x{s_v:.3f} as long as the odometry's even with the estimated wheel radius (more "
-            f"than {PATH_SPEED_LIMIT:.0%}): the wheels slipped unevenly{followed}"
-        )
-    if abs(s_w - 1) > TURN_SCALE_LIMIT:
-        problems.append(
-            f"the refined path turns x{s_w:.3f} as much as the odometry's even with the estimated track width (limit "
-            f"{TURN_SCALE_LIMIT:.0%}): the odometry does not follow the robot's turns (wheels slipping most of the "
-            "time, or the wrong odometry)"
-        )
-    elif abs(s_w - 1) > PATH_TURN_LIMIT:
-        warnings.append(
-            f"the refined path turns x{s_w:.3f} as much as the odometry's even with the estimated track width (more "
-            f"than {PATH_TURN_LIMIT:.0%}): the wheels' slip changed with the turning (as on skid-steer robots)"
-            f"{followed}"
-        )
+    checks = (  # (ratio, what the path does, what was estimated, problem limit, why a small stretch happens)
+        (s_v, "is x{:.3f} as long as the odometry's", "wheel radius", SPEED_SCALE_LIMIT, PATH_SPEED_LIMIT,
+         "the odometry does not follow the robot's motion", "the wheels slipped unevenly"),
+        (s_w, "turns x{:.3f} as much as the odometry's", "track width", TURN_SCALE_LIMIT, PATH_TURN_LIMIT,
+         "the odometry does not follow the robot's turns",
+         "the wheels' slip changed with the turning (as on skid-steer robots)"),
+    )
+    for ratio, does, estimated, limit, mild, gross, why in checks:
+        said = f"the refined path {does.format(ratio)} even with the estimated {estimated}"
+        if abs(ratio - 1) > limit:
+            problems.append(f"{said} (limit {limit:.0%}): {gross} (wheels slipping most of the time, or the wrong "
+                            "odometry)")
+        elif abs(ratio - 1) > mild:
+            warnings.append(f"{said} (more than {mild:.0%}): {why}{followed}")
     return problems, warnings
 
 
