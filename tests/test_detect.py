@@ -348,6 +348,40 @@ def test_a_predicted_board_is_tracked_at_every_rim_thickness_before_any_full_lab
     assert full.ok and calls and np.nanmax(np.linalg.norm(full.uv - det.uv, axis=1)) < 1e-9
 
 
+def test_the_rim_thickness_that_worked_is_tried_first(monkeypatch):
+    """A detection on rims says which rim thickness found the board; given back as ``rim_first`` (as the window loop
+    does for the next window) that thickness is tried first, alone when it finds the board, with the same labels."""
+    import plsgraph.frontend.detect as detect_module
+
+    board = load_board("acircles_4x11_a2")
+    uv = _board_view(board, 0.75)
+    spacing = float(np.median(detect_module.neighbour_distance(uv)))
+    radius = 0.5 * board.circle_diameter / (np.sqrt(2) * board.square_size) * spacing
+    gap = np.where(np.arange(board.n_points) % 3 > 0, 3.2, 1.0)  # the first thickness leaks (see above)
+    rims = _broken_rims(uv, radius, gap_deg=2 * np.degrees(np.arcsin(gap / radius)))
+    tried = []
+    real = detect_module._rim_candidates
+    monkeypatch.setattr(detect_module, "_rim_candidates", lambda a, k, *r: tried.append(k) or real(a, k, *r))
+    roi = (int(uv[:, 0].min() - 20), int(uv[:, 1].min() - 20), int(uv[:, 0].max() + 20), int(uv[:, 1].max() + 20))
+    kw = dict(foreground="rims", rim_threshold=0.5, roi=roi, predicted_uv=uv + 0.2 * spacing)
+    first = detect_circle_grid(rims, board, CAM, **kw)
+    assert first.ok and first.rim_px in detect_module.RIM_THICKNESSES and first.rim_px != tried[0]
+    assert tried[-1] == first.rim_px and len(tried) > 1
+    tried.clear()
+    again = detect_circle_grid(rims, board, CAM, rim_first=first.rim_px, **kw)
+    assert again.ok and again.rim_px == first.rim_px and tried == [first.rim_px]
+    assert np.nanmax(np.linalg.norm(again.uv - first.uv, axis=1)) < 1e-9
+    # Without a prediction (the full labelling) too; an unknown thickness keeps the default order.
+    tried.clear()
+    full = detect_circle_grid(rims, board, CAM, foreground="rims", rim_threshold=0.5, rim_first=first.rim_px)
+    assert full.ok and tried[0] == first.rim_px
+    tried.clear()
+    assert detect_circle_grid(rims, board, CAM, rim_first=7, **kw).ok and tried[0] == detect_module.RIM_THICKNESSES[0]
+    # Other detectors leave it unset.
+    assert detect_circle_grid(render_log_intensity(pose_facing(CIRCLES, 0.7, (0.5, 0.3, 1.0), front_z=-1), CAM,
+                                                   CIRCLES), CIRCLES, CAM, foreground="dark").rim_px is None
+
+
 def _ring_events(uv: np.ndarray, radius: float, per_ring: int, noise: int, rng, shape=(260, 346)) -> np.ndarray:
     """Event-count image of small circles as rings of events (``per_ring`` events each, 0.6 px radial spread)
     over ``noise`` uniformly scattered background events."""

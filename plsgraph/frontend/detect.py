@@ -17,7 +17,7 @@ give a wrong pose with a good-looking fit, so it is rejected here rather than ha
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import cv2
@@ -50,8 +50,8 @@ MIN_RIM_SPACING_PX = 10.0
 FINE_LATTICE_AREA_RATIO = 1.3
 #: Share of the lattice points found that must land on board circles for a labelling to be accepted.
 MIN_INSIDE_FRACTION = 0.85
-#: Rim thicknesses tried, in order (see _detect_rims), and whether a predicted board is looked for at every
-#: thickness before the full lattice labelling is tried at any.
+#: Rim thicknesses tried, in order (see _detect_rims; a caller may put the one that worked last first), and
+#: whether a predicted board is looked for at every thickness before the full lattice labelling is tried at any.
 RIM_THICKNESSES = (2, 3, 1)
 TRACK_BEFORE_LABEL = True
 #: Circles a board labelled by its predicted positions (:func:`track_circle_grid`) must show; None: half the
@@ -92,13 +92,15 @@ class GridDetection:
 
     ``uv`` (N, 2) pixel coordinates in board-point order, NaN for unseen points (all NaN when
     ``ok`` is False); ``reason`` one of the ``REASON_*`` strings; ``homography_rms_px`` the
-    residual of the order check (NaN when it was not reached); ``n_seen`` the number of finite points.
+    residual of the order check (NaN when it was not reached); ``n_seen`` the number of finite points;
+    ``rim_px`` the rim thickness of a detection on rims (``foreground="rims"``), else None.
     """
 
     uv: np.ndarray
     ok: bool
     reason: str
     homography_rms_px: float = float("nan")
+    rim_px: int | None = None
 
     @property
     def n_seen(self) -> int:
@@ -666,6 +668,7 @@ def detect_circle_grid(
     lattice_fallback: bool = True,
     peaks: bool | None = None,
     rings: bool = False,
+    rim_first: int | None = None,
 ) -> GridDetection:
     """Find an asymmetric circle grid and return its centres in ``board.points`` order.
 
@@ -691,14 +694,19 @@ def detect_circle_grid(
     x1, y1) restricts the rim search to that part of the image (coordinates stay full-image ones).
     ``predicted_uv`` (N, 2), where the circles are expected (e.g. extrapolated from the previous
     windows), lets :func:`track_circle_grid` label the candidates (rim holes, or the blob detector's blobs) by it
-    before the full search.
+    before the full search. ``rim_first``: the rim thickness tried first (the one that worked in the previous
+    window: a board's circles change size slowly), then the others of :data:`RIM_THICKNESSES` in order.
     """
     if board.pattern != "asymmetric_circles":
         raise InputError(f"detect_circle_grid: board {board.name!r} is a {board.pattern}, not asymmetric_circles")
     n = board.n_points
     if foreground == "rims":
+        order = RIM_THICKNESSES
+        if rim_first in RIM_THICKNESSES:
+            order = (rim_first, *(k for k in RIM_THICKNESSES if k != rim_first))
         return _detect_rims(
-            np.asarray(image), board, camera, rim_threshold, max_homography_rms_px, min_points, roi, predicted_uv
+            np.asarray(image), board, camera, rim_threshold, max_homography_rms_px, min_points, roi, predicted_uv,
+            order,
         )
     weight = normalize_image(image, foreground)
     if weight is None:
@@ -935,6 +943,7 @@ def track_circle_grid(
 def _detect_rims(
     image: np.ndarray, board: Board, camera: CameraModel | None, threshold: float, max_rms_px: float,
     min_points: int | None, roi: tuple[int, int, int, int] | None = None, predicted_uv: np.ndarray | None = None,
+    thicknesses: tuple[int, ...] = RIM_THICKNESSES,
 ) -> GridDetection:
     n = board.n_points
     if image.ndim != 2:
@@ -966,19 +975,19 @@ def _detect_rims(
             holes[k] = _rim_candidates(active, k, n, x0, y0)
         return holes[k]
 
-    def accepted(det: GridDetection) -> GridDetection:
+    def accepted(det: GridDetection, k: int) -> GridDetection:
         seen = det.uv[np.all(np.isfinite(det.uv), axis=1)]
         if float(np.median(neighbour_distance(seen))) < MIN_RIM_SPACING_PX:
             return _fail(n, REASON_TOO_SMALL, det.homography_rms_px)
-        return det
+        return replace(det, rim_px=k)
 
     if predicted_uv is not None and TRACK_BEFORE_LABEL:
         # Labelling by the prediction is cheap and certain when it works: try it at every thickness before the
         # full lattice labelling at any (which costs several times more, and mostly fails where tracking did).
         # A find of half the board or more is taken at once; one of fewer circles (TRACK_MIN_POINTS or more) only if
         # no thickness shows more of them.
-        best, best_seen = None, 0
-        for k in RIM_THICKNESSES:
+        best, best_seen, best_k = None, 0, 0
+        for k in thicknesses:
             cand = candidates(k)
             if cand is None:
                 continue
@@ -988,16 +997,16 @@ def _detect_rims(
                 continue
             seen = int(np.count_nonzero(np.all(np.isfinite(det.uv), axis=1)))
             if seen >= max(6, n // 2):
-                return accepted(det)
+                return accepted(det, k)
             if seen > best_seen:
-                best, best_seen = det, seen
+                best, best_seen, best_k = det, seen, k
         if best is not None:
-            return accepted(best)
+            return accepted(best, best_k)
         predicted_uv = None
-    for k in RIM_THICKNESSES:
+    for k in thicknesses:
         det = _rims_at(candidates(k), n, board, camera, max_rms_px, min_points, predicted_uv)
         if det.ok:
-            return accepted(det)
+            return accepted(det, k)
         result = det if result.reason == REASON_NOT_FOUND else result
     return result
 
