@@ -59,6 +59,35 @@ def test_track_from_simulated_events(sim, kind):
     assert np.all(np.min(np.abs(track.t[:, None] - t_query[None, :]), axis=1) > 0.005)
 
 
+def test_the_window_loop_tries_the_last_finds_rim_thickness_first(sim, monkeypatch):
+    """Each window's rim search starts at the rim thickness that found the board in the last window found on rims
+    (the circles' size changes slowly); with RIM_MEMORY off every search starts at the default order. The track is
+    as good either way."""
+    import plsgraph.frontend.track as frontend_track
+
+    t, poses, ev = sim
+    real = frontend_track.detect_circle_grid
+    seen = []
+
+    def spy(img, board, camera=None, **kw):
+        det = real(img, board, camera, **kw)
+        if kw.get("foreground") == "rims":
+            seen.append((kw.get("rim_first"), det.rim_px if det.ok else None))
+        return det
+
+    monkeypatch.setattr(frontend_track, "detect_circle_grid", spy)
+    track = camera_track_from_events(ev, CAM, BOARD, rate_hz=30, kind="count")
+    found = [k for k, (_, px) in enumerate(seen) if px is not None]
+    assert len(found) >= 4 and seen[found[0]][0] is None  # nothing to remember before the first find
+    for a, b in zip(found, found[1:]):
+        assert all(first == seen[a][1] for first, _ in seen[a + 1:b + 1])
+    assert np.nanmedian(errors(track, t, poses)[0]) < 0.3
+    seen.clear()
+    monkeypatch.setattr(frontend_track, "RIM_MEMORY", False)
+    camera_track_from_events(ev, CAM, BOARD, rate_hz=30, kind="count")
+    assert seen and all(first is None for first, _ in seen)
+
+
 def test_event_time_stamps_beat_query_stamps(sim):
     t, poses, ev = sim
     by_events = camera_track_from_events(ev, CAM, BOARD, kind="count", timestamp="events")

@@ -453,3 +453,51 @@ def test_what_the_noise_model_adaptation_moved_is_added_to_the_variance():
     # The solve the move is measured from is kept (the study compares it with the truth).
     C_held, td_held = res.held_solution
     np.testing.assert_allclose(noise_model_sensitivity(res.T_base_cam, res.td, C_held, td_held), d, atol=1e-12)
+
+
+def test_frame_jackknife_of_a_mean_is_the_jackknife_of_the_stretch_means():
+    """The linearized frame jackknife on a graph whose answer is a mean: each frame measures the camera's position
+    directly, so leaving out a stretch moves the answer to the mean of the others exactly (one Gauss-Newton step of
+    a linear problem), and the jackknife sigma is the textbook one of the stretches' leave-one-out means. Factors
+    after the frames' (here td's prior) are kept in every leave-one-out solve."""
+    from plsgraph.refine.graph import KEY_CAM, KEY_TD, frame_jackknife
+
+    rng = np.random.default_rng(1)
+    n, g = 40, 4
+    x = np.repeat(rng.normal(0.0, 0.05, g), n // g) + rng.normal(0.0, 0.01, n)  # errors shared within a stretch
+    graph = gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel.Isotropic.Sigma(6, 0.01)
+    for xi in x:
+        graph.add(gtsam.PriorFactorPose3(KEY_CAM, gtsam.Pose3(gtsam.Rot3(), np.array([xi, 0.2, 0.0])), noise))
+    graph.add(gtsam.PriorFactorVector(KEY_TD, np.array([0.003]), gtsam.noiseModel.Isotropic.Sigma(1, 0.001)))
+    values = gtsam.Values()
+    values.insert(KEY_CAM, gtsam.Pose3(gtsam.Rot3(), np.array([x.mean(), 0.2, 0.0])))
+    values.insert(KEY_TD, np.array([0.003]))
+    jk = frame_jackknife(graph, values, n, g)
+    loo = np.array([np.delete(x, np.s_[j * n // g:(j + 1) * n // g]).mean() for j in range(g)])
+    expect = np.sqrt((g - 1) / g * np.sum((loo - loo.mean()) ** 2))
+    assert jk[3] == pytest.approx(expect, rel=1e-6)
+    np.testing.assert_allclose(np.r_[jk[:3], jk[4:]], 0.0, atol=1e-9)  # nothing else varies between stretches
+    assert frame_jackknife(graph, values, n, 30) is None  # fewer than two frames per stretch
+
+
+def test_the_frame_jackknife_is_reported_and_added_when_asked():
+    """The refinement reports its frame jackknife's sigma per axis; with add_frame_jackknife the reported sigma is
+    the larger of the two per axis and the answer is the same."""
+    from refine_cases import sim_case
+
+    case = sim_case("rich")
+    rec = case.rec
+    bare = refine(case.track, case.base, rec.camera, case.seed_T, case.seed_td,
+                  RefinementOptions(add_frame_jackknife=False))
+    res = refine(case.track, case.base, rec.camera, case.seed_T, case.seed_td,
+                 RefinementOptions(add_frame_jackknife=True))
+    jk = np.array([res.inflation["frame_jackknife_sigma"][k] for k in ("roll", "pitch", "yaw", "x", "y", "z", "td")])
+    assert np.all(np.isfinite(jk)) and jk[2] > 0 and jk[3] > 0
+    np.testing.assert_allclose(jk, [bare.inflation["frame_jackknife_sigma"][k]
+                                    for k in ("roll", "pitch", "yaw", "x", "y", "z", "td")], rtol=1e-9)
+    np.testing.assert_allclose(np.diag(res.cov_base_axes), np.maximum(np.diag(bare.cov_base_axes), jk**2), rtol=1e-9)
+    np.testing.assert_allclose(res.T_base_cam, bare.T_base_cam)
+    off = refine(case.track, case.base, rec.camera, case.seed_T, case.seed_td,
+                 RefinementOptions(frame_jackknife_segments=0))
+    assert off.inflation["frame_jackknife_sigma"] is None

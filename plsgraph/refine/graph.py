@@ -187,6 +187,14 @@ class RefinementOptions:
     # its bias").
     # The larger sigma is reported. 0 disables it.
     scale_jackknife_segments: int = 10
+    # Second opinion on T_base_cam and td: a linearized jackknife over this many consecutive stretches of camera
+    # frames (frame_jackknife: one Gauss-Newton step from the solution without a stretch's reprojection factors,
+    # per stretch). Errors shared by a stretch's frames (a slip episode the graph explains with the extrinsic, a
+    # stretch of biased detections) spread its leave-one-out answers; the graph's marginal counts every frame as
+    # independent. Computed whenever segments >= 2 (RefinementResult.inflation["frame_jackknife_sigma"]); with
+    # add_frame_jackknife the larger sigma is reported per axis. 0 disables it.
+    frame_jackknife_segments: int = 10
+    add_frame_jackknife: bool = False
     max_odometry_noise_factor: float = 400.0
     freeze_unobservable: bool = True  # hold directions the data does not observe at the seed (see refine)
     freeze_ratio: float = OBSERVABLE_RATIO  # posterior/prior sigma above which a direction is held at the seed
@@ -1255,6 +1263,18 @@ def refine(
             cov, cov_base, joint = _calibration_covariance(cov_graph, values, C, chi2, opt, with_scale=True)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
+    jackknife = None
+    t_jk = time.perf_counter()
+    if converged and opt.frame_jackknife_segments >= 2:
+        jk_graph = final_graph
+        if frozen:
+            jk_graph = gtsam.NonlinearFactorGraph(final_graph)
+            jk_graph.add(make_subspace_prior(KEY_CAM, KEY_TD, C0, [td_seed], np.array(frozen) @ J0, _FREEZE_SIGMA))
+        try:
+            jackknife = frame_jackknife(jk_graph, values, rows.size, opt.frame_jackknife_segments)
+        except (RuntimeError, np.linalg.LinAlgError) as exc:
+            log.info("refine: frame jackknife failed (%s)", exc)
+    t_jk = time.perf_counter() - t_jk
     sensitivity = None
     if held_solution is not None and (_largest(odo_var) > 1.0 or max(planar_var) > 1.0):
         sensitivity = noise_model_sensitivity(C, td, *held_solution)
@@ -1266,6 +1286,11 @@ def refine(
             # variances is reported (correlations scaled along).
             sig = np.sqrt(np.diag(cov_base))
             k = np.maximum(sensitivity / np.maximum(sig, 1e-300), 1.0)
+            cov_base = cov_base * np.outer(k, k)
+        if jackknife is not None and opt.add_frame_jackknife:
+            # Second opinion: the spread of the leave-one-stretch-out answers (see frame_jackknife).
+            sig = np.sqrt(np.diag(cov_base))
+            k = np.maximum(jackknife / np.maximum(sig, 1e-300), 1.0)
             cov_base = cov_base * np.outer(k, k)
         Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
         cov = Ji @ cov_base @ Ji.T
@@ -1337,7 +1362,7 @@ def refine(
         observability=report,
         warnings=tuple(warnings),
         priors=priors,
-        timing={"setup_s": t_setup, "optimize_s": t_opt, "marginals_s": t_marg,
+        timing={"setup_s": t_setup, "optimize_s": t_opt, "marginals_s": t_marg, "jackknife_s": t_jk,
                 "total_s": time.perf_counter() - t_start},
         seed_T_base_cam=C_seed,
         seed_td=td_given,
@@ -1351,7 +1376,9 @@ def refine(
                    "noise_model_sensitivity": None if sensitivity is None else dict(zip(
                        ("roll", "pitch", "yaw", "x", "y", "z", "td"), sensitivity.tolist(), strict=True)),
                    "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])},
-                   "speed_scale_jackknife_sigma": scale_jk},
+                   "speed_scale_jackknife_sigma": scale_jk,
+                   "frame_jackknife_sigma": None if jackknife is None else dict(zip(
+                       ("roll", "pitch", "yaw", "x", "y", "z", "td"), jackknife.tolist(), strict=True))},
         td_searched=None if td_ref == td_given else float(td_seed),
         held_solution=held_solution,
     )
@@ -1417,6 +1444,38 @@ def speed_scale_jackknife(T_knots: np.ndarray, steps: PlanarSteps, knot_idx: np.
     zm, mm = zm[moving], mm[moving]
     loo = (zm.sum() - zm) / (mm.sum() - mm)
     return float(np.sqrt((g - 1) / g * np.sum((loo - loo.mean()) ** 2)))
+
+
+def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 10) -> np.ndarray | None:
+    """Jackknife sigma (7,) of the calibration, in base axes (rotation about base x, y, z in rad, translation along
+    them in m, td in s), over ``segments`` consecutive stretches of the camera frames.
+
+    ``graph``'s first ``n_frames`` factors are the frames' reprojection factors in time order (as _build_graph adds
+    them); ``values`` its solution. The graph is linearized once there; leaving out one stretch's factors, one
+    Gauss-Newton step (its linear system solved) is that stretch's leave-one-out change of the calibration, to first
+    order. The spread of those changes holds errors shared within a stretch, which the marginal covariance, counting
+    each frame as independent, does not. None with fewer than two frames per stretch.
+    """
+    if segments < 2 or n_frames < 2 * segments:
+        return None
+    lin = graph.linearize(values)
+    C = values.atPose3(KEY_CAM).matrix()
+    J = user_axes_jacobian(C[:3, :3])
+
+    def step(drop: set[int]) -> np.ndarray:
+        g = gtsam.GaussianFactorGraph()
+        for i in range(lin.size()):
+            if i not in drop:
+                g.push_back(lin.at(i))
+        d = g.optimize()
+        return J @ np.r_[d.at(KEY_CAM), d.at(KEY_TD)]
+
+    base = step(set())  # ~0 at a converged solution; taken out of each stretch's step
+    loo = np.array([step(set(part.tolist())) - base for part in np.array_split(np.arange(n_frames), segments)])
+    if not np.all(np.isfinite(loo)):
+        return None
+    g = loo.shape[0]
+    return np.sqrt((g - 1) / g * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
 
 
 def noise_model_sensitivity(C: np.ndarray, td: float, C_held: np.ndarray, td_held: float) -> np.ndarray:
