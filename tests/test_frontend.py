@@ -79,7 +79,7 @@ def test_the_window_loop_tries_the_last_finds_rim_thickness_first(sim, monkeypat
     track = camera_track_from_events(ev, CAM, BOARD, rate_hz=30, kind="count")
     found = [k for k, (_, px) in enumerate(seen) if px is not None]
     assert len(found) >= 4 and seen[found[0]][0] is None  # nothing to remember before the first find
-    for a, b in zip(found, found[1:]):
+    for a, b in zip(found, found[1:], strict=False):
         assert all(first == seen[a][1] for first, _ in seen[a + 1:b + 1])
     assert np.nanmedian(errors(track, t, poses)[0]) < 0.3
     seen.clear()
