@@ -1271,7 +1271,9 @@ def refine(
             jk_graph = gtsam.NonlinearFactorGraph(final_graph)
             jk_graph.add(make_subspace_prior(KEY_CAM, KEY_TD, C0, [td_seed], np.array(frozen) @ J0, _FREEZE_SIGMA))
         try:
-            jackknife = frame_jackknife(jk_graph, values, rows.size, opt.frame_jackknife_segments)
+            # The graph's first factors are the frames' reprojection factors, one per frame with points.
+            n_rep = sum(1 for i in range(len(batch.frames)) if batch.n_valid(i) > 0)
+            jackknife = frame_jackknife(jk_graph, values, n_rep, opt.frame_jackknife_segments)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             log.info("refine: frame jackknife failed (%s)", exc)
     t_jk = time.perf_counter() - t_jk
@@ -1451,7 +1453,7 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
     them in m, td in s), over ``segments`` consecutive stretches of the camera frames.
 
     ``graph``'s first ``n_frames`` factors are the frames' reprojection factors in time order (as _build_graph adds
-    them); ``values`` its solution. The graph is linearized once there; leaving out one stretch's factors, one
+    them: one per frame with points); ``values`` its solution. The graph is linearized once there; leaving out one stretch's factors, one
     Gauss-Newton step (its linear system solved) is that stretch's leave-one-out change of the calibration, to first
     order. The spread of those changes holds errors shared within a stretch, which the marginal covariance, counting
     each frame as independent, does not. None with fewer than two frames per stretch.
