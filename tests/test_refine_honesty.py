@@ -501,3 +501,20 @@ def test_the_frame_jackknife_is_reported_and_added_when_asked():
     off = refine(case.track, case.base, rec.camera, case.seed_T, case.seed_td,
                  RefinementOptions(frame_jackknife_segments=0))
     assert off.inflation["frame_jackknife_sigma"] is None
+
+
+def test_a_jackknife_that_cannot_be_solved_is_said(monkeypatch):
+    """When the jackknife's linear systems cannot be solved, the result says its sigmas lack that second opinion
+    (they are not silently left without it)."""
+    from refine_cases import sim_case
+
+    import plsgraph.refine.graph as graph_module
+
+    def indeterminate(*a, **k):
+        raise RuntimeError("Indeterminant linear system detected")
+
+    monkeypatch.setattr(graph_module, "frame_jackknife", indeterminate)
+    case = sim_case("rich")
+    res = refine(case.track, case.base, case.rec.camera, case.seed_T, case.seed_td)
+    assert res.inflation["frame_jackknife_sigma"] is None and res.cov_base_axes is not None
+    assert any("jackknife over stretches of frames could not be solved" in w for w in res.warnings)

@@ -1268,7 +1268,7 @@ def refine(
             warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
     jackknife = None
     t_jk = time.perf_counter()
-    if converged and opt.frame_jackknife_segments >= 2:
+    if converged and opt.marginals and opt.frame_jackknife_segments >= 2:
         jk_graph = final_graph
         if frozen:
             jk_graph = gtsam.NonlinearFactorGraph(final_graph)
@@ -1279,6 +1279,10 @@ def refine(
             jackknife = frame_jackknife(jk_graph, values, n_rep, opt.frame_jackknife_segments)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
             log.info("refine: frame jackknife failed (%s)", exc)
+            if opt.add_frame_jackknife:
+                warnings.append(f"the jackknife over stretches of frames could not be solved ({exc}); the sigmas hold "
+                                "only the marginal covariance and the noise model's sensitivity, not errors shared "
+                                "by stretches of frames")
     t_jk = time.perf_counter() - t_jk
     sensitivity = None
     if held_solution is not None and (_largest(odo_var) > 1.0 or max(planar_var) > 1.0):
@@ -1456,10 +1460,10 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
     them in m, td in s), over ``segments`` consecutive stretches of the camera frames.
 
     ``graph``'s first ``n_frames`` factors are the frames' reprojection factors in time order (as _build_graph adds
-    them: one per frame with points); ``values`` its solution. The graph is linearized once there; leaving out one stretch's factors, one
-    Gauss-Newton step (its linear system solved) is that stretch's leave-one-out change of the calibration, to first
-    order. The spread of those changes holds errors shared within a stretch, which the marginal covariance, counting
-    each frame as independent, does not. None with fewer than two frames per stretch.
+    them: one per frame with points); ``values`` its solution. The graph is linearized once there; leaving out one
+    stretch's factors, one Gauss-Newton step (its linear system solved) is that stretch's leave-one-out change of the
+    calibration, to first order. The spread of those changes holds errors shared within a stretch, which the
+    marginal covariance, counting each frame as independent, does not. None with fewer than two frames per stretch.
     """
     if segments < 2 or n_frames < 2 * segments:
         return None
