@@ -164,9 +164,18 @@ def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
             problems.append(
                 f"the refined time offset is {1e3 * d_td:.1f} ms from {whose} (limit {1e3 * lim:.1f} ms)"
             )
+    searched = getattr(ref, "td_searched", None)
     for q, z in (getattr(ref, "disagreement", None) or {}).items():
-        problems.append(f"refinement and closed form disagree on {q} by {z:.1f} sigma; check the recording (motion, "
+        # td is checked against the turn-angle search's offset when the search replaced a wrong closed-form peak
+        whose = "the turn-angle search" if q == "td" and searched is not None else "closed form"
+        problems.append(f"refinement and {whose} disagree on {q} by {z:.1f} sigma; check the recording (motion, "
                         "board detections) before trusting either")
+    ambiguous = (getattr(ref, "two_starts", None) or {}).get("ambiguous")
+    if ambiguous:
+        problems.append(
+            f"solved from the closed form's time offset and from the turn-angle search's, the refinement ended at "
+            f"answers more than 3 sigma apart on {', '.join(ambiguous)} that fit the data almost equally well: the "
+            "recording does not determine them to their sigmas (turn more while driving, accelerate and brake)")
     est = _estimated_scales(ref)
     if est is not None:
         problems += _odometry_problems(*est, *_estimated_geometry(ref))

@@ -403,3 +403,98 @@ def test_a_recording_without_events_says_so_before_asking_for_intrinsics(tmp_pat
     code = main(["calibrate", str(rec), "--board", BOARD, "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
     assert code == 2 and "no events" in err and "--camera-info" not in err
+
+
+@pytest.fixture(scope="module")
+def skid_sim():
+    """A skid-steer robot (effective track 1.9x nominal: it turns 0.53x what its wheels say) with slip growing with
+    the turn rate, as on the study's run that a wrong search peak sent into a wrong answer passed as ok."""
+    import dataclasses
+
+    from plsgraph.sim import realism as R
+
+    base = R.ideal()
+    robot = dataclasses.replace(base.robot, slip_sigma=0.04, slip_turn_gain=4.0, slip_tau_s=0.7, track_ratio=1.9)
+    s = simulate_robot("rich", duration=20.0, seed=4, td=-0.05, realism=dataclasses.replace(base, robot=robot))
+    cam = camera_track_from_detections(s.detections(noise_px=0.3, seed=104), s.camera)
+    odo = base_track_from_wheels(s.wheel_t, s.wheel_left, s.wheel_right, s.wheel_radius, s.track_width)
+    return s, cam, odo
+
+
+def test_a_search_peak_that_traps_the_refinement_is_escaped_by_the_second_start(skid_sim, monkeypatch):
+    # The search is made to return a peak 60 ms early with a turn scale 0.45 (the study's run: -106 ms against a
+    # truth of -48 ms). Started there alone, the refinement stops in a worse minimum; started also from the closed
+    # form's offset, both final graphs prefer that answer, which is kept and is right within its sigmas.
+    import plsgraph.refine.graph as graph
+    from plsgraph.core.geometry import make_T
+
+    s, cam, odo = skid_sim
+    monkeypatch.setattr(graph, "turn_angle_td_search", lambda c, b, td0, half, **kw: (s.td - 0.06, 0.45, 0.1, 0.1))
+    r = plsgraph.calibrate_tracks(cam, odo, s.camera, board=BOARD)
+    ref = r.run.refinement
+    two = ref.two_starts
+    assert two is not None and two["chosen"] == "closed_form" and two["delta"] < 0, two
+    (aa, ab), (ba, bb) = two["errors"]
+    assert ab < aa and bb < ba  # each graph prefers the kept answer
+    assert any("solved from the search's time offset" in w for w in ref.warnings)
+    d_rot = so3_log(ref.R_base_cam @ s.T_base_cam[:3, :3].T)
+    err = np.r_[d_rot, ref.T_base_cam[:2, 3] - s.T_base_cam[:2, 3], ref.td - s.td]
+    sig = np.sqrt(np.diag(ref.cov_base_axes))[[0, 1, 2, 3, 4, 6]]
+    assert np.all(np.abs(err) <= 3 * sig), (err, sig)
+    # The search's start alone (the behaviour before): its answer is farther from the truth in x and td.
+    cf = r.run.closed_form
+    sc = cf.odometry_scale
+    t = np.where(np.isfinite(cf.t_base_cam), cf.t_base_cam, 0.0)  # the height is not the closed form's
+    one = graph.refine(cam, r.run.base_track, s.camera, make_T(cf.R_base_cam, t), cf.td,
+                       graph.RefinementOptions(td_two_starts=False),
+                       seed_odometry_scale=(sc["speed"], sc["turn_rate"]))
+    assert one.two_starts is None and one.td == pytest.approx(two["td_end_s"][0], abs=5e-3)
+    assert abs(one.td - s.td) > 2 * abs(ref.td - s.td)
+    assert abs(one.T_base_cam[0, 3] - s.T_base_cam[0, 3]) > 2 * abs(ref.T_base_cam[0, 3] - s.T_base_cam[0, 3])
+
+
+def test_two_answers_the_data_cannot_choose_between_are_flagged(sim):
+    from dataclasses import replace
+
+    r = _calibrate(sim)
+    assert r.ok
+    ref = replace(r.run.refinement, two_starts={"chosen": "search", "delta": 2.0, "ambiguous": ["x", "td"]})
+    text = " ".join(problems_of(r.run.closed_form, ref))
+    assert "answers more than 3 sigma apart on x, td" in text
+
+
+def test_two_starts_keep_the_answer_both_graphs_prefer():
+    # Two "solves" of one toy problem whose graphs differ in their noise (as adapted noise models do): each graph
+    # scores both answers; the sum of the differences decides, and answers that differ beyond their sigmas while the
+    # scores hardly differ are recorded as ambiguous.
+    import gtsam
+
+    import plsgraph.refine.graph as graph
+
+    def toy(x: float, td: float, sigma: float, var_x: float = 1e-4):
+        g = gtsam.NonlinearFactorGraph()
+        g.add(gtsam.PriorFactorPose3(graph.KEY_CAM, gtsam.Pose3(gtsam.Rot3(), np.array([0.1, 0.0, 0.0])),
+                                     gtsam.noiseModel.Isotropic.Sigma(6, sigma)))
+        g.add(gtsam.PriorFactorVector(graph.KEY_TD, np.array([0.0]), gtsam.noiseModel.Isotropic.Sigma(1, 0.01)))
+        v = gtsam.Values()
+        v.insert(graph.KEY_CAM, gtsam.Pose3(gtsam.Rot3(), np.array([x, 0.0, 0.0])))
+        v.insert(graph.KEY_TD, np.array([td]))
+        T = np.eye(4)
+        T[0, 3] = x
+        res = graph.RefinementResult(
+            T_base_cam=T, td=td, T_world_board=np.eye(4), knot_t=np.zeros(2), T_world_base=np.stack([np.eye(4)] * 2),
+            converged=True, iterations=1, initial_error=1.0, final_error=float(g.error(v)), rms_px_initial=0.2,
+            rms_px_final=0.2, n_frames=10, n_frames_rejected=0, n_frames_dropped=0, n_points=100,
+            cov_base_axes=np.diag([1e-6] * 3 + [var_x] * 3 + [1e-5]), seed_T_base_cam=np.eye(4), seed_td=0.0)
+        return res, g, v
+
+    opt = graph.RefinementOptions()
+    near, far = toy(0.1, 0.0, 0.01), toy(0.2, 0.0, 0.02)  # the second answer is 10 cm off the data's 0.1 m
+    kept = graph._two_starts(far, near, -0.05, 0.0, opt)
+    assert kept.two_starts["chosen"] == "closed_form" and kept.T_base_cam[0, 3] == pytest.approx(0.1)
+    assert "ambiguous" not in kept.two_starts  # decisively worse: not a second answer
+    assert graph._two_starts(near, far, -0.05, 0.0, opt).two_starts["chosen"] == "search"
+    # Nearly as good (the scores differ by less than two_starts_decisive) but 5 sigmas apart in x: ambiguous.
+    a, b = toy(0.1, 0.0, 0.01, 1e-6), toy(0.105, 0.0, 0.01, 1e-6)
+    amb = graph._two_starts(a, b, -0.05, 0.0, opt).two_starts
+    assert amb["ambiguous"] == ["x"] and abs(amb["delta"]) < opt.two_starts_decisive

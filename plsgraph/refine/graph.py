@@ -29,7 +29,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -116,6 +116,10 @@ class RefinementOptions:
     # minimum (docs/refinement.md). 0 disables the search.
     td_search_s: float = 0.6
     td_search_replace_s: float = 0.02  # the search's td replaces the seed only when this far from it
+    # When it does, the graph is also solved from the closed form's td and scales, and the answer whose fit both
+    # graphs prefer is kept; answers they cannot choose between that disagree beyond their sigmas are flagged.
+    td_two_starts: bool = True
+    two_starts_decisive: float = 10.0  # difference of the graphs' summed errors that decides between two answers
     planar: bool = True
     planar_sigma_z: float = 0.005
     planar_sigma_tilt: float = 0.005
@@ -285,6 +289,9 @@ class RefinementResult:
     # (T_base_cam, td) solved under the model's own noise, before the noise model was adapted (None when it was not):
     # what the sensitivity second opinion compares with
     held_solution: tuple | None = None
+    # When the refinement was solved from two time offsets (see _two_starts): both starts and ends, which was kept,
+    # how the two answers differ in sigmas, and the axes on which they differ while the data hardly prefer either.
+    two_starts: dict | None = None
 
     @property
     def R_base_cam(self) -> np.ndarray:
@@ -334,6 +341,8 @@ class RefinementResult:
             "odometry": None if self.odometry is None else dict(self.odometry),
             "disagreement": dict(self.disagreement),
             "inflation": dict(self.inflation),
+            "td_searched": self.td_searched,
+            "two_starts": None if self.two_starts is None else dict(self.two_starts),
         }
 
 
@@ -514,7 +523,7 @@ def _rescaled(prob: _Problem, scale: tuple[float, float], opt: RefinementOptions
 
 def _prepare(
     camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, seed_td: float, opt: RefinementOptions,
-    scale: tuple[float, float] = (1.0, 1.0),
+    scale: tuple[float, float] = (1.0, 1.0), knot_tds: tuple[float, float] | None = None,
 ) -> _Problem:
     det = camera_track.detections
     if det is None or len(det) == 0:
@@ -562,8 +571,12 @@ def _prepare(
     spans = camera_track.info.get("span_windows") if opt.weight_by_span else None
     if spans is not None and len(spans) == len(det):
         frame_sigma = np.sqrt(np.maximum(1.0, np.asarray(spans, dtype=float)))[keep]
-    knot_idx = _select_knots(base_track, t[0] + seed_td - opt.bracket_margin_s, t[-1] + seed_td + opt.bracket_margin_s,
-                             opt.knot_rate_hz)
+    if knot_tds is None:
+        lo, hi = t[0] + seed_td, t[-1] + seed_td
+    else:  # knots independent of seed_td: over every frame with points, shifted by any td in the range
+        t_all = det.t[n_valid >= opt.min_points]
+        lo, hi = t_all[0] + knot_tds[0], t_all[-1] + knot_tds[1]
+    knot_idx = _select_knots(base_track, lo - opt.bracket_margin_s, hi + opt.bracket_margin_s, opt.knot_rate_hz)
     if knot_idx.size < 2:
         raise InsufficientDataError("refine: the detections span less than one odometry step")
     frames = ReprojectionFrames(t, np.zeros(t.size), np.ones(t.size), det.uv[keep], det.board_points, camera)
@@ -1066,6 +1079,67 @@ def _unobservable_at(graph, values: gtsam.Values, opt: RefinementOptions, frozen
     return _new_unobservable(cov_base, reg, frozen, opt.freeze_ratio), cov
 
 
+def _answer(res: RefinementResult) -> np.ndarray:
+    """(roll, pitch, yaw, x, y, z, td) of a result in base axes, the rotation relative to the seed's."""
+    d = so3_log(res.T_base_cam[:3, :3] @ res.seed_T_base_cam[:3, :3].T)
+    return np.r_[d, res.T_base_cam[:3, 3], res.td]
+
+
+def _two_starts(first: tuple, second: tuple, td_search: float, td_given: float,
+                opt: RefinementOptions) -> RefinementResult:
+    """Of two refinements of one recording, started from the search's time offset (``first``) and from the closed
+    form's (``second``), each a (result, final graph, values): the one the data prefer, with a record of both.
+
+    Each final graph scores both solutions (the solves share their knots, so their values fit either graph). The
+    graphs differ only in their adapted noise models and in frames near the ends, so a solution both prefer fits
+    the data better; the sum of the two differences, E_a(b) - E_a(a) + E_b(b) - E_b(a), decides (negative:
+    ``second``). Where the two answers differ by more than 3 sigma on an axis while the scores differ by less than
+    ``two_starts_decisive`` (a local minimum the data hardly tell from the other), the answer is not known to
+    that axis's sigma: the result says so in ``two_starts["ambiguous"]`` and the gate flags it.
+    """
+    (ra, ga, va), (rb, gb, vb) = first, second
+    record: dict = {"td_start_s": [float(td_search), float(td_given)], "td_end_s": [float(ra.td), float(rb.td)],
+                    "converged": [bool(ra.converged), bool(rb.converged)]}
+    chosen, other = ra, rb
+    if ra.converged and rb.converged:
+        try:
+            e = [[float(g.error(v)) for v in (va, vb)] for g in (ga, gb)]
+        except RuntimeError as exc:  # a key one solve lacks: cannot be compared, keep the search's start
+            log.info("refine: the two starts could not be compared (%s)", exc)
+            e = None
+        if e is not None:
+            delta = (e[0][1] - e[0][0]) + (e[1][1] - e[1][0])
+            record.update(errors=e, delta=float(delta))
+            if delta < 0:
+                chosen, other = rb, ra
+    elif rb.converged:
+        chosen, other = rb, ra
+    record["chosen"] = "closed_form" if chosen is rb else "search"
+    notes = []
+    if chosen.cov_base_axes is not None and other.converged:
+        sig = np.sqrt(np.diag(chosen.cov_base_axes))
+        if other.cov_base_axes is not None:
+            sig = np.maximum(sig, np.sqrt(np.diag(other.cov_base_axes)))
+        d = _answer(chosen) - _answer(other)
+        z = np.abs(d) / np.maximum(sig, 1e-300)
+        z[5] = 0.0  # the height is held or prior-given: not an answer of the motion
+        record["z"] = dict(zip(AXES, np.round(z, 2).tolist(), strict=True))
+        close = abs(record.get("delta", 0.0)) < opt.two_starts_decisive
+        off = [a for a, v in zip(AXES, z, strict=True) if v > 3.0]
+        if off and close:
+            record["ambiguous"] = off
+    which = "the closed form's" if chosen is rb else "the search's"
+    other_name = "the search's" if chosen is rb else "the closed form's"
+    notes.append(
+        f"the refinement was solved from the search's time offset ({1e3 * td_search:+.1f} ms) and from the closed "
+        f"form's ({1e3 * td_given:+.1f} ms); the one from {which} ended at {1e3 * chosen.td:+.1f} ms and is "
+        f"reported" + ("" if "delta" not in record else
+                       f" (its fit is better by {abs(record['delta']):.1f} in the two graphs' errors)")
+        + f"; the one from {other_name} ended at {1e3 * other.td:+.1f} ms")
+    return replace(chosen, warnings=tuple(chosen.warnings) + tuple(notes), two_starts=record,
+                   timing=dict(chosen.timing, other_start_s=float(other.timing.get("total_s", 0.0))))
+
+
 def refine(
     camera_track: CameraTrack,
     base_track: BaseTrack,
@@ -1094,6 +1168,7 @@ def refine(
     C_seed, td_seed = _check_seed(seed_T_base_cam, seed_td)
     scale0 = _check_scale(seed_odometry_scale) if opt.estimate_odometry_scale else (1.0, 1.0)
     td_given = td_seed
+    scale0_given = scale0
     search_note = None
     if opt.td_search_s > 0:
         found = turn_angle_td_search(camera_track, base_track, td_seed, opt.td_search_s)
@@ -1109,7 +1184,30 @@ def refine(
                 # The seed's odometry scales were fitted at the wrong td: start from nominal speed and this turn scale.
                 scale0 = (1.0, float(np.clip(found[1], 0.3, 3.0)))
             td_seed = found[0]
-    prob = _prepare(camera_track, base_track, camera, td_seed, opt, scale0)
+    if td_seed == td_given or not opt.td_two_starts:
+        return _refine_from(camera_track, base_track, camera, opt, progress, C_seed, td_seed, td_given, td_seed,
+                            scale0, search_note, None, t_start)[0]
+    # The search replaced the closed form's offset: solve from both and keep the answer the data prefer
+    # (see _two_starts). Both solves use the same knots, so that each graph can score the other's solution.
+    knot_tds = (min(td_seed, td_given), max(td_seed, td_given))
+    scale_cf = scale0_given
+    first = _refine_from(camera_track, base_track, camera, opt, progress, C_seed, td_seed, td_given, td_seed, scale0,
+                         search_note, knot_tds, t_start)
+    second = _refine_from(camera_track, base_track, camera, opt, progress, C_seed, td_given, td_given, td_seed,
+                          scale_cf, None, knot_tds, time.perf_counter())
+    return _two_starts(first, second, td_seed, td_given, opt)
+
+
+def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, opt: RefinementOptions,
+                 progress, C_seed: np.ndarray, td_start: float, td_given: float, td_search: float,
+                 scale0: tuple[float, float], search_note: str | None, knot_tds: tuple[float, float] | None,
+                 t_start: float) -> tuple[RefinementResult, gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """One refinement started at ``td_start`` (and odometry scales ``scale0``): the result, its final graph and
+    values. ``td_given`` is the closed form's offset, ``td_search`` the search's (equal to it when the search kept
+    it); they are the references the result is compared with. ``knot_tds``: the knots cover the frames shifted by
+    any td in this range (the same knots for solves from different offsets)."""
+    td_seed = td_start
+    prob = _prepare(camera_track, base_track, camera, td_seed, opt, scale0, knot_tds)
     warnings = list(prob.warnings) + ([search_note] if search_note else [])
     t_guess = C_seed[:3, 3].copy()
     if opt.camera_height is not None:
@@ -1330,8 +1428,8 @@ def refine(
         "frozen_directions": [dict(zip(AXES, np.round(f / np.linalg.norm(f), 4).tolist(), strict=True))
                               for f in frozen],
     }
-    td_ref, compare_rotation = td_seed, td_seed == td_given
-    if td_seed != td_given and abs(td - td_given) < abs(td - td_seed):
+    td_ref, compare_rotation = td_search, td_search == td_given
+    if td_search != td_given and abs(td - td_given) < abs(td - td_search):
         # The refinement, started at the search's offset, ended nearer the closed form's. Within what their sigmas
         # allow of it, the search's peak was the wrong one and the closed form (its rotation too) is the reference
         # the result is checked against again; farther, it agrees with neither, and the nearer one (the closed
@@ -1344,9 +1442,9 @@ def refine(
         where = ("nearer the closed form's: the search's peak was the wrong one" if back else
                  f"{1e3 * abs(td - td_given):.0f} ms from the closed form's and farther from the search's: it agrees "
                  "with neither")
-        warnings.append(f"the turn-angle search put the time offset at {1e3 * td_seed:+.1f} ms, "
-                        f"{1e3 * abs(td_seed - td_given):.0f} ms from the closed form's {1e3 * td_given:+.1f} ms; the "
-                        f"refinement started there and ended at {1e3 * td:+.1f} ms, {where}")
+        warnings.append(f"the turn-angle search put the time offset at {1e3 * td_search:+.1f} ms, "
+                        f"{1e3 * abs(td_search - td_given):.0f} ms from the closed form's {1e3 * td_given:+.1f} ms; "
+                        f"the refinement ended at {1e3 * td:+.1f} ms, {where}")
     for w in warnings:
         log.warning(w)
     return RefinementResult(
@@ -1388,9 +1486,9 @@ def refine(
                    "speed_scale_jackknife_sigma": scale_jk,
                    "frame_jackknife_sigma": None if jackknife is None else dict(zip(
                        ("roll", "pitch", "yaw", "x", "y", "z", "td"), jackknife.tolist(), strict=True))},
-        td_searched=None if td_ref == td_given else float(td_seed),
+        td_searched=None if td_ref == td_given else float(td_search),
         held_solution=held_solution,
-    )
+    ), final_graph, values
 
 
 def autocorrelation_time(x: np.ndarray, max_lag: int = 60) -> float:
