@@ -486,7 +486,7 @@ def test_two_starts_keep_the_answer_both_graphs_prefer():
             converged=True, iterations=1, initial_error=1.0, final_error=float(g.error(v)), rms_px_initial=0.2,
             rms_px_final=0.2, n_frames=10, n_frames_rejected=0, n_frames_dropped=0, n_points=100,
             cov_base_axes=np.diag([1e-6] * 3 + [var_x] * 3 + [1e-5]), seed_T_base_cam=np.eye(4), seed_td=0.0)
-        return res, g, v
+        return res, g.error, v
 
     opt = graph.RefinementOptions()
     near, far = toy(0.1, 0.0, 0.01), toy(0.2, 0.0, 0.02)  # the second answer is 10 cm off the data's 0.1 m

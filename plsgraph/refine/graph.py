@@ -1088,14 +1088,15 @@ def _answer(res: RefinementResult) -> np.ndarray:
 def _two_starts(first: tuple, second: tuple, td_search: float, td_given: float,
                 opt: RefinementOptions) -> RefinementResult:
     """Of two refinements of one recording, started from the search's time offset (``first``) and from the closed
-    form's (``second``), each a (result, final graph, values): the one the data prefer, with a record of both.
+    form's (``second``), each a (result, scorer, values): the one the data prefer, with a record of both.
 
-    Each final graph scores both solutions (the solves share their knots, so their values fit either graph). The
-    graphs differ only in their adapted noise models and in frames near the ends, so a solution both prefer fits
-    the data better; the sum of the two differences, E_a(b) - E_a(a) + E_b(b) - E_b(a), decides (negative:
-    ``second``). Where the two answers differ by more than 3 sigma on an axis while the scores differ by less than
-    ``two_starts_decisive`` (a local minimum the data hardly tell from the other), the answer is not known to
-    that axis's sigma: the result says so in ``two_starts["ambiguous"]`` and the gate flags it.
+    Each solve's final model scores both solutions (the solves share their knots, so either's values fit either
+    model; each solution's frames are bracketed at its own td). The models differ only in their adapted noise and
+    in frames near the ends, so a solution both prefer fits the data better; the sum of the two differences,
+    E_a(b) - E_a(a) + E_b(b) - E_b(a), decides (negative: ``second``). Where the two answers differ by more than
+    3 sigma on an axis while the scores differ by less than ``two_starts_decisive`` (a local minimum the data
+    hardly tell from the other), the answer is not known to that axis's sigma: the result says so in
+    ``two_starts["ambiguous"]`` and the gate flags it.
     """
     (ra, ga, va), (rb, gb, vb) = first, second
     record: dict = {"td_start_s": [float(td_search), float(td_given)], "td_end_s": [float(ra.td), float(rb.td)],
@@ -1103,7 +1104,7 @@ def _two_starts(first: tuple, second: tuple, td_search: float, td_given: float,
     chosen, other = ra, rb
     if ra.converged and rb.converged:
         try:
-            e = [[float(g.error(v)) for v in (va, vb)] for g in (ga, gb)]
+            e = [[score(v) for v in (va, vb)] for score in (ga, gb)]
         except RuntimeError as exc:  # a key one solve lacks: cannot be compared, keep the search's start
             log.info("refine: the two starts could not be compared (%s)", exc)
             e = None
@@ -1133,7 +1134,8 @@ def _two_starts(first: tuple, second: tuple, td_search: float, td_given: float,
     notes.append(
         f"the refinement was solved from the search's time offset ({1e3 * td_search:+.1f} ms) and from the closed "
         f"form's ({1e3 * td_given:+.1f} ms); the one from {which} ended at {1e3 * chosen.td:+.1f} ms and is "
-        f"reported" + ("" if "delta" not in record else
+        f"reported" + ("" if "delta" not in record else " (the two fit the data equally well)"
+                       if abs(record["delta"]) < 0.05 else
                        f" (its fit is better by {abs(record['delta']):.1f} in the two graphs' errors)")
         + f"; the one from {other_name} ended at {1e3 * other.td:+.1f} ms")
     return replace(chosen, warnings=tuple(chosen.warnings) + tuple(notes), two_starts=record,
@@ -1201,10 +1203,11 @@ def refine(
 def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, opt: RefinementOptions,
                  progress, C_seed: np.ndarray, td_start: float, td_given: float, td_search: float,
                  scale0: tuple[float, float], search_note: str | None, knot_tds: tuple[float, float] | None,
-                 t_start: float) -> tuple[RefinementResult, gtsam.NonlinearFactorGraph, gtsam.Values]:
-    """One refinement started at ``td_start`` (and odometry scales ``scale0``): the result, its final graph and
-    values. ``td_given`` is the closed form's offset, ``td_search`` the search's (equal to it when the search kept
-    it); they are the references the result is compared with. ``knot_tds``: the knots cover the frames shifted by
+                 t_start: float) -> tuple[RefinementResult, Callable[[gtsam.Values], float], gtsam.Values]:
+    """One refinement started at ``td_start`` (and odometry scales ``scale0``): the result, a scorer (the final
+    graph's error of any values of the same knots, their frames bracketed at their own td) and the final values.
+    ``td_given`` is the closed form's offset, ``td_search`` the search's (equal to it when the search kept it);
+    they are the references the result is compared with. ``knot_tds``: the knots cover the frames shifted by
     any td in this range (the same knots for solves from different offsets)."""
     td_seed = td_start
     prob = _prepare(camera_track, base_track, camera, td_seed, opt, scale0, knot_tds)
@@ -1428,6 +1431,11 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         "frozen_directions": [dict(zip(AXES, np.round(f / np.linalg.norm(f), 4).tolist(), strict=True))
                               for f in frozen],
     }
+    def score(v: gtsam.Values) -> float:
+        """This solve's final model (frames, noise) on the values ``v``, bracketed at their own td."""
+        return float(_build_graph(prob, rows, float(v.atVector(KEY_TD)[0]), opt, C0, td_seed, C_seed[:3, :3],
+                                  odo_var=odo_var, planar_var=planar_var)[0].error(v))
+
     td_ref, compare_rotation = td_search, td_search == td_given
     if td_search != td_given and abs(td - td_given) < abs(td - td_search):
         # The refinement, started at the search's offset, ended nearer the closed form's. Within what their sigmas
@@ -1488,7 +1496,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                        ("roll", "pitch", "yaw", "x", "y", "z", "td"), jackknife.tolist(), strict=True))},
         td_searched=None if td_ref == td_given else float(td_search),
         held_solution=held_solution,
-    ), final_graph, values
+    ), score, values
 
 
 def autocorrelation_time(x: np.ndarray, max_lag: int = 60) -> float:
