@@ -160,7 +160,7 @@ def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
         d_td = abs(float(td_seed) - float(ref.td))
         lim = TD_DISAGREE_S + 3 * float(sig[6])
         if d_td > lim:
-            whose = "the closed form's" if searched is None else "the turn-angle search's it started from"
+            whose = "the closed form's" if searched is None else "the turn-angle search's"
             problems.append(
                 f"the refined time offset is {1e3 * d_td:.1f} ms from {whose} (limit {1e3 * lim:.1f} ms)"
             )

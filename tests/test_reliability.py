@@ -467,6 +467,8 @@ def test_two_starts_keep_the_answer_both_graphs_prefer():
     # Two "solves" of one toy problem whose graphs differ in their noise (as adapted noise models do): each graph
     # scores both answers; the sum of the differences decides, and answers that differ beyond their sigmas while the
     # scores hardly differ are recorded as ambiguous.
+    from dataclasses import replace
+
     import gtsam
 
     import plsgraph.refine.graph as graph
@@ -498,3 +500,35 @@ def test_two_starts_keep_the_answer_both_graphs_prefer():
     a, b = toy(0.1, 0.0, 0.01, 1e-6), toy(0.105, 0.0, 0.01, 1e-6)
     amb = graph._two_starts(a, b, -0.05, 0.0, opt).two_starts
     assert amb["ambiguous"] == ["x"] and abs(amb["delta"]) < opt.two_starts_decisive
+    # Scores that cannot be compared (not finite): the search's start is kept, and a 5-sigma difference is ambiguous.
+    nan = (a[0], lambda v: float("nan"), a[2])
+    rec = graph._two_starts(nan, b, -0.05, 0.0, opt).two_starts
+    assert rec["chosen"] == "search" and rec["compared"] is False and rec["ambiguous"] == ["x"]
+    # A start that did not converge or failed leaves the other's answer, and the note says which.
+    stuck = (replace(far[0], converged=False, cov_base_axes=None), far[1], far[2])
+    kept = graph._two_starts(stuck, near, -0.05, 0.0, opt)
+    assert kept.two_starts["chosen"] == "closed_form" and kept.two_starts["converged"] == [False, True]
+    assert "the one from the search's did not converge" in kept.warnings[-1]
+    kept = graph._two_starts(near, None, -0.05, 0.0, opt, [RuntimeError("boom")])
+    assert kept.two_starts["chosen"] == "search" and kept.two_starts["failed"] == ["boom"]
+    assert "the one from the closed form's failed" in kept.warnings[-1]
+
+
+def test_a_start_that_fails_does_not_cost_the_other_answer(skid_sim, monkeypatch):
+    import plsgraph.refine.graph as graph
+    from plsgraph.errors import InsufficientDataError
+
+    s, cam, odo = skid_sim
+    monkeypatch.setattr(graph, "turn_angle_td_search", lambda c, b, td0, half, **kw: (s.td - 0.06, 0.45, 0.1, 0.1))
+    plain = graph._refine_from
+
+    def second_fails(*args):
+        if args[6] == args[7]:  # td_start == td_given: the closed form's start
+            raise InsufficientDataError("refine: almost every frame is an outlier")
+        return plain(*args)
+
+    monkeypatch.setattr(graph, "_refine_from", second_fails)
+    r = plsgraph.calibrate_tracks(cam, odo, s.camera, board=BOARD)
+    two = r.run.refinement.two_starts
+    assert two["chosen"] == "search" and two["converged"] == [True, False] and "outlier" in two["failed"][0]
+    assert r.run.refinement.converged and r.run.refinement.td == pytest.approx(two["td_end_s"][0])

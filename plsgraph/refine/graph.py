@@ -49,7 +49,7 @@ from factors.reprojection import FrameBatch, OdometryDetail, ReprojectionFrames,
 from ..core.camera import CameraModel
 from ..core.geometry import inv_T, is_rotation, make_T, project_to_so3, so3_exp, so3_log
 from ..core.tracks import BaseTrack, CameraTrack
-from ..errors import InputError, InsufficientDataError
+from ..errors import InputError, InsufficientDataError, PlsgraphError
 from .observability import (
     AXES,
     OBSERVABLE_RATIO,
@@ -281,10 +281,9 @@ class RefinementResult:
     # disagree beyond what both uncertainties allow (see disagreement_with_seed); empty when they agree.
     disagreement: dict = field(default_factory=dict)
     inflation: dict = field(default_factory=dict)  # autocorrelation times and the covariance factor applied
-    # td the refinement started from when the turn-angle search replaced the closed form's (a wrong correlation
-    # peak) and the refinement ended nearer it than the closed form's; None when the closed form's td was kept, or
-    # when the refinement came back nearer it (the search's peak was the wrong one). Comparisons of td with "the
-    # seed" use this one.
+    # The turn-angle search's td when it replaced the closed form's (a wrong correlation peak) and the refinement
+    # ended nearer it than the closed form's; None when the closed form's td was kept, or when the refinement came
+    # back nearer it (the search's peak was the wrong one). Comparisons of td with "the seed" use this one.
     td_searched: float | None = None
     # (T_base_cam, td) solved under the model's own noise, before the noise model was adapted (None when it was not):
     # what the sensitivity second opinion compares with
@@ -1079,67 +1078,84 @@ def _unobservable_at(graph, values: gtsam.Values, opt: RefinementOptions, frozen
     return _new_unobservable(cov_base, reg, frozen, opt.freeze_ratio), cov
 
 
-def _answer(res: RefinementResult) -> np.ndarray:
-    """(roll, pitch, yaw, x, y, z, td) of a result in base axes, the rotation relative to the seed's."""
-    d = so3_log(res.T_base_cam[:3, :3] @ res.seed_T_base_cam[:3, :3].T)
-    return np.r_[d, res.T_base_cam[:3, 3], res.td]
+def _difference(a: RefinementResult, b: RefinementResult) -> np.ndarray:
+    """a - b in (roll, pitch, yaw, x, y, z, td), the rotation as the relative rotation about the base axes."""
+    d = so3_log(a.T_base_cam[:3, :3] @ b.T_base_cam[:3, :3].T)
+    return np.r_[d, a.T_base_cam[:3, 3] - b.T_base_cam[:3, 3], a.td - b.td]
 
 
-def _two_starts(first: tuple, second: tuple, td_search: float, td_given: float,
-                opt: RefinementOptions) -> RefinementResult:
+def _two_starts(first: tuple | None, second: tuple | None, td_search: float, td_given: float,
+                opt: RefinementOptions, failed: list[Exception] | None = None) -> RefinementResult:
     """Of two refinements of one recording, started from the search's time offset (``first``) and from the closed
-    form's (``second``), each a (result, scorer, values): the one the data prefer, with a record of both.
+    form's (``second``), each a (result, scorer, values) or None if that start failed: the one the data prefer,
+    with a record of both.
 
     Each solve's final model scores both solutions (the solves share their knots, so either's values fit either
-    model; each solution's frames are bracketed at its own td). The models differ only in their adapted noise and
-    in frames near the ends, so a solution both prefer fits the data better; the sum of the two differences,
-    E_a(b) - E_a(a) + E_b(b) - E_b(a), decides (negative: ``second``). Where the two answers differ by more than
-    3 sigma on an axis while the scores differ by less than ``two_starts_decisive`` (a local minimum the data
-    hardly tell from the other), the answer is not known to that axis's sigma: the result says so in
-    ``two_starts["ambiguous"]`` and the gate flags it.
+    model; each solution's frames are bracketed at its own td; the regularising priors are common). The models
+    differ only in their adapted noise and in frames near the ends, so a solution both prefer fits the data better;
+    the sum of the two differences, E_a(b) - E_a(a) + E_b(b) - E_b(a), decides (negative: ``second``). Where the
+    two answers differ by more than 3 sigma on an axis while the scores differ by less than
+    ``two_starts_decisive`` (or could not be compared), the data hardly tell one minimum from the other and the
+    answer is not known to that axis's sigma: the result says so in ``two_starts["ambiguous"]`` and the gate
+    flags it. A start that failed or did not converge leaves the other's answer, and the record says so.
     """
-    (ra, ga, va), (rb, gb, vb) = first, second
-    record: dict = {"td_start_s": [float(td_search), float(td_given)], "td_end_s": [float(ra.td), float(rb.td)],
-                    "converged": [bool(ra.converged), bool(rb.converged)]}
-    chosen, other = ra, rb
-    if ra.converged and rb.converged:
+    record: dict = {"td_start_s": [float(td_search), float(td_given)],
+                    "td_end_s": [None if x is None else float(x[0].td) for x in (first, second)],
+                    "converged": [x is not None and bool(x[0].converged) for x in (first, second)]}
+    if failed:
+        record["failed"] = [str(e) for e in failed]
+    ok = record["converged"]
+    pick_second = None
+    if ok[0] and ok[1]:
+        (_, ga, va), (_, gb, vb) = first, second
         try:
             e = [[score(v) for v in (va, vb)] for score in (ga, gb)]
-        except RuntimeError as exc:  # a key one solve lacks: cannot be compared, keep the search's start
-            log.info("refine: the two starts could not be compared (%s)", exc)
-            e = None
-        if e is not None:
             delta = (e[0][1] - e[0][0]) + (e[1][1] - e[1][0])
+        except RuntimeError as exc:  # a key one solve lacks: no comparison
+            log.info("refine: the two starts could not be compared (%s)", exc)
+            e, delta = None, float("nan")
+        if np.isfinite(delta):
             record.update(errors=e, delta=float(delta))
-            if delta < 0:
-                chosen, other = rb, ra
-    elif rb.converged:
-        chosen, other = rb, ra
-    record["chosen"] = "closed_form" if chosen is rb else "search"
-    notes = []
-    if chosen.cov_base_axes is not None and other.converged:
+            pick_second = bool(delta < 0)
+        else:
+            record["compared"] = False
+            pick_second = False  # the search's start, as with one start
+    elif first is not None and second is not None:
+        pick_second = ok[1] and not ok[0]
+    else:
+        pick_second = first is None
+    chosen, other = (second, first) if pick_second else (first, second)
+    chosen = chosen[0]
+    other = None if other is None else other[0]
+    record["chosen"] = "closed_form" if pick_second else "search"
+    if chosen.cov_base_axes is not None and other is not None and other.converged:
         sig = np.sqrt(np.diag(chosen.cov_base_axes))
         if other.cov_base_axes is not None:
             sig = np.maximum(sig, np.sqrt(np.diag(other.cov_base_axes)))
-        d = _answer(chosen) - _answer(other)
-        z = np.abs(d) / np.maximum(sig, 1e-300)
+        z = np.abs(_difference(chosen, other)) / np.maximum(sig, 1e-300)
         z[5] = 0.0  # the height is held or prior-given: not an answer of the motion
         record["z"] = dict(zip(AXES, np.round(z, 2).tolist(), strict=True))
-        close = abs(record.get("delta", 0.0)) < opt.two_starts_decisive
+        close = not (abs(record.get("delta", 0.0)) >= opt.two_starts_decisive)
         off = [a for a, v in zip(AXES, z, strict=True) if v > 3.0]
         if off and close:
             record["ambiguous"] = off
-    which = "the closed form's" if chosen is rb else "the search's"
-    other_name = "the search's" if chosen is rb else "the closed form's"
-    notes.append(
-        f"the refinement was solved from the search's time offset ({1e3 * td_search:+.1f} ms) and from the closed "
-        f"form's ({1e3 * td_given:+.1f} ms); the one from {which} ended at {1e3 * chosen.td:+.1f} ms and is "
-        f"reported" + ("" if "delta" not in record else " (the two fit the data equally well)"
-                       if abs(record["delta"]) < 0.05 else
-                       f" (its fit is better by {abs(record['delta']):.1f} in the two graphs' errors)")
-        + f"; the one from {other_name} ended at {1e3 * other.td:+.1f} ms")
-    return replace(chosen, warnings=tuple(chosen.warnings) + tuple(notes), two_starts=record,
-                   timing=dict(chosen.timing, other_start_s=float(other.timing.get("total_s", 0.0))))
+    which = "the closed form's" if pick_second else "the search's"
+    other_name = "the search's" if pick_second else "the closed form's"
+    if other is None or not other.converged:
+        how = "failed" if other is None else "did not converge"
+        note = (f"the refinement was solved from the search's time offset ({1e3 * td_search:+.1f} ms) and from the "
+                f"closed form's ({1e3 * td_given:+.1f} ms); the one from {other_name} {how}, the one from {which} "
+                f"ended at {1e3 * chosen.td:+.1f} ms and is reported")
+    else:
+        why = (" (the two could not be compared)" if "delta" not in record else
+               " (the two fit the data equally well)" if abs(record["delta"]) < 0.05 else
+               f" (its fit is better by {abs(record['delta']):.1f} in the two graphs' errors)")
+        note = (f"the refinement was solved from the search's time offset ({1e3 * td_search:+.1f} ms) and from the "
+                f"closed form's ({1e3 * td_given:+.1f} ms); the one from {which} ended at {1e3 * chosen.td:+.1f} ms "
+                f"and is reported{why}; the one from {other_name} ended at {1e3 * other.td:+.1f} ms")
+    timing = dict(chosen.timing, starts_s=[None if x is None else float(x[0].timing.get("total_s", 0.0))
+                                           for x in (first, second)])
+    return replace(chosen, warnings=tuple(chosen.warnings) + (note,), two_starts=record, timing=timing)
 
 
 def refine(
@@ -1187,17 +1203,34 @@ def refine(
                 scale0 = (1.0, float(np.clip(found[1], 0.3, 3.0)))
             td_seed = found[0]
     if td_seed == td_given or not opt.td_two_starts:
-        return _refine_from(camera_track, base_track, camera, opt, progress, C_seed, td_seed, td_given, td_seed,
-                            scale0, search_note, None, t_start)[0]
+        res = _refine_from(camera_track, base_track, camera, opt, progress, C_seed, td_seed, td_given, td_seed,
+                           scale0, search_note, None, t_start)[0]
+        for w in res.warnings:
+            log.warning(w)
+        return res
     # The search replaced the closed form's offset: solve from both and keep the answer the data prefer
     # (see _two_starts). Both solves use the same knots, so that each graph can score the other's solution.
     knot_tds = (min(td_seed, td_given), max(td_seed, td_given))
-    scale_cf = scale0_given
-    first = _refine_from(camera_track, base_track, camera, opt, progress, C_seed, td_seed, td_given, td_seed, scale0,
-                         search_note, knot_tds, t_start)
-    second = _refine_from(camera_track, base_track, camera, opt, progress, C_seed, td_given, td_given, td_seed,
-                          scale_cf, None, knot_tds, time.perf_counter())
-    return _two_starts(first, second, td_seed, td_given, opt)
+    starts = ((td_seed, scale0, search_note), (td_given, scale0_given, None))
+    solved: list = []
+    failed: list[Exception] = []
+    for td0, s0, note in starts:
+        t0 = time.perf_counter()
+        try:
+            solved.append(_refine_from(camera_track, base_track, camera, opt, progress, C_seed, td0, td_given,
+                                       td_seed, s0, note, knot_tds, t0))
+        except (PlsgraphError, RuntimeError, np.linalg.LinAlgError) as exc:
+            # One start failing (too many outliers from a bad offset) must not cost the other's answer.
+            log.info("refine: the start from td %.4f s failed (%s)", td0, exc)
+            solved.append(None)
+            failed.append(exc)
+    if solved[0] is None and solved[1] is None:
+        raise failed[0]
+    res = _two_starts(solved[0], solved[1], td_seed, td_given, opt, failed)
+    res = replace(res, timing=dict(res.timing, total_s=time.perf_counter() - t_start))
+    for w in res.warnings:
+        log.warning(w)
+    return res
 
 
 def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, opt: RefinementOptions,
@@ -1432,8 +1465,10 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                               for f in frozen],
     }
     def score(v: gtsam.Values) -> float:
-        """This solve's final model (frames, noise) on the values ``v``, bracketed at their own td."""
-        return float(_build_graph(prob, rows, float(v.atVector(KEY_TD)[0]), opt, C0, td_seed, C_seed[:3, :3],
+        """This solve's final model (frames, noise) on the values ``v``, bracketed at their own td. The weak
+        regularising priors sit at the caller's seed (``C_seed``, ``td_given``), the same for every start: at each
+        start's own seed they would favour the answer that stayed nearer its start."""
+        return float(_build_graph(prob, rows, float(v.atVector(KEY_TD)[0]), opt, C_seed, td_given, C_seed[:3, :3],
                                   odo_var=odo_var, planar_var=planar_var)[0].error(v))
 
     td_ref, compare_rotation = td_search, td_search == td_given
@@ -1453,8 +1488,6 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         warnings.append(f"the turn-angle search put the time offset at {1e3 * td_search:+.1f} ms, "
                         f"{1e3 * abs(td_search - td_given):.0f} ms from the closed form's {1e3 * td_given:+.1f} ms; "
                         f"the refinement ended at {1e3 * td:+.1f} ms, {where}")
-    for w in warnings:
-        log.warning(w)
     return RefinementResult(
         T_base_cam=C,
         td=td,
