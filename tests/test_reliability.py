@@ -421,7 +421,7 @@ def skid_sim():
     return s, cam, odo
 
 
-def test_a_search_peak_that_traps_the_refinement_is_escaped_by_the_second_start(skid_sim, monkeypatch):
+def test_a_search_peak_that_traps_the_refinement_is_escaped_by_the_second_start(skid_sim, monkeypatch, tmp_path):
     # The search is made to return a peak 60 ms early with a turn scale 0.45 (the study's run: -106 ms against a
     # truth of -48 ms). Started there alone, the refinement stops in a worse minimum; started also from the closed
     # form's offset, both final graphs prefer that answer, which is kept and is right within its sigmas.
@@ -451,6 +451,12 @@ def test_a_search_peak_that_traps_the_refinement_is_escaped_by_the_second_start(
     assert one.two_starts is None and one.td == pytest.approx(two["td_end_s"][0], abs=5e-3)
     assert abs(one.td - s.td) > 2 * abs(ref.td - s.td)
     assert abs(one.T_base_cam[0, 3] - s.T_base_cam[0, 3]) > 2 * abs(ref.T_base_cam[0, 3] - s.T_base_cam[0, 3])
+    # The record reaches report.json as plain JSON.
+    out = prepare_output_dir(tmp_path / "calib")
+    write_calibration(out, r)
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["refinement"]["two_starts"]["chosen"] == "closed_form"
+    assert rep["refinement"]["two_starts"]["td_end_s"] == pytest.approx(two["td_end_s"])
 
 
 def test_two_answers_the_data_cannot_choose_between_are_flagged(sim):
