@@ -1039,10 +1039,17 @@ def camera_track_from_event_chunks(
             args = (buf, camera, board, rate_hz, kind, q, detect_options, sigma_px)
             if pool is not None:
                 # Spans are independent (tracking restarts at each), so they can be detected side by side with
-                # the same result; at most ``workers`` spans are held at once, so memory stays bounded.
+                # the same result; at most ``workers + QUEUED_SPANS`` spans' events are held at once, so memory
+                # stays bounded. Results are absorbed in order; a span that finished before an older, slower one
+                # waits as its (small) result, and does not keep the next span from an idle worker.
                 pending.append(pool.submit(_detect_span, args))
-                while len(pending) >= workers + QUEUED_SPANS:
-                    absorb(*pending.pop(0).result())
+                while True:
+                    while pending and pending[0].done():
+                        absorb(*pending.pop(0).result())
+                    running = [f for f in pending if not f.done()]
+                    if len(running) < workers + QUEUED_SPANS:
+                        break
+                    wait(running, return_when=FIRST_COMPLETED)
             else:
                 absorb(*_detect_span(args))
             next_q = int(q[-1]) + period
@@ -1050,7 +1057,7 @@ def camera_track_from_event_chunks(
 
     try:  # the worker processes end however this ends
         if workers > 1:
-            from concurrent.futures import ProcessPoolExecutor
+            from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
             # Started fresh ("spawn"), not forked: the calibrating process may have threads by now (the figure
             # worker's), and a fork taken while one of them holds a lock can hang the child. Started before the
