@@ -505,3 +505,92 @@ def test_windows_without_a_pose_are_not_counted_as_found(sim, monkeypatch):
         camera_track_from_events(ev, CAM, BOARD, rate_hz=30, kind="count")
     outcomes = err.value.frontend_info["window_outcomes"]["outcome"]
     assert outcomes.count("no_pose") >= 6 and not any(o in ("rims", "blobs", "image") for o in outcomes)
+
+
+@pytest.fixture(scope="module")
+def long_sim():
+    """The first fixture's board moving at 0.4 times its speed (~60 px/s, a fifth of a spacing per window) for 1.2 s."""
+    t = np.arange(0.0, 1.2 + 1e-9, 0.004)
+    poses = camera_motion(0.4 * t)
+    return t, poses, simulate_events(t, poses, CAM, BOARD, seed=0)
+
+
+@pytest.mark.parametrize("back_s", [0.705, 0.705 + 1 / 30, 0.705 + 2 / 30])
+def test_a_lost_board_is_searched_sparsely_and_found_from_the_window_it_came_back(long_sim, monkeypatch, back_s):
+    """While the board is lost, only the first LOST_DENSE_WINDOWS windows and then every LOST_SEARCH_STRIDE-th are
+    searched; when it is found again, the windows passed over just before are searched backwards from the find,
+    around the board and labelled by its circles. The board is away from 0.1 s to ``back_s`` (three return times:
+    on a searched window and on either passed-over one): the windows with a find are those of a search of every
+    window, for fewer calls of the detector, and the windows passed over are counted as such. The detector is
+    replaced by the true circle centres, so that only the search is under test."""
+    import plsgraph.frontend.track as frontend_track
+    from plsgraph.frontend.detect import REASON_NOT_FOUND, REASON_OK, GridDetection
+
+    t, poses, ev = long_sim
+    now = {}
+    calls = []
+    surface = frontend_track.surfaces.surface
+
+    def remember(events, kind, t_ns, **kw):
+        now["t"] = t_ns * 1e-9
+        return surface(events, kind, t_ns, **kw)
+
+    def true_centres(img, board, camera, predicted_uv=None, roi=None, **kw):
+        calls.append((now["t"], predicted_uv is not None and roi is not None))
+        if 0.1 <= now["t"] < back_s:  # the robot looks away
+            return GridDetection(np.full((len(board.points), 2), np.nan), False, REASON_NOT_FOUND)
+        T = interpolate_poses(np.array([now["t"] - 1.0 / 60]), t, poses)[0]
+        return GridDetection(CAM.project(transform_points(inv_T(T), board.points)), True, REASON_OK, 0.1)
+
+    monkeypatch.setattr(frontend_track.surfaces, "surface", remember)
+    monkeypatch.setattr(frontend_track, "detect_circle_grid", true_centres)
+    monkeypatch.setattr(frontend_track, "LOST_DENSE_WINDOWS", 4)
+    monkeypatch.setattr(frontend_track, "LOST_SEARCH_STRIDE", 3)
+
+    def run():
+        calls.clear()
+        track = camera_track_from_events(ev, CAM, BOARD, rate_hz=30, kind="count")
+        wo = track.info["window_outcomes"]
+        return track, np.asarray(wo["t"]), np.asarray(wo["outcome"]), list(calls)
+
+    track, tw, out, sparse_calls = run()
+    monkeypatch.setattr(frontend_track, "LOST_SEARCH_STRIDE", 1)
+    dense, tw1, out1, dense_calls = run()
+    found = np.isin(out, ["rims", "blobs"])
+    assert np.array_equal(tw, tw1)
+    assert np.array_equal(found, np.isin(out1, ["rims", "blobs"]))  # the same windows found
+    assert np.array_equal(track.info["window_t"], dense.info["window_t"])
+    assert len(track) == len(dense) >= 10
+    away = (tw >= 0.1) & (tw < back_s)
+    passed = out == frontend_track.REASON_NOT_SEARCHED
+    assert not np.any(passed & ~away)
+    assert np.count_nonzero(passed) >= 8 and not np.any(out1 == frontend_track.REASON_NOT_SEARCHED)
+    assert track.info["skipped"][frontend_track.REASON_NOT_SEARCHED] == np.count_nonzero(passed)
+    # Passed-over windows are searched only backwards from a find (around the board, labelled by its circles), the
+    # one just before the first find after the return; the first four lost windows are searched, then every third.
+    first_back = np.flatnonzero(found & (tw >= back_s))[0]
+    for x in tw[passed]:
+        at = [tracked for ts, tracked in sparse_calls if abs(ts - x) < 1e-6]
+        assert not at or (all(at) and abs(x - (tw[first_back] - 1.0 / 30)) < 1e-3)
+    lost_k = np.flatnonzero(away)
+    assert not np.any(passed[lost_k[:4]])
+    assert len(sparse_calls) < len(dense_calls) - 8
+    # The return: found from the first window the board is back in, by the search or filled in backwards from it.
+    assert tw[first_back] - back_s < 1.0 / 30
+    # The windows of the return the sparse search passes over (the last find before the loss is window k0) are the
+    # ones filled in backwards, from the first one searched.
+    k0 = np.flatnonzero(found & (tw < 0.1))[-1]
+
+    def passed_over(k):
+        return k - k0 > 4 and (k - k0 - 4) % 3 != 0
+
+    k_search = first_back
+    while passed_over(k_search):
+        k_search += 1
+    backfilled = track.info["detected_at_window_fraction"].get("backfill_rims:1", 0)
+    assert backfilled == k_search - first_back
+    for k in range(first_back, k_search):
+        at = [tracked for ts, tracked in sparse_calls if abs(ts - tw[k]) < 1e-6]
+        assert at and all(at)  # around the board, labelled by its circles
+    centre, _, _ = errors(track, t, poses)
+    assert np.nanmax(centre) < 2.0

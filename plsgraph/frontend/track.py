@@ -9,7 +9,8 @@ solved by PnP (:mod:`plsgraph.frontend.pose`). What is counted in ``track.info``
 * ``skipped``: reason -> count over all windows that gave no pose: ``too_few_events`` (nothing
   moved), the detector's reasons (``grid_not_found``, ``inconsistent_order``, ``mirrored_order``,
   ``ambiguous_labels``, ``too_few_points``, ``empty_image``), ``same_stamp`` (a second detection with
-  one stamp) and PnP's (``pnp_failed``, ``rms_above_threshold``);
+  one stamp), ``not_searched_while_lost`` (a window passed over while the board was lost, see
+  ``LOST_SEARCH_STRIDE``) and PnP's (``pnp_failed``, ``rms_above_threshold``);
 * ``detected_at_window_fraction``, ``seconds`` (surfaces, detection, PnP), ``warnings``;
 * ``hot_pixels`` (masked), ``flicker_hz``, ``flicker_pixels``, ``flicker_event_share`` (recognised, not removed;
   the largest over the streamed spans).
@@ -216,6 +217,16 @@ VELOCITY_WINDOWS = 3
 PREDICT_THROUGH_MISSES = 5
 #: The blob detector's blobs are labelled by the predicted board too (before the lattice labelling).
 BLOB_TRACKING = True
+#: While the board is lost (circle grids), every window is searched for the first LOST_DENSE_WINDOWS windows after
+#: the last find (or the start), then only every LOST_SEARCH_STRIDE-th: a lost window's full search (every span of
+#: the ladder, rims and blobs, whole image) costs 15-60 times a tracked window's, and while the robot looks away
+#: there is nothing to find. When the board is found again, the windows passed over just before are searched
+#: backwards from the find (:meth:`_WindowJob._backfill`: around the board, labelled by its circles), so a board that
+#: came back into view is found from the window it did. The outcome of a window passed over and not filled in is
+#: :data:`REASON_NOT_SEARCHED`. 1: every window is searched.
+LOST_DENSE_WINDOWS = 8
+LOST_SEARCH_STRIDE = 3
+REASON_NOT_SEARCHED = "not_searched_while_lost"
 
 
 def _jumped(uv: np.ndarray, predicted: np.ndarray) -> bool:
@@ -353,6 +364,69 @@ class _WindowJob:
                     return det, age, mult
         return None
 
+    def _backfill(self, passed_over: list[tuple], k: int, full: np.ndarray, last_rim, by_blobs: bool,
+                  span: float) -> list[tuple]:
+        """The windows passed over just before window ``k``'s find, searched backwards from it: each around the board
+        of the window after it, its circles labelled by that board's (``full``, all circles), on the rims of the
+        find's span (``span``, in windows) and then of the window and its shorter fractions, or when the find was on
+        blobs, on the blob spans; the first window without the board ends it. Returns the finds in window order:
+        (window index, query time, stamp, uv, all circles, detector, span in windows)."""
+        board, kind, params = self.board, self.kind, self.params
+        decaying = kind in ("time_surface", "leaky")
+        age0 = _active_age_s(kind, params, self.window_s)
+        fracs = [span] + [f for f in WINDOW_LADDER if f <= 1.0 and f != span]
+        out = []
+        nxt = k
+        for kj, tq, i0, i1 in reversed(passed_over):
+            if kj != nxt - 1 or i1 - i0 < self.min_events:
+                break
+            roi = _roi_around(full, self.stream.width, self.stream.height)
+            if roi is None:
+                break
+            ev = self.stream.slice_index(int(i0), int(i1))
+            det, how, mult, used, age = None, "rims", 1.0, ev, age0
+            if by_blobs:
+                blob = self._blobs(tq, span, roi, False, False, full)
+                if blob is not None:
+                    det, age, mult = blob
+                    used = self.stream.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
+                    how = "blobs"
+            else:
+                img = None
+                for frac in fracs:
+                    age = frac * age0
+                    if img is None or not decaying:
+                        if kind == "time_surface":
+                            sub = ev.slice_time(int(tq) - int(age0 * 1e9), int(tq) + 1)
+                        elif frac == 1.0 or decaying:
+                            sub = ev
+                        elif frac > 1.0:
+                            sub = self.stream.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
+                        else:
+                            sub = ev.slice_time(int(tq) - int(age * 1e9), int(tq) + 1)
+                        if len(sub) < self.min_events:
+                            continue
+                        img = surfaces.surface(sub, kind, int(tq), **params)
+                    rim, level = _rim_image(img, kind, params, age)
+                    det = detect_circle_grid(rim, board, self.camera, foreground="rims", rim_threshold=level, roi=roi,
+                                             predicted_uv=full, rim_first=last_rim)
+                    if det.reason == REASON_OK:
+                        used, mult = (sub if frac > 1.0 else ev), frac
+                        break
+            if det is None or det.reason != REASON_OK or _jumped(det.uv, full):
+                break
+            t_det = None
+            if self.timestamp == "events":
+                t_det = _event_time(used, det.uv, int(tq), age)
+            elif self.timestamp == "query":
+                t_det = tq * 1e-9
+            if t_det is None:
+                t_det = tq * 1e-9 - 0.5 * age
+            full = _complete_by_homography(det.uv, board)
+            out.append((kj, tq, t_det, det.uv, full, how, mult))
+            nxt = kj
+        return out[::-1]
+
     def run(self, t_query: np.ndarray, i0s: np.ndarray, i1s: np.ndarray, progress=None):
         # OpenCV's internal threads cost more than they save on images this small (connected components:
         # 3x the CPU time with 2 threads); parallelism comes from ``workers`` instead.
@@ -381,6 +455,8 @@ class _WindowJob:
         small_circles = None  # index of the last window whose detection had circles too small for rims
         slow_board = None  # (window, whether the board moved slower than SLOW_PX_S there) from the last two detections
         period_s = float(np.median(np.diff(t_query))) * 1e-9 if t_query.size > 1 else 0.0
+        sparse = LOST_SEARCH_STRIDE > 1 and board.pattern == "asymmetric_circles" and kind != "leaky"
+        passed_over: list[tuple] = []  # windows passed over since the last find: (k, tq, i0, i1)
         for k, (tq, i0, i1) in enumerate(zip(t_query, i0s, i1s, strict=True)):
             if progress is not None:
                 progress(k, t_query.size)
@@ -388,6 +464,12 @@ class _WindowJob:
                 skipped["too_few_events"] += 1
                 outcome.append("too_few_events")
                 roi = predicted = velocity = None
+                continue
+            lost_for = k - (prev[0] if prev is not None else -1)
+            if sparse and lost_for > LOST_DENSE_WINDOWS and (lost_for - LOST_DENSE_WINDOWS) % LOST_SEARCH_STRIDE:
+                skipped[REASON_NOT_SEARCHED] += 1
+                outcome.append(REASON_NOT_SEARCHED)
+                passed_over.append((k, tq, i0, i1))
                 continue
             ev = stream.slice_index(int(i0), int(i1))
             n_events += int(i1 - i0)
@@ -532,6 +614,24 @@ class _WindowJob:
             # Constant-velocity prediction of all circles for the next window (from the last two windows;
             # circles not seen are filled in by the board's homography).
             full = _complete_by_homography(det.uv, board) if board.pattern == "asymmetric_circles" else det.uv
+            if passed_over:
+                c0 = time.perf_counter()
+                filled = self._backfill(passed_over, k, full, last_rim, blob is not None,
+                                        last_blob if blob is not None else WINDOW_LADDER[last_good])
+                secs["backfill"] = secs.get("backfill", 0.0) + time.perf_counter() - c0
+                for kj, tqj, t_j, uv_j, full_j, how, mult_j in filled:  # in window order
+                    skipped[REASON_NOT_SEARCHED] -= 1
+                    if not skipped[REASON_NOT_SEARCHED]:
+                        del skipped[REASON_NOT_SEARCHED]
+                    outcome[kj] = how
+                    retries[("backfill_" + how, mult_j)] += 1
+                    t_out.append(t_j)
+                    win_out.append(tqj * 1e-9)
+                    uv_out.append(uv_j)
+                    src_out.append(how)
+                    span_out.append(float(mult_j))
+                    prev = (kj, t_j, full_j)
+                passed_over = []
             if prev is not None and k - prev[0] <= RECENT_WINDOWS and t_det > prev[1]:
                 step = np.nanmedian(np.linalg.norm(full - prev[2], axis=1))
                 slow_board = (k, bool(step / (t_det - prev[1]) < SLOW_PX_S))
@@ -689,7 +789,7 @@ def detect_in_events(
         if pnp is not None:
             poses = [e for _, part_poses in solved for e in part_poses]
     skipped: Counter[str] = Counter()
-    secs = {"surfaces": 0.0, "detection": 0.0, "blobs": 0.0}
+    secs = {"surfaces": 0.0, "detection": 0.0, "blobs": 0.0, "backfill": 0.0}
     t_out, uv_out, src_out, span_out, win_out = [], [], [], [], []
     n_events = 0
     ladder: Counter[tuple] = Counter()

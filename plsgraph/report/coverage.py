@@ -29,6 +29,7 @@ _COLOURS = {
     "image": (0.12, 0.47, 0.71),
     "circles_too_small_for_rims": (0.9, 0.7, 0.1),
     "too_few_events": (0.8, 0.8, 0.8),
+    "not_searched_while_lost": (0.7, 0.7, 0.7),
     "grid_not_found": (0.84, 0.15, 0.16),
     "inconsistent_order": (1.0, 0.5, 0.05),
     "ambiguous_labels": (0.58, 0.4, 0.74),
