@@ -267,7 +267,7 @@ def ring_gaps_weaker(resp: np.ndarray, uv: np.ndarray, board: Board) -> bool:
     on, off = at(uv[seen]), at(g[np.all(np.isfinite(g), axis=1)])
     if on.size < 4 or off.size < 4:
         return False
-    return float(np.median(off)) < RING_GAP_RATIO * float(np.median(on))
+    return float(_median(off)) < RING_GAP_RATIO * float(_median(on))
 
 
 def blob_peaks(weight: np.ndarray, sigma_px: float, fraction: float = PEAK_FRACTION) -> np.ndarray:
@@ -310,6 +310,23 @@ def _norm(x: np.ndarray) -> np.ndarray:
     return np.sqrt(np.add.reduce(x * x, axis=-1))
 
 
+def _median(x: np.ndarray, axis: int | None = None):
+    """np.median(x) (``axis=None``, any shape) or np.median(x, axis=0) (2-D): the same numbers (the middle element, or
+    the mean of the two middle ones: (a + b) / 2 as np.median's mean computes it; NaN where a NaN is among them) from
+    a sort, without np.median's argument handling, which costs several times the sort on these arrays of a few
+    dozen values. Empty input gives NaN (without np.median's warning)."""
+    a = np.sort(np.asarray(x, dtype=np.float64).ravel() if axis is None else np.asarray(x, dtype=np.float64), axis=0)
+    n = a.shape[0]
+    if n == 0:
+        return np.nan if axis is None else np.full(a.shape[1:], np.nan)
+    m = n // 2
+    mid = a[m] if n % 2 else (a[m - 1] + a[m]) / 2.0
+    nan = np.isnan(a[-1])  # NaNs sort last
+    if axis is None:
+        return np.float64(np.nan) if nan else mid
+    return np.where(nan, np.nan, mid)
+
+
 def _fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
     """Homography dst ~ H src by the normalised DLT (no iterative refinement); None if degenerate.
 
@@ -317,8 +334,9 @@ def _fit_homography(src: np.ndarray, dst: np.ndarray) -> np.ndarray | None:
     cv2.findHomography there, and the final order check still uses OpenCV's.
     """
     def frame(p: np.ndarray) -> np.ndarray:
-        c = p.mean(axis=0)
-        d = float(np.mean(_norm(p - c)))
+        # p.mean(axis=0) and np.mean(...): the same sums and division, without np.mean's argument handling
+        c = np.add.reduce(p, axis=0) / p.shape[0]
+        d = float(np.add.reduce(_norm(p - c)) / p.shape[0])
         k = np.sqrt(2.0) / d if d > 1e-12 else 1.0
         return np.array([[k, 0.0, -k * c[0]], [0.0, k, -k * c[1]], [0.0, 0.0, 1.0]])
 
@@ -411,11 +429,11 @@ def check_grid_order(
     if H is None or not np.all(np.isfinite(H)):
         return REASON_ORDER, float("nan")
     ph = np.c_[P, np.ones(len(P))] @ H.T
-    if np.any(ph[:, 2] * np.sign(np.median(ph[:, 2])) <= 0):
+    if np.any(ph[:, 2] * np.sign(_median(ph[:, 2])) <= 0):
         return REASON_ORDER, float("nan")
     pred = ph[:, :2] / ph[:, 2:]
     err = _norm(pred - q)
-    rms = float(np.sqrt(np.mean(err**2)))
+    rms = float(np.sqrt(np.add.reduce(err**2) / err.shape[0]))  # np.mean's numbers
     spacing = neighbour_distance(pred) if len(pred) > 1 else np.full(1, np.inf)
     if rms > max_rms_px or np.any(err > max_point_frac * spacing):
         return REASON_ORDER, rms
@@ -568,7 +586,7 @@ def label_circle_grid(
     seeds = np.flatnonzero(n_close >= 3)
     if seeds.size == 0:
         return _fail(n, REASON_NOT_FOUND)
-    centre = np.median(pts[seeds], axis=0)
+    centre = _median(pts[seeds], axis=0)
     seeds = seeds[np.argsort(_norm(pts[seeds] - centre))][:6]
     best_idx, best_lat = np.zeros(0, int), np.zeros((0, 2), int)
     for sd in seeds:
@@ -589,7 +607,7 @@ def label_circle_grid(
         par = (best_lat.sum(axis=1) % 2).astype(bool)
         a = np.asarray(areas, dtype=float)[best_idx]
         if np.count_nonzero(par) >= 3 and np.count_nonzero(~par) >= 3:
-            m_odd, m_even = float(np.median(a[par])), float(np.median(a[~par]))
+            m_odd, m_even = float(_median(a[par])), float(_median(a[~par]))
             if max(m_odd, m_even) > FINE_LATTICE_AREA_RATIO * min(m_odd, m_even):
                 circ = par if m_odd > m_even else ~par
                 q = best_lat[circ] - (np.array([1, 0]) if m_odd > m_even else 0)  # circles to even sites
@@ -841,7 +859,7 @@ def _shift_explains(uv: np.ndarray, free: np.ndarray, board: Board, H: np.ndarra
         if H is None:
             return True
     if spacing is None:
-        spacing = float(np.median(neighbour_distance(uv[seen])))
+        spacing = float(_median(neighbour_distance(uv[seen])))
     stays, beyond, which = _shift_tables(board)
     edge = np.count_nonzero(seen[None, :] & ~stays, axis=1)  # (S,) seen circles a shift pushes off
     gained = np.zeros(stays.shape[0], dtype=int)  # (S,) free candidates a shift could claim
@@ -859,7 +877,7 @@ def _unused(candidates: np.ndarray, uv: np.ndarray) -> np.ndarray:
     q = uv[np.all(np.isfinite(uv), axis=1)]
     if candidates.shape[0] == 0 or q.shape[0] < 2:
         return candidates
-    near = 0.25 * float(np.median(neighbour_distance(q)))
+    near = 0.25 * float(_median(neighbour_distance(q)))
     return candidates[_norm(candidates[:, None, :] - q[None, :, :]).min(axis=1) >= near]
 
 
@@ -902,7 +920,7 @@ def track_circle_grid(
     j0 = np.argmin(np.where(ok_pred[:, None], d, np.inf), axis=1)
     near = ok_pred & (d[np.arange(n), j0] < 0.6 * spacing)
     if np.count_nonzero(near) >= min_points:
-        pred = pred + np.median((pts[j0] - pred)[near], axis=0)
+        pred = pred + _median((pts[j0] - pred)[near], axis=0)
         d = _norm(pred[:, None, :] - pts[None, :, :])
     j = np.argmin(np.where(ok_pred[:, None], d, np.inf), axis=1)
     dist = d[np.arange(n), j]
@@ -910,7 +928,7 @@ def track_circle_grid(
     # One candidate per circle: a candidate claimed twice is dropped for both.
     _, inv, cnt = np.unique(j[hit], return_inverse=True, return_counts=True)
     hit[np.flatnonzero(hit)[cnt[inv] > 1]] = False
-    if np.count_nonzero(hit) < min_points or np.median(dist[hit] / spacing[hit]) > 0.25:
+    if np.count_nonzero(hit) < min_points or _median(dist[hit] / spacing[hit]) > 0.25:
         return _fail(n, REASON_NOT_FOUND)
     uv = np.full((n, 2), np.nan)
     uv[hit] = pts[j[hit]]
@@ -932,7 +950,7 @@ def track_circle_grid(
         add[np.flatnonzero(add)[cnt2[inv2] > 1]] = False
         uv[add] = pts[j2[add]]
         taken[j2[add]] = True
-    if _shift_explains(uv, pts[~taken], board, H, float(np.median(sp))):
+    if _shift_explains(uv, pts[~taken], board, H, float(_median(sp))):
         return _fail(n, REASON_AMBIGUOUS)
     reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_rms_px)
     if reason != REASON_OK:
@@ -977,7 +995,7 @@ def _detect_rims(
 
     def accepted(det: GridDetection, k: int) -> GridDetection:
         seen = det.uv[np.all(np.isfinite(det.uv), axis=1)]
-        if float(np.median(neighbour_distance(seen))) < MIN_RIM_SPACING_PX:
+        if float(_median(neighbour_distance(seen))) < MIN_RIM_SPACING_PX:
             return _fail(n, REASON_TOO_SMALL, det.homography_rms_px)
         return replace(det, rim_px=k)
 
@@ -1020,7 +1038,7 @@ def _rim_candidates(active, k, n, x0, y0) -> tuple[np.ndarray, np.ndarray] | Non
         return None
     # Circle insides are the largest compact holes; gaps between touching rims and texture leave
     # smaller ones. Reference: the median of the n largest.
-    ref = float(np.median(np.sort(area)[-n:]))
+    ref = float(_median(np.sort(area)[-n:]))
     keep = area >= 0.4 * ref
     return centres[keep] + (x0, y0), area[keep]
 
