@@ -310,6 +310,14 @@ def _norm(x: np.ndarray) -> np.ndarray:
     return np.sqrt(np.add.reduce(x * x, axis=-1))
 
 
+def _homog(p: np.ndarray) -> np.ndarray:
+    """np.c_[p, np.ones(len(p))] as float64: the points (n, 2) with a column of ones (without np.c_'s parsing)."""
+    out = np.empty((p.shape[0], 3))
+    out[:, :2] = p
+    out[:, 2] = 1.0
+    return out
+
+
 def _median(x: np.ndarray, axis: int | None = None):
     """np.median(x) (``axis=None``, any shape) or np.median(x, axis=0) (2-D): the same numbers (the middle element, or
     the mean of the two middle ones: (a + b) / 2 as np.median's mean computes it; NaN where a NaN is among them) from
@@ -428,7 +436,7 @@ def check_grid_order(
     H, _ = cv2.findHomography(P, q, 0)
     if H is None or not np.all(np.isfinite(H)):
         return REASON_ORDER, float("nan")
-    ph = np.c_[P, np.ones(len(P))] @ H.T
+    ph = _homog(P) @ H.T
     if np.any(ph[:, 2] * np.sign(_median(ph[:, 2])) <= 0):
         return REASON_ORDER, float("nan")
     pred = ph[:, :2] / ph[:, 2:]
@@ -439,7 +447,7 @@ def check_grid_order(
         return REASON_ORDER, rms
     # Orientation: sign of the Jacobian determinant of the homography at the board centroid.
     c = P.mean(axis=0)
-    x, y, wgt = H @ np.r_[c, 1.0]
+    x, y, wgt = H @ np.array([c[0], c[1], 1.0])
     J = (H[:2, :2] * wgt - np.outer([x, y], H[2, :2])) / wgt**2
     front = 1.0 if board.pattern == "asymmetric_circles" else -1.0
     if np.sign(np.linalg.det(J)) != front:
@@ -521,7 +529,7 @@ def _grow_lattice(pts: np.ndarray, seed: int, nn: np.ndarray, tol: float = 0.3) 
     idx = np.zeros(0, int)
     lat = np.zeros((0, 2), int)
     radius = 1
-    pts_h = np.c_[pts, np.ones(len(pts))]
+    pts_h = _homog(pts)
     for _ in range(40):
         try:
             Hinv = np.linalg.inv(H)
@@ -649,7 +657,7 @@ def label_circle_grid(
     # handedness can be right: that of the affine fit lattice -> image combined with the board's own
     # lattice (board (x, y) -> (a, b) has determinant -1/2). The lattice placements that agree in
     # orientation all fit one homography equally well; more than one means the order is ambiguous.
-    A, *_ = np.linalg.lstsq(np.c_[best_lat, np.ones(best_lat.shape[0])], pts[best_idx], rcond=None)
+    A, *_ = np.linalg.lstsq(_homog(best_lat), pts[best_idx], rcond=None)
     want = -np.sign(np.linalg.det(A[:2].T))
     front = [(k, sh) for c, k, sh in placements if c == top and round(np.linalg.det(_LATTICE_MAPS[k])) == want]
     if not front:
@@ -864,7 +872,7 @@ def _shift_explains(uv: np.ndarray, free: np.ndarray, board: Board, H: np.ndarra
     edge = np.count_nonzero(seen[None, :] & ~stays, axis=1)  # (S,) seen circles a shift pushes off
     gained = np.zeros(stays.shape[0], dtype=int)  # (S,) free candidates a shift could claim
     if free.shape[0]:
-        bh = np.c_[beyond, np.ones(beyond.shape[0])] @ H.T
+        bh = _homog(beyond) @ H.T
         ok = bh[:, 2] > 1e-9
         bp = bh[ok, :2] / bh[ok, 2:]
         occupied_site = _norm(bp[:, None, :] - free[None, :, :]).min(axis=1) < 0.3 * spacing
@@ -939,7 +947,7 @@ def track_circle_grid(
     H, _ = cv2.findHomography(board.points[hit, :2], uv[hit], 0)
     if H is None:
         return _fail(n, REASON_ORDER)
-    ph = np.c_[board.points[:, :2], np.ones(n)] @ H.T
+    ph = _homog(board.points[:, :2]) @ H.T
     proj = ph[:, :2] / ph[:, 2:]
     sp = neighbour_distance(proj)
     if np.count_nonzero(~hit):
