@@ -76,3 +76,21 @@ def test_missed_windows_of_a_still_robot_are_relabelled_and_counted_apart():
     wrong_clock = SimpleNamespace(base_track=base, clock_offset_s=0.0, refinement=None,
                                   closed_form=SimpleNamespace(td=0.0))
     assert np.sum(window_outcomes(info, wrong_clock) == "robot_still") < np.sum(got == "robot_still")
+
+
+def test_windows_passed_over_while_lost_are_named_after_the_detectors_reasons():
+    """The summary line and the HTML table list the detector's reasons for a miss first and the windows passed over
+    while the board was lost (not searched, track.LOST_SEARCH_STRIDE) after them, under their own name."""
+    from plsgraph.frontend.track import REASON_NOT_SEARCHED
+    from plsgraph.report.coverage import NOT_SEARCHED
+    from plsgraph.report.output import coverage_line
+
+    assert NOT_SEARCHED == REASON_NOT_SEARCHED
+    outcome = ["rims"] * 10 + [NOT_SEARCHED] * 40 + ["grid_not_found"] * 20 + ["too_few_points"] * 5
+    info = {"window_outcomes": {"t": list(np.arange(len(outcome)) / 30.0), "outcome": outcome}}
+    cov = coverage_summary(info)
+    assert cov["by_outcome"][NOT_SEARCHED] == 40 and cov["found"] == 10
+    line = coverage_line(cov)
+    assert line.index("grid_not_found 20") < line.index("too_few_points 5") < line.index(f"{NOT_SEARCHED} 40")
+    table = coverage_table(info)
+    assert table.index("missed: grid_not_found") < table.index("not searched: the board was lost")

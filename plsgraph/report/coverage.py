@@ -49,6 +49,8 @@ STILL_TURN_RAD = 1e-3
 
 #: Outcomes that are detections (the detector that found the board).
 DETECTED = ("rims", "blobs", "image")
+#: The outcome of a window passed over while the board was lost (plsgraph.frontend.track.LOST_SEARCH_STRIDE).
+NOT_SEARCHED = "not_searched_while_lost"
 #: Outcomes of a board found and then refused: kept as they are while the robot stands still too.
 REFUSED = ("jumped_from_track", "inconsistent_with_neighbours", "same_stamp", "ambiguous_labels", "inconsistent_order",
            "mirrored_order", "no_pose")
@@ -250,10 +252,13 @@ def coverage_table(info: dict, run: Any = None) -> str | None:
     def label(k: str) -> str:
         if k in DETECTED:
             return f"found by {html.escape(k)}"
+        if k == NOT_SEARCHED:
+            return "not searched: the board was lost (only every few windows are searched then)"
         return "not found: the robot stood still" if k == "robot_still" else f"missed: {html.escape(k)}"
 
     rows = "".join(f"<tr><td>{label(k)}</td><td>{v}</td><td>{100.0 * v / total:.1f} %</td></tr>"
-                   for k, v in sorted(counts.items(), key=lambda kv: (kv[0] not in DETECTED, -kv[1])))
+                   for k, v in sorted(counts.items(), key=lambda kv: (kv[0] not in DETECTED, kv[0] == NOT_SEARCHED,
+                                                                      -kv[1])))
     moving = ""
     if cov["robot_still"] and cov["found_fraction_robot_moving"] is not None:
         moving = (f" The robot stood still in {cov['robot_still']} of them (no motion, no events); of the windows "

@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from .coverage import DETECTED
+from .coverage import DETECTED, NOT_SEARCHED
 from .files import OutputLock, _atomic_write, staged_output, to_jsonable, write_json
 
 
@@ -67,7 +67,9 @@ def coverage_line(cov: dict) -> str:
     """One line on the front end's coverage, for a summary."""
     moving = cov.get("found_fraction_robot_moving")
     also = "" if moving is None else f", {100 * moving:.0f} % of those in which the robot moved"
-    missed = [f"{k} {v}" for k, v in cov.get("by_outcome", {}).items() if k not in DETECTED][:4]
+    # The detector's reasons first; windows passed over while the board was lost (not searched) last.
+    missed = [f"{k} {v}" for k, v in sorted(cov.get("by_outcome", {}).items(), key=lambda kv: kv[0] == NOT_SEARCHED)
+              if k not in DETECTED][:4]
     why = f"; missed: {', '.join(missed)}" if missed else ""
     return f"board found in {cov['found']} of {cov['windows']} windows{also}{why}"
 
