@@ -546,7 +546,10 @@ def _grow_lattice(pts: np.ndarray, seed: int, nn: np.ndarray, tol: float = 0.3) 
         # One point per lattice site: the best-fitting one (sites keyed as one integer, |a| <= radius).
         order = cand[np.argsort(res[cand])]
         key = (a[order, 0] + radius) * (2 * radius + 1) + (a[order, 1] + radius)
-        _, first = np.unique(key, return_index=True)
+        # np.unique(key, return_index=True)[1], as it computes it (a stable sort, the first of each run of equal keys)
+        perm = np.argsort(key, kind="mergesort")
+        aux = key[perm]
+        first = perm[np.concatenate(([True], aux[1:] != aux[:-1]))] if key.size else perm
         new_idx = np.sort(order[first])
         grown = new_idx.size > idx.size
         idx, lat = new_idx, a[new_idx]
@@ -598,7 +601,7 @@ def label_circle_grid(
     seeds = seeds[np.argsort(_norm(pts[seeds] - centre))][:6]
     best_idx, best_lat = np.zeros(0, int), np.zeros((0, 2), int)
     for sd in seeds:
-        if np.isin(sd, best_idx):  # growing from a point of the best lattice would find it again
+        if (best_idx == sd).any():  # growing from a point of the best lattice would find it again
             continue
         idx, lat = _grow_lattice(pts, int(sd), nn)
         if idx.size > best_idx.size:
