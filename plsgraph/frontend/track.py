@@ -377,8 +377,9 @@ class _WindowJob:
         fails, or the blob search, which like the lost search goes on to the whole image), is refused when it lies
         more than half a spacing from it (:func:`_jumped`). Finds on long spans are not put to the still-board test
         of the lost search (:meth:`_holds_still`): a fit to a board smeared over a long span would have to put its
-        circles within half a spacing (median) of the later board's. Both were measured stricter (blobs around the board only, long spans held still): 1
-        to 3 correct detections fewer on three of the study's recordings and no wrong label fewer (docs/frontend.md).
+        circles within half a spacing (median) of the later board's. Both were measured stricter (blobs around the
+        board only, long spans held still): 1 to 3 correct detections fewer on three of the study's recordings and no
+        wrong label fewer (docs/frontend.md).
         Windows passed over at the end of a chunk of windows (a worker's, a streamed span's) are not filled in: the
         next chunk searches its first windows in full."""
         board, kind, params = self.board, self.kind, self.params
