@@ -109,9 +109,61 @@ class _Ros1Reader:
         return sec * 1_000_000_000 + nsec, self.string()
 
 
+_LE_TIME_LEN = struct.Struct("<iII")
+_LE_2U32 = struct.Struct("<II")
+_LE_2U64 = struct.Struct("<QQ")
+_LE_U32 = struct.Struct("<I")
+
+
+def _event_packet_le_cdr(data) -> tuple[EventPacketHeader, memoryview] | None:
+    """:func:`parse_event_packet` of a little-endian CDR message in a few ``unpack_from`` calls, or None when the
+    message is anything else or does not fit its own lengths (then the bounds-checked reader says what is wrong).
+    The same fields as the general reader: alignment counted after the 4-byte encapsulation header."""
+    buf = data if isinstance(data, bytes) else memoryview(data).cast("B")
+    n = len(buf)
+    if n < 16 or buf[0] != 0 or buf[1] != 1:
+        return None
+    sec, nsec, flen = _LE_TIME_LEN.unpack_from(buf, 4)
+    pos = 16 + flen
+    if pos > n:
+        return None
+    frame = bytes(buf[16:pos]).rstrip(b"\x00").decode("utf-8", errors="replace")
+    pos += -pos % 4  # (pos - 4) % 4 == pos % 4
+    if pos + 8 > n:
+        return None
+    height, width = _LE_2U32.unpack_from(buf, pos)
+    pos += 8
+    pos += -(pos - 4) % 8
+    if pos + 20 > n:
+        return None
+    seq, time_base = _LE_2U64.unpack_from(buf, pos)
+    (elen,) = _LE_U32.unpack_from(buf, pos + 16)
+    pos += 20
+    if pos + elen + 1 > n:
+        return None
+    enc = bytes(buf[pos : pos + elen]).rstrip(b"\x00").decode("utf-8", errors="replace")
+    pos += elen
+    big = bool(buf[pos])
+    pos += 1
+    pos += -pos % 4
+    if pos + 4 > n:
+        return None
+    (blen,) = _LE_U32.unpack_from(buf, pos)
+    pos += 4
+    if pos + blen > n:
+        return None
+    if big:
+        return None
+    blob = memoryview(buf)[pos : pos + blen]
+    return EventPacketHeader(sec * 1_000_000_000 + nsec, frame, width, height, seq, time_base, enc, False), blob
+
+
 def parse_event_packet(data, serialization: str = "cdr") -> tuple[EventPacketHeader, memoryview]:
     """Header fields and a zero-copy view of the ``events`` blob of an EventPacket."""
     if serialization == "cdr":
+        fast = _event_packet_le_cdr(data)
+        if fast is not None:
+            return fast
         r = CdrReader(data)
         stamp, frame = r.header()
         height = r.uint32()
@@ -225,6 +277,33 @@ def parse_imu_cdr(data, log_time: int):
     stamp, frame = r.header()
     a = r.fixed("float64", 4 + 9 + 3 + 9 + 3 + 9)
     return _stamp_or_log(stamp, log_time), frame, np.concatenate([a[13:16], a[25:28]])
+
+
+@dataclass(frozen=True)
+class CameraInfoFields:
+    """The fields of a sensor_msgs/CameraInfo the calibration uses (names as in the message)."""
+
+    width: int
+    height: int
+    distortion_model: str
+    d: np.ndarray
+    k: np.ndarray
+
+
+def parse_camera_info_cdr(data, log_time: int):
+    """(stamp, :class:`CameraInfoFields`) of a sensor_msgs/CameraInfo; the whole message is read (r, p, binning and
+    the region of interest too), so that a truncated one is refused like any other."""
+    r = CdrReader(data)
+    stamp, _frame = r.header()
+    height = r.uint32()
+    width = r.uint32()
+    model = r.string()
+    d = r.sequence("float64")
+    k = r.fixed("float64", 9)
+    r.fixed("float64", 9 + 12)  # r, p
+    r.fixed("uint32", 2 + 4)  # binning x / y, roi x / y offset, height, width
+    r.prim("bool")  # roi.do_rectify
+    return _stamp_or_log(stamp, log_time), CameraInfoFields(int(width), int(height), model, d, k)
 
 
 def split_msgdef(name: str, text: str) -> list[tuple[str, str]]:

@@ -23,6 +23,7 @@ from .messages import (
     IMU_TYPE,
     JOINT_STATE_TYPE,
     ODOMETRY_TYPE,
+    parse_camera_info_cdr,
     parse_imu_cdr,
     parse_joint_state_cdr,
     parse_odometry_cdr,
@@ -155,7 +156,7 @@ _ROLES = {
 }
 
 
-_TYPE = {"joints": JOINT_STATE_TYPE, "odometry": ODOMETRY_TYPE, "imu": IMU_TYPE}
+_TYPE = {"joints": JOINT_STATE_TYPE, "odometry": ODOMETRY_TYPE, "imu": IMU_TYPE, "camera_info": CAMERA_INFO_TYPE}
 
 
 def _stamp(obj, log_time: int) -> int:
@@ -203,6 +204,9 @@ class _Collector:
             stamp, frame, child, row = parse_odometry_cdr(data, log_time)
             self.rows.append(row)
             self.frames.add((frame, child))
+        elif self.role == "camera_info":
+            stamp, fields = parse_camera_info_cdr(data, log_time)
+            self.rows.append(fields)
         else:
             stamp, frame, row = parse_imu_cdr(data, log_time)
             self.rows.append(row)
@@ -330,7 +334,7 @@ def read_recording(
                 continue
             c = collectors[m.topic]
             try:
-                if m.serialization == "cdr" and c.role in ("joints", "odometry", "imu") and m.msgtype == _TYPE[c.role]:
+                if m.serialization == "cdr" and c.role in _TYPE and m.msgtype == _TYPE[c.role]:
                     c.add_cdr(m.data, m.log_time_ns)
                 else:
                     c.add(src.deserialize(m), m.log_time_ns)

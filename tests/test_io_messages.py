@@ -1,0 +1,102 @@
+"""The hand-written CDR parsers of the hot message types against the general ones.
+
+``parse_event_packet`` reads a little-endian message in a few ``unpack_from`` calls and leaves anything else (and any
+message that does not fit its own lengths) to the bounds-checked reader; ``parse_camera_info_cdr`` replaces the rosbags
+type store for the camera info. Both must give the general readers' fields exactly, and refuse what they refuse.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from plsgraph.core.camera import CameraModel
+from plsgraph.errors import RecordingError
+from plsgraph.io import messages
+from plsgraph.io.cdr import CdrWriter
+from plsgraph.io.messages import CAMERA_INFO_TYPE, parse_camera_info_cdr, parse_event_packet
+from plsgraph.io.writer import _camera_bytes
+
+
+def _packet(frame: str, enc: str, blob: bytes, stamp: int = 1_700_000_000_123_456_789, big: int = 0) -> bytes:
+    w = CdrWriter()
+    w.header(stamp, frame)
+    w.prim("uint32", 260)
+    w.prim("uint32", 346)
+    w.prim("uint64", 77)
+    w.prim("uint64", 1_700_000_000_000_000_000)
+    w.string(enc)
+    w.prim("uint8", big)
+    w.raw_bytes(blob)
+    return w.getvalue()
+
+
+def _general(data):
+    """parse_event_packet with the quick path turned off: the bounds-checked reader alone."""
+    quick = messages._event_packet_le_cdr
+    messages._event_packet_le_cdr = lambda _d: None
+    try:
+        return messages.parse_event_packet(data)
+    finally:
+        messages._event_packet_le_cdr = quick
+
+
+def _outcome(fn, data):
+    try:
+        hdr, blob = fn(data)
+        return hdr, bytes(blob)
+    except RecordingError as exc:
+        return type(exc).__name__, str(exc)
+
+
+def test_event_packet_quick_path_equals_the_general_reader_on_every_alignment_and_damage():
+    rng = np.random.default_rng(3)
+    n = 0
+    # Frame ids and encodings of every length mod 8 move the 8-byte fields across all alignments.
+    for frame in ("", "c", "cam", "camera", "event_cam0", "davis346_left"):
+        for enc in ("evt3", "libcaer_cmp", "mono"):
+            blob = rng.integers(0, 256, int(rng.integers(0, 40)), dtype=np.uint8).tobytes()
+            data = _packet(frame, enc, blob)
+            hdr, got = parse_event_packet(data)
+            assert messages._event_packet_le_cdr(data) is not None  # the quick path did read it
+            assert (hdr.frame_id, hdr.encoding, hdr.width, hdr.height, hdr.seq) == (frame, enc, 346, 260, 77)
+            assert hdr.stamp_ns == 1_700_000_000_123_456_789 and bytes(got) == blob
+            variants = [data, memoryview(data), bytearray(data)]
+            variants += [data[:k] for k in range(0, len(data))]  # every truncation
+            for _ in range(20):  # bytes changed in the header's lengths and fields
+                b = bytearray(data)
+                b[int(rng.integers(0, min(len(b), 64)))] = int(rng.integers(0, 256))
+                variants.append(bytes(b))
+            for v in variants:
+                assert _outcome(parse_event_packet, v) == _outcome(_general, v)
+                n += 1
+    assert n > 1000
+
+
+def test_event_packet_big_endian_cdr_and_big_endian_events_take_the_general_path():
+    data = bytearray(_packet("cam", "evt3", b"\x01\x02"))
+    assert messages._event_packet_le_cdr(bytes(_packet("cam", "evt3", b"", big=1))) is None
+    with pytest.raises(RecordingError, match="big-endian"):
+        parse_event_packet(_packet("cam", "evt3", b"", big=1))
+    data[1] = 0  # big-endian CDR encapsulation: not the quick path's
+    assert messages._event_packet_le_cdr(bytes(data)) is None
+
+
+def test_camera_info_parser_equals_rosbags_and_refuses_a_truncated_message():
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    cam = CameraModel(346, 260, np.array([[251.3, 0, 171.2], [0, 250.9, 129.8], [0, 0, 1]]),
+                      np.array([-0.31, 0.12, 1e-3, -2e-4, 0.01]))
+    for frame in ("", "cam", "davis346"):
+        data = _camera_bytes(1_700_000_000_500_000_000, frame, cam)
+        stamp, got = parse_camera_info_cdr(data, 5)
+        ref = ts.deserialize_cdr(data, CAMERA_INFO_TYPE)
+        assert stamp == ref.header.stamp.sec * 1_000_000_000 + ref.header.stamp.nanosec
+        assert (got.width, got.height, got.distortion_model) == (ref.width, ref.height, ref.distortion_model)
+        assert np.array_equal(got.k, ref.k) and np.array_equal(got.d, ref.d)
+        for k in range(len(data)):
+            with pytest.raises(RecordingError):
+                parse_camera_info_cdr(data[:k], 5)
+    # A zero stamp falls back to the log time (marked negative, as the other parsers do).
+    assert parse_camera_info_cdr(_camera_bytes(0, "", cam), 5)[0] == -6
