@@ -20,12 +20,16 @@ measured pixels, (u, v) per visible point. Points with NaN pixels are dropped wh
 Speed: GTSAM calls one Python callback per factor. All frames share one :class:`FrameBatch` that, on the
 first call with a new set of variable values, evaluates every frame at once with numpy and then serves
 each factor its slice. A factor only uses the batch result after checking that the batch was computed
-from exactly the values it is asked about, so the shortcut cannot return a stale residual.
+from exactly the values it is asked about, so the shortcut cannot return a stale residual. A caller that
+evaluates a whole graph itself (``graph.error(values)``, ``graph.linearize(values)``) can skip those checks
+with :meth:`FrameBatch.evaluated_at`: inside it, every factor is served from one evaluation at ``values``.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import gtsam
@@ -283,6 +287,7 @@ class FrameBatch:
         self._eval: FrameEvaluation | None = None
         self._hits = 0
         self._solo = 0
+        self._at_values = False  # inside evaluated_at: every call is about the values the batch was evaluated at
         self.n_batch = 0  # statistics, for the benchmark
         self.n_single = 0
 
@@ -316,6 +321,21 @@ class FrameBatch:
         self.n_batch += 1
         return self._eval
 
+    @contextmanager
+    def evaluated_at(self, values: gtsam.Values, jacobians: bool) -> Iterator[None]:
+        """Evaluate every frame at ``values`` now and serve the factors from it without reading their values.
+
+        Only for a call that evaluates factors at exactly ``values`` and nothing else, e.g.
+        ``with batch.evaluated_at(v, False): graph.error(v)`` or ``with batch.evaluated_at(v, True):
+        graph.linearize(v)``: GTSAM hands each factor the same values, so the per-factor check that the batch
+        was made from them (reading five variables per factor) would only confirm it."""
+        self.evaluate_all(values, jacobians)
+        self._at_values = True
+        try:
+            yield
+        finally:
+            self._at_values = False
+
     def _matches(self, i: int, Xa: np.ndarray, Xb: np.ndarray, C: np.ndarray, B: np.ndarray, td: float) -> bool:
         if self._state is None:
             return False
@@ -331,6 +351,9 @@ class FrameBatch:
 
     def __call__(self, i: int, values: gtsam.Values, H) -> np.ndarray:
         """The GTSAM error function of frame i's factor."""
+        if self._at_values and (H is None or self._eval.J_a is not None):
+            self._hits += 1
+            return self._serve(self._eval, i, i, H)
         a, b = self.knot_index[i]
         Xa = values.atPose3(int(self.knot_keys[a])).matrix()
         Xb = values.atPose3(int(self.knot_keys[b])).matrix()
@@ -354,8 +377,12 @@ class FrameBatch:
             self.n_single += 1
             ev = evaluate_frames(self.frames.take(i), Xa[None], Xb[None], C, B, td, need_jac)
             j = 0
+        return self._serve(ev, i, j, H)
+
+    def _serve(self, ev: FrameEvaluation, i: int, j: int, H) -> np.ndarray:
+        """Frame i's residual (and its Jacobians into ``H``) from row j of the evaluation ``ev``."""
         rows = slice(None) if self._all[i] else self._rows[i]
-        if need_jac:
+        if H is not None:
             H[0] = np.ascontiguousarray(ev.J_a[j, rows].reshape(-1, 6))
             H[1] = np.ascontiguousarray(ev.J_b[j, rows].reshape(-1, 6))
             H[2] = np.ascontiguousarray(ev.J_cam[j, rows].reshape(-1, 6))

@@ -183,6 +183,35 @@ def test_frame_batch_serves_each_factor_its_own_values():
     assert batch.n_single > 0
 
 
+def test_a_graph_evaluated_at_its_values_gives_the_same_error_and_linearization():
+    """Inside FrameBatch.evaluated_at the factors skip reading their values: a whole graph's error and linear system
+    are the same numbers as with the per-factor checks, and after it the checks are back (other values answered)."""
+    rng = np.random.default_rng(11)
+    frames, Xa, Xb, C, B, td = reprojection_case(rng, m=5, corr=True, holes=True)
+    batch, values = reprojection_values(frames, Xa, Xb, C, B, td)
+    graph = gtsam.NonlinearFactorGraph()
+    for f in make_reprojection_factors(batch, sigma_px=0.7, robust="huber"):
+        graph.add(f)
+    v2 = gtsam.Values(values)
+    v2.update(gtsam.symbol("c", 0), gtsam.Pose3(C @ se3_exp(rng.normal(scale=0.02, size=6))))
+    v2.update(gtsam.symbol("t", 0), np.array([td - 0.004]))
+    plain_errs = []
+    for vals in (values, v2):
+        plain_err = graph.error(vals)
+        plain_errs.append(plain_err)
+        plain_lin = graph.linearize(vals).jacobian()
+        with batch.evaluated_at(vals, jacobians=False):
+            fast_err = graph.error(vals)
+        with batch.evaluated_at(vals, jacobians=True):
+            fast_lin = graph.linearize(vals).jacobian()
+        assert fast_err == plain_err
+        assert np.array_equal(fast_lin[0], plain_lin[0]) and np.array_equal(fast_lin[1], plain_lin[1])
+    # Left the context: a factor asked about other values than the last evaluation's evaluates them.
+    with batch.evaluated_at(v2, jacobians=False):
+        pass
+    assert graph.error(values) == plain_errs[0] != plain_errs[1]
+
+
 def test_robust_reprojection_noise_keeps_inliers_at_full_weight():
     rng = np.random.default_rng(3)
     frames, Xa, Xb, C, B, td = reprojection_case(rng, m=1, holes=False)

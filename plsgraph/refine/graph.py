@@ -810,21 +810,37 @@ def _damped_solve(lin: gtsam.GaussianFactorGraph, dims: list[tuple[int, int]], l
     return damped.optimize()
 
 
-def _levenberg_marquardt(graph, initial: gtsam.Values, opt: RefinementOptions, progress=None):
+def _levenberg_marquardt(graph, initial: gtsam.Values, opt: RefinementOptions, progress=None,
+                         batch: FrameBatch | None = None):
     """Levenberg-Marquardt on top of GTSAM's linearization and elimination.
 
     GTSAM's own LevenbergMarquardtOptimizer gave the same steps but spent seconds per iteration in C++ on
     long recordings (docs/refinement.md) where linearize + eliminate take a fraction of that; this loop
-    does exactly: linearize, damp, eliminate, retract, evaluate, adapt the damping.
+    does exactly: linearize, damp, eliminate, retract, evaluate, adapt the damping. ``batch``: the graph's
+    reprojection factors' batch, evaluated once per error and linearization and served to the factors without
+    their reading the values (:meth:`FrameBatch.evaluated_at`); the same numbers either way.
     """
+
+    def error(v: gtsam.Values) -> float:
+        if batch is None:
+            return graph.error(v)
+        with batch.evaluated_at(v, jacobians=False):
+            return graph.error(v)
+
+    def linearize(v: gtsam.Values):
+        if batch is None:
+            return graph.linearize(v)
+        with batch.evaluated_at(v, jacobians=True):
+            return graph.linearize(v)
+
     values = initial
-    err = graph.error(values)
+    err = error(values)
     dims = [(int(k), _dim_of(values, int(k))) for k in values.keys()]
     lam = opt.lm_lambda_min
     converged = False
     it = 0
     for it in range(1, opt.max_iterations + 1):
-        lin = graph.linearize(values)
+        lin = linearize(values)
         accepted = False
         while lam <= 1e12:
             try:
@@ -833,7 +849,7 @@ def _levenberg_marquardt(graph, initial: gtsam.Values, opt: RefinementOptions, p
                 lam *= 10.0
                 continue
             new = values.retract(delta)
-            new_err = graph.error(new)
+            new_err = error(new)
             if np.isfinite(new_err) and new_err <= err:
                 accepted = True
                 break
@@ -853,9 +869,10 @@ def _levenberg_marquardt(graph, initial: gtsam.Values, opt: RefinementOptions, p
     return values, it, converged
 
 
-def _optimize(graph, initial: gtsam.Values, opt: RefinementOptions, progress=None) -> tuple[gtsam.Values, int, bool]:
+def _optimize(graph, initial: gtsam.Values, opt: RefinementOptions, progress=None,
+              batch: FrameBatch | None = None) -> tuple[gtsam.Values, int, bool]:
     if opt.optimizer == "lm":
-        return _levenberg_marquardt(graph, initial, opt, progress)
+        return _levenberg_marquardt(graph, initial, opt, progress, batch)
     if opt.optimizer == "dogleg":
         params = gtsam.DoglegParams()
         params.setMaxIterations(opt.max_iterations)
@@ -1289,7 +1306,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             W = np.array(frozen) @ J0  # user-axes functionals -> GTSAM tangent at C0
             solve_graph.add(make_subspace_prior(KEY_CAM, KEY_TD, C0, [td_seed], W, _FREEZE_SIGMA))
         t0 = time.perf_counter()
-        values, it, converged = _optimize(solve_graph, values, opt, progress)
+        values, it, converged = _optimize(solve_graph, values, opt, progress, batch)
         t_opt += time.perf_counter() - t0
         total_it += it
         per, rms, _ = _frame_rms(batch, values)
