@@ -53,7 +53,9 @@ DECAY_LOOKBACK = 5.0
 
 def pixel_index(stream: EventStream) -> np.ndarray:
     """Flat pixel index y * width + x of every event (intp)."""
-    return stream.y.astype(np.intp) * stream.width + stream.x.astype(np.intp)
+    pix = np.multiply(stream.y, stream.width, dtype=np.intp)  # one new array, no temporaries
+    pix += stream.x
+    return pix
 
 
 def _until(stream: EventStream, t_ref_ns: int | None) -> tuple[EventStream, int]:

@@ -1144,8 +1144,20 @@ def camera_track_from_event_chunks(
         if mp.current_process().daemon:  # e.g. a Dask or multiprocessing pool worker: it may not start processes
             workers = 1
 
+    later: list[EventStream] = []  # chunks after ``buf`` in time order, joined to it only when a span is detected
+
+    def joined() -> EventStream | None:
+        """``buf`` with the chunks waiting in ``later``: joined once per span, not once per chunk (which copies the
+        growing span again for every chunk)."""
+        nonlocal buf
+        if later:
+            buf = EventStream.concatenate(([buf] if buf is not None else []) + later)
+            later.clear()
+        return buf
+
     def detect(t_end: int) -> None:
         nonlocal buf, next_q, pool
+        joined()
         q = np.arange(next_q, t_end, period, dtype=np.int64)
         if q.size:
             args = (buf, camera, board, rate_hz, kind, q, detect_options, sigma_px)
@@ -1183,18 +1195,21 @@ def camera_track_from_event_chunks(
             if next_q is not None and ch.t_first < next_q - period:
                 late_events += int(np.count_nonzero(ch.t < next_q - period))  # their windows are already done
             if buf is None:
-                buf = ch
-            elif ch.t_first >= buf.t_last:
-                buf = EventStream.concatenate([buf, ch])
+                buf, t_last = ch, ch.t_last
+            elif ch.t_first >= t_last:
+                later.append(ch)
+                t_last = ch.t_last
             else:  # packets that overlap in time: merge, so every window sees its events in order
-                joined = EventStream(*(np.concatenate([getattr(buf, a), getattr(ch, a)]) for a in "txyp"),
-                                     buf.width, buf.height)
-                buf = joined.sorted()
+                held = joined()
+                merged = EventStream(*(np.concatenate([getattr(held, a), getattr(ch, a)]) for a in "txyp"),
+                                     held.width, held.height)
+                buf = merged.sorted()
+                t_last = buf.t_last
             if next_q is None:
                 next_q = buf.t_first + period
-            if buf.t_last - reorder_ns - next_q >= span_ns:
-                detect(buf.t_last - reorder_ns)  # windows well before the newest event have all their events
-        if buf is None or len(buf) == 0:
+            if t_last - reorder_ns - next_q >= span_ns:
+                detect(t_last - reorder_ns)  # windows well before the newest event have all their events
+        if joined() is None or len(buf) == 0:
             raise InsufficientDataError("front end: the event stream is empty; check the recording's event topic")
         detect(buf.t_last + period)
         while pending:
