@@ -510,3 +510,35 @@ def test_small_images_give_no_board_not_an_error(shape):
 
     img = np.random.default_rng(1).poisson(1.0, shape).astype(float)
     assert detect_circle_grid(img, load_board("acircles_4x11_a2"), CAM, rings=True).reason != REASON_OK
+
+
+def test_rim_holes_are_the_compact_gaps_inside_rims_with_exact_centroids_and_areas():
+    """rim_holes against a direct count on an image with known holes: two rings (their insides are holes, centroid and
+    area exact), a C-shaped rim (open: its inside joins the background, no hole), and a small compact blob of active
+    pixels on its own (the active pixels themselves are never a hole, however compact)."""
+    from plsgraph.frontend.detect import rim_holes
+
+    active = np.zeros((60, 90), dtype=bool)
+    active[10:21, 10:21] = True
+    active[12:19, 12:19] = False  # hole 1: 7 x 7 inside a square ring
+    yy, xx = np.mgrid[0:60, 0:90]
+    r = np.hypot(xx - 50.0, yy - 20.0)
+    active |= (r >= 5) & (r <= 7)
+    inside = r < 5  # hole 2: the disk inside the circular ring
+    c_rim = (np.hypot(xx - 25.0, yy - 45.0) >= 4) & (np.hypot(xx - 25.0, yy - 45.0) <= 6) & (xx < 28)
+    active |= c_rim  # open on the right: no hole
+    active[44:47, 70:73] = True  # a compact blob of activity alone
+    cent, area = rim_holes(active)
+    order = np.argsort(cent[:, 0])
+    cent, area = cent[order], area[order]
+    assert cent.shape == (2, 2)
+    assert area[0] == 49 and np.allclose(cent[0], (15.0, 15.0))
+    assert area[1] == inside.sum()
+    assert np.allclose(cent[1], (xx[inside].mean(), yy[inside].mean()))
+    # Nothing active, or only a compact blob (its 16 pixels pass every test of a hole's size and shape): no holes,
+    # in the shapes callers expect.
+    blob = np.zeros((100, 100), bool)
+    blob[40:44, 50:54] = True
+    for img in (np.zeros((20, 20), bool), blob):
+        c, a = rim_holes(img)
+        assert c.shape == (0, 2) and a.shape == (0,)

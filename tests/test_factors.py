@@ -210,6 +210,14 @@ def test_a_graph_evaluated_at_its_values_gives_the_same_error_and_linearization(
     with batch.evaluated_at(v2, jacobians=False):
         pass
     assert graph.error(values) == plain_errs[0] != plain_errs[1]
+    # Left through an exception: the checks are back as well.
+    with pytest.raises(KeyError), batch.evaluated_at(v2, jacobians=False):
+        raise KeyError("stop")
+    assert graph.error(values) == plain_errs[0]
+    # A linearization inside a context evaluated without Jacobians evaluates them (the checked path).
+    with batch.evaluated_at(values, jacobians=False):
+        lin = graph.linearize(values).jacobian()
+    assert np.array_equal(lin[0], graph.linearize(values).jacobian()[0])
 
 
 def test_robust_reprojection_noise_keeps_inliers_at_full_weight():

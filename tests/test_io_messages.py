@@ -100,3 +100,45 @@ def test_camera_info_parser_equals_rosbags_and_refuses_a_truncated_message():
                 parse_camera_info_cdr(data[:k], 5)
     # A zero stamp falls back to the log time (marked negative, as the other parsers do).
     assert parse_camera_info_cdr(_camera_bytes(0, "", cam), 5)[0] == -6
+
+
+def test_camera_info_with_a_damaged_string_is_refused_as_rosbags_refuses_it():
+    """A distortion model or frame id that is not UTF-8, or lost its terminating NUL, makes the message unreadable
+    (it is skipped and the next camera info is used), as the message deserializer it replaces did."""
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    cam = CameraModel(346, 260, np.array([[251.3, 0, 171.2], [0, 250.9, 129.8], [0, 0, 1]]), np.zeros(5))
+    good = _camera_bytes(1_700_000_000_500_000_000, "cam", cam)
+    at_model = good.index(b"plumb_bob")
+    at_frame = good.index(b"cam")
+    damaged = []
+    for i, byte in ((at_model + 2, 0xFF), (at_frame + 1, 0xC3), (at_model + len("plumb_bob"), ord("x"))):
+        b = bytearray(good)
+        b[i] = byte  # invalid UTF-8, a truncated two-byte sequence, the NUL overwritten
+        damaged.append(bytes(b))
+    for data in damaged:
+        with pytest.raises(Exception):  # noqa: B017 - rosbags raises its own error types
+            ts.deserialize_cdr(data, CAMERA_INFO_TYPE)
+        with pytest.raises(RecordingError, match="UTF-8|NUL"):
+            parse_camera_info_cdr(data, 5)
+
+
+def test_a_damaged_camera_info_is_skipped_and_the_next_one_used(tmp_path):
+    from plsgraph.io.recording import _Collector
+
+    cam = CameraModel(346, 260, np.array([[251.3, 0, 171.2], [0, 250.9, 129.8], [0, 0, 1]]), np.zeros(5))
+    good = _camera_bytes(1_700_000_000_500_000_000, "cam", cam)
+    bad = bytearray(good)
+    bad[good.index(b"plumb_bob") + 2] = 0xFF
+    c = _Collector("camera_info", "/camera_info")
+    for data, t in ((bytes(bad), 1), (good, 2)):
+        try:
+            c.add_cdr(data, t)
+        except RecordingError:
+            c.bad += 1
+    warnings: list[str] = []
+    got = c.build(warnings.append)
+    assert c.bad == 1 and not warnings
+    assert got is not None and np.array_equal(got.K, cam.K)
+

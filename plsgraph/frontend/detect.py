@@ -470,9 +470,10 @@ def board_is_symmetric(board: Board) -> bool:
 def rim_holes(active: np.ndarray, min_area: int = 2, max_area_frac: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
     """Centroids (k, 2) and areas (k,) of the compact holes of a binary activity image.
 
-    A hole is a 4-connected component of inactive pixels that does not touch the image border, is
-    no larger than ``max_area_frac`` of the image, fills at least 60 % of its bounding ellipse and is
-    not elongated beyond 4 : 1 (a ring's inside seen obliquely or smeared by motion stays compact).
+    A hole is a 4-connected component of inactive pixels (never the active pixels themselves, however compact
+    they are) that does not touch the image border, is no larger than ``max_area_frac`` of the image, fills at
+    least 60 % of its bounding ellipse and is not elongated beyond 4 : 1 (a ring's inside seen obliquely or
+    smeared by motion stays compact).
     """
     h, w = active.shape
     # The components' labels only (OpenCV's statistics of every component, the large ones included, cost twice the
@@ -482,6 +483,7 @@ def rim_holes(active: np.ndarray, min_area: int = 2, max_area_frac: float = 0.02
     flat = labels.ravel()
     area = np.bincount(flat, minlength=n)
     ok = (area >= min_area) & (area <= max_area_frac * h * w)
+    ok[0] = False  # label 0 is the active pixels themselves, never a hole
     if not ok.any():
         return np.zeros((0, 2)), np.zeros(0)
     px = np.flatnonzero(ok[flat])

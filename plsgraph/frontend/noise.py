@@ -89,8 +89,9 @@ def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ
 
     Cost: every event is touched a few times (its pixel and polarity, its part of the span, the phase sums), the
     sums' cosines and sines in single precision of the phase within its cycle (reduced in double precision first;
-    the error is below 1e-6 rad, nothing next to the locking test's tolerance). The stream is in time order, so each
-    part of the span is a slice of it."""
+    the mean phases move by less than 1e-6 rad, nothing next to the locking test's tolerance, though an event within
+    that of the gate, or a pixel exactly at a threshold, can come out the other way than in double precision). The
+    stream is in time order, so each part of the span is a slice of it."""
     none = np.zeros(len(stream), dtype=bool)
     if len(stream) == 0:
         return none, None, 0

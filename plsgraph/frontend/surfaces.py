@@ -53,8 +53,9 @@ DECAY_LOOKBACK = 5.0
 
 def pixel_index(stream: EventStream) -> np.ndarray:
     """Flat pixel index y * width + x of every event (intp)."""
-    pix = np.multiply(stream.y, stream.width, dtype=np.intp)  # one new array, no temporaries
-    pix += stream.x
+    # One new array and no temporaries; "unsafe" casting converts any coordinate dtype as astype(np.intp) did.
+    pix = np.multiply(stream.y, stream.width, dtype=np.intp, casting="unsafe")
+    np.add(pix, stream.x, out=pix, casting="unsafe")
     return pix
 
 

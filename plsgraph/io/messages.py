@@ -279,6 +279,21 @@ def parse_imu_cdr(data, log_time: int):
     return _stamp_or_log(stamp, log_time), frame, np.concatenate([a[13:16], a[25:28]])
 
 
+def _strict_string(r: CdrReader, what: str) -> str:
+    """A CDR string that must end in its NUL and be UTF-8, as a message deserializer demands: a damaged camera info is
+    refused (and the next one used), not read with a garbled distortion model."""
+    n = r.uint32()
+    r._need(n, f"string of {n}")
+    raw = bytes(r.buf[r.pos : r.pos + n])
+    r.pos += n
+    if not raw or raw[-1] != 0:
+        raise CdrError(f"CDR string {what} lacks its terminating NUL")
+    try:
+        return raw[:-1].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise CdrError(f"CDR string {what} is not UTF-8 ({exc.reason})") from exc
+
+
 @dataclass(frozen=True)
 class CameraInfoFields:
     """The fields of a sensor_msgs/CameraInfo the calibration uses (names as in the message)."""
@@ -294,10 +309,11 @@ def parse_camera_info_cdr(data, log_time: int):
     """(stamp, :class:`CameraInfoFields`) of a sensor_msgs/CameraInfo; the whole message is read (r, p, binning and
     the region of interest too), so that a truncated one is refused like any other."""
     r = CdrReader(data)
-    stamp, _frame = r.header()
+    stamp = r.time()
+    _strict_string(r, "frame_id")
     height = r.uint32()
     width = r.uint32()
-    model = r.string()
+    model = _strict_string(r, "distortion_model")
     d = r.sequence("float64")
     k = r.fixed("float64", 9)
     r.fixed("float64", 9 + 12)  # r, p
