@@ -476,39 +476,21 @@ def rim_holes(active: np.ndarray, min_area: int = 2, max_area_frac: float = 0.02
     smeared by motion stays compact).
     """
     h, w = active.shape
-    # The components' labels only (OpenCV's statistics of every component, the large ones included, cost twice the
-    # labelling); areas by counting, bounding boxes and centroids only for the components small enough to be holes.
-    # The same numbers as connectedComponentsWithStats gives (integer sums, the same division).
-    n, labels = cv2.connectedComponents((~active).astype(np.uint8), connectivity=4)
-    flat = labels.ravel()
-    area = np.bincount(flat, minlength=n)
-    ok = (area >= min_area) & (area <= max_area_frac * h * w)
-    ok[0] = False  # label 0 is the active pixels themselves, never a hole
-    if not ok.any():
-        return np.zeros((0, 2)), np.zeros(0)
-    px = np.flatnonzero(ok[flat])
-    lab = flat[px]
-    y, x = np.divmod(px, w)
-    x0, y0 = np.full(n, w), np.full(n, h)
-    x1, y1 = np.full(n, -1), np.full(n, -1)
-    np.minimum.at(x0, lab, x)
-    np.minimum.at(y0, lab, y)
-    np.maximum.at(x1, lab, x)
-    np.maximum.at(y1, lab, y)
-    bw, bh = x1 - x0 + 1, y1 - y0 + 1
+    n, _, stats, cent = cv2.connectedComponentsWithStats((~active).astype(np.uint8), connectivity=4)
+    x, y, bw, bh, area = stats.T
     fill = area / (0.25 * np.pi * np.maximum(bw * bh, 1))
-    ok &= (
-        (x0 > 0)
-        & (y0 > 0)
-        & (x0 + bw < w)
-        & (y0 + bh < h)
+    ok = (
+        (area >= min_area)
+        & (area <= max_area_frac * h * w)
+        & (x > 0)
+        & (y > 0)
+        & (x + bw < w)
+        & (y + bh < h)
         & (fill > 0.6)
         & (np.maximum(bw, bh) <= 4 * np.minimum(bw, bh))
     )
-    keep = np.flatnonzero(ok)
-    cent = np.stack([np.bincount(lab, weights=x, minlength=n)[keep], np.bincount(lab, weights=y, minlength=n)[keep]],
-                    axis=1) / area[keep, None]
-    return cent, area[keep].astype(float)
+    ok[0] = False  # label 0 is the active pixels themselves, never a hole
+    return cent[ok].astype(float), area[ok].astype(float)
 
 
 @lru_cache(maxsize=16)
