@@ -78,6 +78,12 @@ FLICKER_MIN_EVENTS = 10
 FLICKER_GATE_RAD = np.pi / 3
 
 
+#: Events handled at once by the flicker test: its temporaries stay a few megabytes (reused by the allocator) however
+#: long the span. Whole-span temporaries (a dozen arrays of 10-15 M events on a busy span) made the kernel map and zero
+#: a gigabyte of fresh memory per span, which took longer than the arithmetic.
+FLICKER_BLOCK_EVENTS = 1 << 20
+
+
 def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ, locking: float = FLICKER_LOCKING,
                    segments: int = HOT_SEGMENTS) -> tuple[np.ndarray, float | None, int]:
     """The events of ``stream`` that flicker with the lights (see the module's text): a bool per event, the flicker
@@ -87,39 +93,62 @@ def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ
     ``FLICKER_GATE_RAD`` of that phase: an edge that passes a lamp-lit pixel fires at other phases too, and those
     events stay (two thirds of them, for an edge at a random phase).
 
-    Cost: every event is touched a few times (its pixel and polarity, its part of the span, the phase sums), the
-    sums' cosines and sines in single precision of the phase within its cycle (reduced in double precision first;
-    the mean phases move by less than 1e-6 rad, nothing next to the locking test's tolerance, though an event within
-    that of the gate, or a pixel exactly at a threshold, can come out the other way than in double precision). The
-    stream is in time order, so each part of the span is a slice of it."""
-    none = np.zeros(len(stream), dtype=bool)
-    if len(stream) == 0:
+    Cost: every event is touched a few times (its pixel and polarity, its part of the span, the phase sums), in
+    blocks of :data:`FLICKER_BLOCK_EVENTS`; the sums' cosines and sines in single precision of the phase within its
+    cycle (reduced in double precision first; the mean phases move by less than 1e-6 rad, nothing next to the locking
+    test's tolerance, though an event within that of the gate, or a pixel exactly at a threshold, can come out the
+    other way than in double precision). The stream is in time order, so each part of the span is a slice of it."""
+    n = len(stream)
+    none = np.zeros(n, dtype=bool)
+    if n == 0:
         return none, None, 0
     h, w = stream.height, stream.width
     t0 = int(stream.t_first)
     span_s = (int(stream.t_last) - t0) * 1e-9
     if span_s < HOT_MIN_SPAN_S:
         return none, None, 0
-    key = pixel_index(stream) * 2 + (np.asarray(stream.p) > 0)  # one phase sum per pixel and polarity
-    counts = np.bincount(key, minlength=2 * h * w)
+    n_keys = 2 * h * w
+    t = np.asarray(stream.t)
+    blocks = [(a, min(a + FLICKER_BLOCK_EVENTS, n)) for a in range(0, n, FLICKER_BLOCK_EVENTS)]
+    # One key per pixel and polarity (one phase sum each), in int32: the only array as long as the span.
+    key = np.empty(n, dtype=np.int32)
+    counts = np.zeros(n_keys, dtype=np.int64)
+    for a, b in blocks:
+        kb = key[a:b]
+        np.multiply(stream.y[a:b], w, out=kb, dtype=np.int32, casting="unsafe")
+        np.add(kb, stream.x[a:b], out=kb, casting="unsafe")
+        kb *= 2
+        kb += np.asarray(stream.p[a:b]) > 0
+        counts += np.bincount(kb, minlength=n_keys)
     judged = counts >= FLICKER_MIN_EVENTS
     if not judged.any():
         return none, None, 0
     # Persistence: events in every part of the span (a lamp flickers all the time; an edge passes).
     steady = judged.copy()
-    edges = _part_edges(np.asarray(stream.t), t0, span_s, segments)
+    edges = _part_edges(t, t0, span_s, segments)
     for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-        steady &= np.bincount(key[lo:hi], minlength=2 * h * w) > 0
-    # Only steady pixels can lock: the phase sums of the others are not needed.
-    idx = np.flatnonzero(steady[key])
-    ks, d = key[idx], np.asarray(stream.t)[idx] - t0
+        seen = np.zeros(n_keys, dtype=bool)
+        for a in range(lo, hi, FLICKER_BLOCK_EVENTS):
+            seen[key[a:min(a + FLICKER_BLOCK_EVENTS, hi)]] = True
+        steady &= seen
+    # Phase sums of the steady pixels only (the others cannot lock), for every frequency in one pass over the events.
+    sums = np.zeros((len(freqs_hz), 2, n_keys))
+    for a, b in blocks:
+        kb = key[a:b]
+        idx = np.flatnonzero(steady[kb])
+        if idx.size == 0:
+            continue
+        ks = kb[idx]
+        d = t[a:b][idx] - t0
+        for j, f in enumerate(freqs_hz):
+            cyc = d * (f * 1e-9)  # cycles of the flicker since the span's start
+            cyc -= np.floor(cyc)
+            ang = (cyc * (2.0 * np.pi)).astype(np.float32)
+            sums[j, 0] += np.bincount(ks, np.cos(ang), minlength=n_keys)
+            sums[j, 1] += np.bincount(ks, np.sin(ang), minlength=n_keys)
     best = (0, None, None, None)  # (pixels, frequency, locked keys, their mean phase)
-    for f in freqs_hz:
-        cyc = d * (f * 1e-9)  # cycles of the flicker since the span's start
-        cyc -= np.floor(cyc)
-        ang = (cyc * (2.0 * np.pi)).astype(np.float32)
-        c = np.bincount(ks, np.cos(ang), minlength=2 * h * w)
-        s = np.bincount(ks, np.sin(ang), minlength=2 * h * w)
+    for j, f in enumerate(freqs_hz):
+        c, s = sums[j]
         r = np.hypot(c, s) / np.maximum(counts, 1)
         locked = steady & (r >= locking) & (counts * r * r >= FLICKER_RAYLEIGH)
         n_pix = int(np.count_nonzero(locked.reshape(h * w, 2).any(axis=1)))
@@ -128,11 +157,15 @@ def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ
     n_pix, f, locked, phase = best
     if not n_pix:
         return none, None, 0
-    on = np.flatnonzero(locked[key])
-    t = (np.asarray(stream.t)[on] - t0).astype(np.float64) * 1e-9
-    dphi = np.angle(np.exp(1j * ((2.0 * np.pi * f) * t - phase[key[on]])))
     out = none.copy()
-    out[on[np.abs(dphi) < FLICKER_GATE_RAD]] = True
+    for a, b in blocks:
+        kb = key[a:b]
+        on = np.flatnonzero(locked[kb])
+        if on.size == 0:
+            continue
+        tt = (t[a:b][on] - t0).astype(np.float64) * 1e-9
+        dphi = np.angle(np.exp(1j * ((2.0 * np.pi * f) * tt - phase[kb[on]])))
+        out[a + on[np.abs(dphi) < FLICKER_GATE_RAD]] = True
     return out, f, n_pix
 
 
