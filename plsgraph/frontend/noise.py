@@ -21,7 +21,6 @@ import cv2
 import numpy as np
 
 from ..core.events import EventStream
-from .surfaces import pixel_index
 
 #: Lowest event rate (Hz) of a pixel called hot: well above background activity (0.1-2 Hz per pixel).
 HOT_MIN_RATE_HZ = 20.0
@@ -43,8 +42,11 @@ def hot_pixel_mask(stream: EventStream, min_rate_hz: float = HOT_MIN_RATE_HZ, fa
     span_s = (int(stream.t_last) - int(stream.t_first)) * 1e-9
     if span_s < HOT_MIN_SPAN_S:
         return mask
-    pix = pixel_index(stream)
-    counts = np.bincount(pix, minlength=h * w).astype(np.float32).reshape(h, w)
+    blocks = _blocks(len(stream))
+    counts = np.zeros(h * w, dtype=np.int64)
+    for a, b in blocks:
+        counts += np.bincount(_pixels(stream, a, b), minlength=h * w)
+    counts = counts.astype(np.float32).reshape(h, w)
     # The second busiest of the 8 neighbours: a rim or a line has two busy neighbours at least, a hot pixel none
     # (or one, when two hot pixels touch).
     pad = cv2.copyMakeBorder(counts, 1, 1, 1, 1, cv2.BORDER_CONSTANT, value=0.0)
@@ -55,13 +57,35 @@ def hot_pixel_mask(stream: EventStream, min_rate_hz: float = HOT_MIN_RATE_HZ, fa
     if not cand.any():
         return mask
     # Persistence: events in every part of the span.
-    sel = cand.ravel()[pix]
     edges = np.linspace(int(stream.t_first), int(stream.t_last) + 1, segments + 1)
-    part = np.clip(np.searchsorted(edges, stream.t[sel], side="right") - 1, 0, segments - 1)
     seen = np.zeros((h * w, segments), dtype=bool)
-    seen[pix[sel], part] = True
+    for a, b in blocks:
+        pix = _pixels(stream, a, b)
+        sel = cand.ravel()[pix]
+        if not sel.any():
+            continue
+        part = np.clip(np.searchsorted(edges, stream.t[a:b][sel], side="right") - 1, 0, segments - 1)
+        seen[pix[sel], part] = True
     mask.ravel()[:] = seen.all(axis=1)
     return mask
+
+
+#: Events handled at once by the noise tests (hot pixels, flicker, dropping pixels): their temporaries stay a few
+#: megabytes, reused by the allocator, however long the span. Whole-span temporaries (a dozen arrays of 10-15 M events
+#: on a busy span) made the kernel map and zero a gigabyte of fresh memory per span, which took longer than the
+#: arithmetic.
+NOISE_BLOCK_EVENTS = 1 << 20
+
+
+def _blocks(n: int) -> list[tuple[int, int]]:
+    return [(a, min(a + NOISE_BLOCK_EVENTS, n)) for a in range(0, n, NOISE_BLOCK_EVENTS)]
+
+
+def _pixels(stream: EventStream, a: int, b: int) -> np.ndarray:
+    """:func:`.surfaces.pixel_index` of the events a..b."""
+    pix = np.multiply(stream.y[a:b], stream.width, dtype=np.intp, casting="unsafe")
+    np.add(pix, stream.x[a:b], out=pix, casting="unsafe")
+    return pix
 
 
 #: Flicker frequencies looked for (Hz): twice the 50 and 60 Hz mains.
@@ -78,12 +102,6 @@ FLICKER_MIN_EVENTS = 10
 FLICKER_GATE_RAD = np.pi / 3
 
 
-#: Events handled at once by the flicker test: its temporaries stay a few megabytes (reused by the allocator) however
-#: long the span. Whole-span temporaries (a dozen arrays of 10-15 M events on a busy span) made the kernel map and zero
-#: a gigabyte of fresh memory per span, which took longer than the arithmetic.
-FLICKER_BLOCK_EVENTS = 1 << 20
-
-
 def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ, locking: float = FLICKER_LOCKING,
                    segments: int = HOT_SEGMENTS) -> tuple[np.ndarray, float | None, int]:
     """The events of ``stream`` that flicker with the lights (see the module's text): a bool per event, the flicker
@@ -94,7 +112,7 @@ def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ
     events stay (two thirds of them, for an edge at a random phase).
 
     Cost: every event is touched a few times (its pixel and polarity, its part of the span, the phase sums), in
-    blocks of :data:`FLICKER_BLOCK_EVENTS`; the sums' cosines and sines in single precision of the phase within its
+    blocks of :data:`NOISE_BLOCK_EVENTS`; the sums' cosines and sines in single precision of the phase within its
     cycle (reduced in double precision first; the mean phases move by less than 1e-6 rad, nothing next to the locking
     test's tolerance, though an event within that of the gate, or a pixel exactly at a threshold, can come out the
     other way than in double precision). The stream is in time order, so each part of the span is a slice of it."""
@@ -109,7 +127,7 @@ def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ
         return none, None, 0
     n_keys = 2 * h * w
     t = np.asarray(stream.t)
-    blocks = [(a, min(a + FLICKER_BLOCK_EVENTS, n)) for a in range(0, n, FLICKER_BLOCK_EVENTS)]
+    blocks = _blocks(n)
     # One key per pixel and polarity (one phase sum each), in int32: the only array as long as the span.
     key = np.empty(n, dtype=np.int32)
     counts = np.zeros(n_keys, dtype=np.int64)
@@ -128,8 +146,8 @@ def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ
     edges = _part_edges(t, t0, span_s, segments)
     for lo, hi in zip(edges[:-1], edges[1:], strict=True):
         seen = np.zeros(n_keys, dtype=bool)
-        for a in range(lo, hi, FLICKER_BLOCK_EVENTS):
-            seen[key[a:min(a + FLICKER_BLOCK_EVENTS, hi)]] = True
+        for a in range(lo, hi, NOISE_BLOCK_EVENTS):
+            seen[key[a:min(a + NOISE_BLOCK_EVENTS, hi)]] = True
         steady &= seen
     # Phase sums of the steady pixels only (the others cannot lock), for every frequency in one pass over the events.
     sums = np.zeros((len(freqs_hz), 2, n_keys))
@@ -197,5 +215,8 @@ def drop_pixels(stream: EventStream, mask: np.ndarray) -> EventStream:
     """``stream`` without the events of the pixels set in ``mask`` (height, width); the stream itself if none."""
     if not mask.any() or len(stream) == 0:
         return stream
-    keep = ~mask.ravel()[pixel_index(stream)]
+    keep = np.empty(len(stream), dtype=bool)
+    bad = mask.ravel()
+    for a, b in _blocks(len(stream)):
+        np.logical_not(bad[_pixels(stream, a, b)], out=keep[a:b])
     return EventStream(stream.t[keep], stream.x[keep], stream.y[keep], stream.p[keep], stream.width, stream.height)
