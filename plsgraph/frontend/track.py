@@ -1052,6 +1052,8 @@ def _detect_span(args: tuple) -> tuple[Detections, dict, list]:
     (:func:`~plsgraph.frontend.pose.frame_pose`: it depends on that detection alone, so it is solved where the
     detection was made, in parallel with the other spans)."""
     buf, camera, board, rate_hz, kind, q, detect_options, sigma_px = args
+    if isinstance(buf, list):  # the span's chunks, joined here rather than in the process that reads them
+        buf = buf[0] if len(buf) == 1 else EventStream.concatenate(buf)
     dets, part = detect_in_events(buf, camera, board, rate_hz, kind, t_query_ns=q, require_detection=False,
                                   **detect_options)
     c0 = time.perf_counter()
@@ -1093,7 +1095,6 @@ def camera_track_from_event_chunks(
     span_ns = int(span_s * 1e9)
     keep_ns = max(int(history_s * 1e9), int(window_s * 1e9) + period)  # every window's look-back stays buffered
     reorder_ns = 100_000_000  # packets arrive up to this much out of order: their windows wait that long
-    buf: EventStream | None = None
     next_q: int | None = None
     t_parts: list[np.ndarray] = []
     uv_parts: list[np.ndarray] = []
@@ -1144,23 +1145,16 @@ def camera_track_from_event_chunks(
         if mp.current_process().daemon:  # e.g. a Dask or multiprocessing pool worker: it may not start processes
             workers = 1
 
-    later: list[EventStream] = []  # chunks after ``buf`` in time order, joined to it only when a span is detected
-
-    def joined() -> EventStream | None:
-        """``buf`` with the chunks waiting in ``later``: joined once per span, not once per chunk (which copies the
-        growing span again for every chunk)."""
-        nonlocal buf
-        if later:
-            buf = EventStream.concatenate(([buf] if buf is not None else []) + later)
-            later.clear()
-        return buf
+    # The buffered events as the chunks they came in, in time order: a span is handed on as its chunks and joined
+    # where it is detected (a worker), so this process, which also reads the recording, neither copies the growing
+    # span again for every chunk nor makes one span-sized copy per span.
+    parts: list[EventStream] = []
 
     def detect(t_end: int) -> None:
-        nonlocal buf, next_q, pool
-        joined()
+        nonlocal parts, next_q, pool
         q = np.arange(next_q, t_end, period, dtype=np.int64)
         if q.size:
-            args = (buf, camera, board, rate_hz, kind, q, detect_options, sigma_px)
+            args = (list(parts), camera, board, rate_hz, kind, q, detect_options, sigma_px)
             if pool is not None:
                 # Spans are independent (tracking restarts at each), so they can be detected side by side with
                 # the same result; at most ``workers + QUEUED_SPANS`` spans' events are held at once, so memory
@@ -1177,7 +1171,9 @@ def camera_track_from_event_chunks(
             else:
                 absorb(*_detect_span(args))
             next_q = int(q[-1]) + period
-        buf = buf.slice_time(next_q - keep_ns, np.iinfo(np.int64).max)
+        cut = next_q - keep_ns  # every later window's look-back stays
+        parts = [p.slice_time(cut, np.iinfo(np.int64).max) for p in parts if p.t_last >= cut]
+        parts = [p for p in parts if len(p)]
 
     try:  # the worker processes end however this ends
         if workers > 1:
@@ -1194,24 +1190,23 @@ def camera_track_from_event_chunks(
                 continue
             if next_q is not None and ch.t_first < next_q - period:
                 late_events += int(np.count_nonzero(ch.t < next_q - period))  # their windows are already done
-            if buf is None:
-                buf, t_last = ch, ch.t_last
+            if not parts:
+                parts, t_last = [ch], ch.t_last
             elif ch.t_first >= t_last:
-                later.append(ch)
+                parts.append(ch)
                 t_last = ch.t_last
             else:  # packets that overlap in time: merge, so every window sees its events in order
-                held = joined()
+                held = parts[0] if len(parts) == 1 else EventStream.concatenate(parts)
                 merged = EventStream(*(np.concatenate([getattr(held, a), getattr(ch, a)]) for a in "txyp"),
-                                     held.width, held.height)
-                buf = merged.sorted()
-                t_last = buf.t_last
+                                     held.width, held.height).sorted()
+                parts, t_last = [merged], merged.t_last
             if next_q is None:
-                next_q = buf.t_first + period
+                next_q = parts[0].t_first + period
             if t_last - reorder_ns - next_q >= span_ns:
                 detect(t_last - reorder_ns)  # windows well before the newest event have all their events
-        if joined() is None or len(buf) == 0:
+        if not parts:
             raise InsufficientDataError("front end: the event stream is empty; check the recording's event topic")
-        detect(buf.t_last + period)
+        detect(t_last + period)
         while pending:
             absorb(*pending.pop(0).result())
     finally:
