@@ -31,6 +31,7 @@ import logging
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import cached_property
 
 import gtsam
 import numpy as np
@@ -137,6 +138,15 @@ class FrameEvaluation:
     J_cam: np.ndarray | None = None
     J_board: np.ndarray | None = None
     J_td: np.ndarray | None = None
+
+    @cached_property
+    def stacked(self) -> tuple:
+        """The residual (m, 2 N) and the Jacobians (m, 2 N, k) with each frame's points stacked (views of
+        contiguous arrays): one frame's block is one index away."""
+        m = self.residual.shape[0]
+        Js = () if self.J_a is None else (self.J_a, self.J_b, self.J_cam, self.J_board, self.J_td)
+        return (np.ascontiguousarray(self.residual).reshape(m, -1),) + tuple(
+            np.ascontiguousarray(J).reshape(m, -1, J.shape[-1]) for J in Js)
 
 
 def interpolation_jacobians(
@@ -281,6 +291,9 @@ class FrameBatch:
         valid = frames.valid
         self._rows = [np.flatnonzero(v) for v in valid]
         self._all = [r.size == valid.shape[1] for r in self._rows]
+        # Per frame, its points' rows in the stacked (2 N) residual, or None for all of them.
+        self._rows2 = [None if full else (2 * r[:, None] + np.arange(2)).ravel()
+                       for r, full in zip(self._rows, self._all, strict=True)]
         # Knots some frame needs; only those are read from the Values.
         self._used = np.unique(self.knot_index)
         self._state: tuple | None = None  # (knot poses, C, B, td) the cached evaluation was made from
@@ -381,14 +394,16 @@ class FrameBatch:
 
     def _serve(self, ev: FrameEvaluation, i: int, j: int, H) -> np.ndarray:
         """Frame i's residual (and its Jacobians into ``H``) from row j of the evaluation ``ev``."""
-        rows = slice(None) if self._all[i] else self._rows[i]
-        if H is not None:
-            H[0] = np.ascontiguousarray(ev.J_a[j, rows].reshape(-1, 6))
-            H[1] = np.ascontiguousarray(ev.J_b[j, rows].reshape(-1, 6))
-            H[2] = np.ascontiguousarray(ev.J_cam[j, rows].reshape(-1, 6))
-            H[3] = np.ascontiguousarray(ev.J_board[j, rows].reshape(-1, 6))
-            H[4] = np.ascontiguousarray(ev.J_td[j, rows].reshape(-1, 1))
-        return np.ascontiguousarray(ev.residual[j, rows].reshape(-1))
+        flat = ev.stacked
+        rows = self._rows2[i]
+        if rows is None:  # every point: row j of each stacked array is already one contiguous block
+            if H is not None:
+                H[0], H[1], H[2], H[3], H[4] = flat[1][j], flat[2][j], flat[3][j], flat[4][j], flat[5][j]
+            return flat[0][j]
+        if H is not None:  # the seen points' rows, gathered (a contiguous copy)
+            H[0], H[1], H[2], H[3], H[4] = (flat[1][j, rows], flat[2][j, rows], flat[3][j, rows], flat[4][j, rows],
+                                            flat[5][j, rows])
+        return flat[0][j, rows]
 
 
 def reprojection_noise(n_points: int, sigma_px: float, robust: str | None, robust_k: float) -> gtsam.noiseModel.Base:
