@@ -71,3 +71,32 @@ def test_board_layout_matches_opencv_convention():
         Board(pattern="asymmetric_circles", cols=4, rows=11, square_size=0.01, circle_diameter=0.03)
     with pytest.raises(InputError):
         load_board("no_such_board")
+
+
+def test_a_tracks_interpolator_is_made_once_gives_the_same_poses_and_is_not_pickled():
+    import pickle
+
+    from plsgraph.core.geometry import interpolate_poses
+    from plsgraph.core.tracks import BaseTrack, CameraTrack
+
+    rng = np.random.default_rng(3)
+    n = 50
+    t = np.cumsum(rng.uniform(0.01, 0.03, n))
+    R = np.stack([so3_exp(rng.normal(scale=0.5, size=3)) for _ in range(n)])
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = rng.normal(size=(n, 3))
+    base = BaseTrack(t, T, np.zeros((n, 3)), np.zeros((n, 3)))
+    cam = CameraTrack(t, T)
+    tq = np.linspace(t[0], t[-1], 77)
+    for track in (base, cam):
+        first = track.poses_at(tq)
+        np.testing.assert_array_equal(first, interpolate_poses(tq, t, T))
+        made = track.__dict__["_pose_interpolator"]
+        np.testing.assert_array_equal(track.poses_at(tq[::-1]), first[::-1])
+        assert track.__dict__["_pose_interpolator"] is made  # made once
+        again = pickle.loads(pickle.dumps(track))
+        assert "_pose_interpolator" not in again.__dict__
+        np.testing.assert_array_equal(again.poses_at(tq), first)
+        with pytest.raises(ValueError, match="outside"):
+            track.poses_at(np.array([t[-1] + 1.0]))

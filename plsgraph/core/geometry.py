@@ -93,16 +93,29 @@ def interpolate_poses(t_query: np.ndarray, t: np.ndarray, T: np.ndarray) -> np.n
 
     ``t`` must be strictly increasing; queries outside [t[0], t[-1]] raise ValueError.
     """
-    t = np.asarray(t, dtype=float)
-    tq = np.atleast_1d(np.asarray(t_query, dtype=float))
-    if tq.size and (tq.min() < t[0] - 1e-12 or tq.max() > t[-1] + 1e-12):
-        raise ValueError(f"query times [{tq.min():.6f}, {tq.max():.6f}] outside [{t[0]:.6f}, {t[-1]:.6f}]")
-    from scipy.spatial.transform import Rotation, Slerp  # imported when needed (see random_rotation_zyx)
+    return PoseInterpolator(t, T)(t_query)
 
-    tq = np.clip(tq, t[0], t[-1])
-    R = Slerp(t, Rotation.from_matrix(T[:, :3, :3]))(tq).as_matrix()
-    p = np.stack([np.interp(tq, t, T[:, :3, 3][:, k]) for k in range(3)], axis=-1)
-    return make_T(R, p)
+
+class PoseInterpolator:
+    """:func:`interpolate_poses` of one trajectory, set up once for any number of queries (the slerp's rotations
+    and their increments are computed when it is made, not per query)."""
+
+    def __init__(self, t: np.ndarray, T: np.ndarray) -> None:
+        from scipy.spatial.transform import Rotation, Slerp  # imported when needed (see random_rotation_zyx)
+
+        self.t = np.asarray(t, dtype=float)
+        self._p = T[:, :3, 3]
+        self._slerp = Slerp(self.t, Rotation.from_matrix(T[:, :3, :3]))
+
+    def __call__(self, t_query: np.ndarray) -> np.ndarray:
+        t = self.t
+        tq = np.atleast_1d(np.asarray(t_query, dtype=float))
+        if tq.size and (tq.min() < t[0] - 1e-12 or tq.max() > t[-1] + 1e-12):
+            raise ValueError(f"query times [{tq.min():.6f}, {tq.max():.6f}] outside [{t[0]:.6f}, {t[-1]:.6f}]")
+        tq = np.clip(tq, t[0], t[-1])
+        R = self._slerp(tq).as_matrix()
+        p = np.stack([np.interp(tq, t, self._p[:, k]) for k in range(3)], axis=-1)
+        return make_T(R, p)
 
 
 def yaw_of(R: np.ndarray) -> np.ndarray:

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from .geometry import interpolate_poses
+from .geometry import PoseInterpolator
 
 
 def _check_times(name: str, t: np.ndarray) -> np.ndarray:
@@ -73,6 +73,24 @@ class Detections:
         return Detections(self.t[mask], self.uv[mask], self.board_points)
 
 
+# A track's interpolator is made on its first poses_at and kept (tracks are not changed once made; the closed
+# form's time-offset search interpolates one base track at some 80 shifts).
+_INTERPOLATOR = "_pose_interpolator"
+
+
+def _interpolator(track, T: np.ndarray) -> PoseInterpolator:
+    f = track.__dict__.get(_INTERPOLATOR)
+    if f is None:
+        f = PoseInterpolator(track.t, T)
+        object.__setattr__(track, _INTERPOLATOR, f)
+    return f
+
+
+def _without_interpolator(track) -> dict:
+    """The track's state for pickling, without its interpolator (made again when needed)."""
+    return {k: v for k, v in track.__dict__.items() if k != _INTERPOLATOR}
+
+
 @dataclass(frozen=True)
 class CameraTrack:
     """Camera poses relative to the board, ``T_board_cam`` (n, 4, 4), at camera times ``t`` (n,).
@@ -98,7 +116,11 @@ class CameraTrack:
         return int(self.t.size)
 
     def poses_at(self, t_query: np.ndarray) -> np.ndarray:
-        return interpolate_poses(t_query, self.t, self.T_board_cam)
+        """Poses at ``t_query`` (:func:`~plsgraph.core.geometry.interpolate_poses`)."""
+        return _interpolator(self, self.T_board_cam)(t_query)
+
+    def __getstate__(self) -> dict:
+        return _without_interpolator(self)
 
 
 @dataclass(frozen=True)
@@ -130,4 +152,8 @@ class BaseTrack:
         return int(self.t.size)
 
     def poses_at(self, t_query: np.ndarray) -> np.ndarray:
-        return interpolate_poses(t_query, self.t, self.T_world_base)
+        """Poses at ``t_query`` (:func:`~plsgraph.core.geometry.interpolate_poses`)."""
+        return _interpolator(self, self.T_world_base)(t_query)
+
+    def __getstate__(self) -> dict:
+        return _without_interpolator(self)
