@@ -186,11 +186,11 @@ def test_the_worker_is_used_only_when_a_processor_is_free(monkeypatch):
     monkeypatch.setattr(figure_worker.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
     # What the processors do now decides: idle processors over a short look.
     for idle, free in ((2.0, True), (1.85, True), (1.5, False), (0.2, False)):
-        monkeypatch.setattr(figure_worker, "idle_processors", lambda cpus, idle=idle: idle)
+        monkeypatch.setattr(figure_worker, "idle_processors", lambda cpus, idle=idle, **kw: idle)
         monkeypatch.setattr(figure_worker.os, "getloadavg", lambda: (3.0, 3.0, 3.0))  # a minute of ended work
         assert figure_worker.processor_free() is free
     # Where that cannot be seen, the load average.
-    monkeypatch.setattr(figure_worker, "idle_processors", lambda cpus: None)
+    monkeypatch.setattr(figure_worker, "idle_processors", lambda cpus, **kw: None)
     for load, free in ((0.3, True), (0.9, True), (1.2, False), (3.0, False)):
         monkeypatch.setattr(figure_worker.os, "getloadavg", lambda load=load: (load, load, load))
         assert figure_worker.processor_free() is free
@@ -228,6 +228,46 @@ def test_idle_processors_are_read_from_the_kernel_counters(monkeypatch):
         monkeypatch.undo()
         idle = figure_worker.idle_processors(set(os.sched_getaffinity(0)))
         assert idle is not None and 0.0 <= idle <= len(os.sched_getaffinity(0)) + 1e-9
+
+
+def test_a_look_ahead_is_taken_by_the_next_question_and_counts_this_process_as_idle(monkeypatch):
+    """``plsgraph calibrate`` looks at the processors in a thread while it imports: the next processor_free() takes
+    that look (once), and the processor time this process took meanwhile counts as idle (it is the calibration's)."""
+    import threading
+    import time
+
+    monkeypatch.setattr(figure_worker, "_processor_free", lambda own: own)  # True: the look ahead's answer
+    figure_worker.look_ahead()
+    assert figure_worker.processor_free() is True
+    assert figure_worker.processor_free() is False  # taken once; then a look of its own
+    done = threading.Thread(target=lambda: None)
+    done.start()
+    done.join()
+    figure_worker._LOOK["look"] = {"started": time.monotonic() - 60.0, "result": True, "thread": done}
+    assert figure_worker.processor_free() is False  # a look from long ago is not used
+    monkeypatch.undo()
+    stats = iter(["cpu0 0 0 0 100 0 0 0 0\ncpu1 0 0 0 100 0 0 0 0",
+                  "cpu0 40 0 0 160 0 0 0 0\ncpu1 10 0 0 190 0 0 0 0"])  # 0.5 of 2 processors busy
+
+    class Stat:
+        def __init__(self, *a, **k):
+            self.text = next(stats)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *a):
+            return False
+
+        def read(self):
+            return self.text
+
+    clock = iter([10.0, 10.04])  # this process: 0.04 s of processor time over the look's 0.1 s
+    wall = iter([5.0, 5.1])
+    monkeypatch.setattr("builtins.open", Stat)
+    monkeypatch.setattr(time, "process_time", lambda: next(clock))
+    monkeypatch.setattr(time, "monotonic", lambda: next(wall))
+    assert figure_worker.idle_processors({0, 1}, sample_s=0.0, own=True) == pytest.approx(1.5 + 0.4)
 
 
 def test_a_worker_without_a_job_just_ends(tmp_path):

@@ -274,6 +274,9 @@ def _options(args: argparse.Namespace):
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from ..report.figure_worker import look_ahead
+
+    look_ahead()  # whether a processor is free for the figures: looked at while the calibration's modules load
     from ..api import calibrate_to_dir
     from .progress import ProgressBar
 

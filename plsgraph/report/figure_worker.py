@@ -114,18 +114,50 @@ def _cpu_times(cpus: set[int]) -> tuple[float, float, int] | None:
     return (idle, total, seen) if seen else None
 
 
-def idle_processors(cpus: set[int], sample_s: float = IDLE_SAMPLE_S) -> float | None:
-    """How many of ``cpus`` stood idle over the next ``sample_s`` seconds (0 .. len(cpus)), or None if unknown."""
+def idle_processors(cpus: set[int], sample_s: float = IDLE_SAMPLE_S, own: bool = False) -> float | None:
+    """How many of ``cpus`` stood idle over the next ``sample_s`` seconds (0 .. len(cpus)), or None if unknown.
+    ``own``: this process works meanwhile (the look runs in a thread), and the processor time it takes counts as
+    idle: it is the calibration's own."""
     import time
 
     a = _cpu_times(cpus)
     if a is None:
         return None
+    c0, w0 = time.process_time(), time.monotonic()
     time.sleep(sample_s)
     b = _cpu_times(cpus)
+    c1, w1 = time.process_time(), time.monotonic()
     if b is None or b[2] != a[2] or b[1] <= a[1]:  # unreadable, or a processor came or went meanwhile
         return None
-    return len(cpus) * (b[0] - a[0]) / (b[1] - a[1])
+    idle = len(cpus) * (b[0] - a[0]) / (b[1] - a[1])
+    if own and w1 > w0:
+        idle = min(float(len(cpus)), idle + (c1 - c0) / (w1 - w0))
+    return idle
+
+
+# A look started ahead by look_ahead() for the next processor_free(): {"look": {"thread", "started", "result"}}.
+_LOOK: dict = {}
+#: A look started ahead is used by a processor_free() at most this long (s) after it began.
+LOOK_AHEAD_MAX_S = 5.0
+
+
+def look_ahead() -> None:
+    """Start :func:`processor_free`'s look now, in a thread, for the next call to take instead of looking (and
+    sleeping) itself: ``plsgraph calibrate`` starts it before it imports the calibration, so the 100 ms pass while the
+    imports run. Only this process's own work may run meanwhile (its processor time counts as idle; a process it
+    starts would count as busy)."""
+    import threading
+    import time
+
+    look: dict = {"started": time.monotonic()}
+
+    def run() -> None:
+        look["result"] = _processor_free(own=True)
+
+    look["thread"] = threading.Thread(target=run, name="plsgraph-processor-look", daemon=True)
+    _LOOK.clear()
+    _LOOK["look"] = look
+    look["thread"].start()
 
 
 def processor_free() -> bool:
@@ -135,8 +167,20 @@ def processor_free() -> bool:
     already busy. One processor runs the calibration, and most of another must be left unused by everything else.
 
     Judged from what the processors this process may use do now (:func:`idle_processors`, a 100 ms look while this
-    process sleeps), not from the load average, which still counts a minute of work that has ended (a simulation
-    just before, the previous recording of a batch); the load average where /proc/stat cannot be read."""
+    process sleeps, or the look :func:`look_ahead` started), not from the load average, which still counts a minute
+    of work that has ended (a simulation just before, the previous recording of a batch); the load average where
+    /proc/stat cannot be read."""
+    import time
+
+    look = _LOOK.pop("look", None)
+    if look is not None and time.monotonic() - look["started"] <= LOOK_AHEAD_MAX_S:
+        look["thread"].join(2.0)
+        if "result" in look:
+            return look["result"]
+    return _processor_free(own=False)
+
+
+def _processor_free(own: bool) -> bool:
     try:
         cpus = set(os.sched_getaffinity(0))
     except (AttributeError, OSError):
@@ -144,7 +188,7 @@ def processor_free() -> bool:
     n = len(cpus)
     if n < 2:
         return False
-    idle = idle_processors(cpus)
+    idle = idle_processors(cpus, own=own)
     if idle is not None:
         return idle >= 1.8
     try:
