@@ -1131,6 +1131,9 @@ def camera_track_from_event_chunks(
                     info[k] = part.get(k)
             for k, v in part["seconds"].items():
                 info["seconds"][k] = info["seconds"].get(k, 0.0) + v
+            ladder = info["detected_at_window_fraction"]
+            for k, v in part["detected_at_window_fraction"].items():
+                ladder[k] = ladder.get(k, 0) + v
         else:
             info = part
         if progress is not None:
