@@ -155,3 +155,22 @@ def test_the_front_end_warns_of_flickering_lights(monkeypatch):
     steady, cam, board = _board_sweep(0.6)
     info = track.camera_track_from_events(steady, cam, board).info
     assert info["flicker_hz"] is None and not any("lighting" in w for w in info["warnings"])
+
+
+def test_with_worker_processes_the_flicker_test_runs_beside_them_with_the_same_answer(monkeypatch):
+    """The windows do not depend on the flicker test unless flicker is suppressed, so with worker processes it runs in
+    the calling process while they detect: the same frequency, pixels and share as run first in one process."""
+    import plsgraph.frontend.track as track
+
+    ev, cam, board = _board_sweep(0.6, flicker_depth=0.2, flicker_hz=120.0)
+    keys = ("flicker_hz", "flicker_pixels", "flicker_event_share")
+    one = track.camera_track_from_events(ev, cam, board, workers=1).info
+    two = track.camera_track_from_events(ev, cam, board, workers=2).info
+    assert one["flicker_hz"] == 120.0
+    assert [one[k] for k in keys] == [two[k] for k in keys]
+    calls = []
+    original = track.flicker_events
+    monkeypatch.setattr(track, "flicker_events", lambda s: calls.append(len(s)) or original(s))
+    monkeypatch.setattr(track, "SUPPRESS_FLICKER", True)  # then it must run first: the windows use its answer
+    suppressed = track.camera_track_from_events(ev, cam, board, workers=2).info
+    assert len(calls) == 1 and [suppressed[k] for k in keys] == [one[k] for k in keys]

@@ -678,9 +678,11 @@ def _run_chunk(bounds: tuple[int, int]):
     return part, [frame_pose(uv, job.board.points, job.camera, sigma_px=pnp["sigma_px"]) for uv in part[1]]
 
 
-def _run_parallel(job: _WindowJob, t_query, i0s, i1s, workers: int, progress, pnp: dict | None = None) -> list:
+def _run_parallel(job: _WindowJob, t_query, i0s, i1s, workers: int, progress, pnp: dict | None = None,
+                  beside: Callable[[], None] | None = None) -> list:
     """Contiguous chunks of windows on ``workers`` forked processes (the stream is shared, not copied): a list of
-    (part, poses), poses None unless ``pnp`` ({"sigma_px": ...}) asks for each detection's pose beside it."""
+    (part, poses), poses None unless ``pnp`` ({"sigma_px": ...}) asks for each detection's pose beside it.
+    ``beside()`` runs in this process while the workers detect."""
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
@@ -691,7 +693,10 @@ def _run_parallel(job: _WindowJob, t_query, i0s, i1s, workers: int, progress, pn
     try:
         with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
             parts = []
-            for j, part in enumerate(pool.map(_run_chunk, chunks)):
+            results = pool.map(_run_chunk, chunks)  # every chunk is submitted now
+            if beside is not None:
+                beside()
+            for j, part in enumerate(results):
                 parts.append(part)
                 if progress is not None:
                     progress(chunks[j][1], t_query.size)
@@ -777,10 +782,14 @@ def detect_in_events(
         if len(stream) == 0:
             raise InsufficientDataError("front end: every event came from a hot pixel")
     # Lamps flickering with the mains: recognised and reported (see FLICKER_WARN_SHARE); their phase-locked events
-    # are dropped only with SUPPRESS_FLICKER (docs/frontend.md, "Flickering lights").
-    flicker, flicker_hz, n_flicker = flicker_events(stream)
-    if SUPPRESS_FLICKER and flicker.any():
-        stream = drop_events(stream, flicker)
+    # are dropped only with SUPPRESS_FLICKER (docs/frontend.md, "Flickering lights"). Otherwise the windows do not
+    # depend on the test, and with worker processes it runs in this process while they detect.
+    flicker_first = SUPPRESS_FLICKER or max(1, int(workers)) == 1
+    tested: list = []  # (flagged events, frequency, pixels) of the test run beside the workers
+    if flicker_first:
+        flicker, flicker_hz, n_flicker = flicker_events(stream)
+        if SUPPRESS_FLICKER and flicker.any():
+            stream = drop_events(stream, flicker)
     if t_query_ns is None:
         t_query = np.arange(stream.t_first + period_ns, stream.t_last + period_ns, period_ns, dtype=np.int64)
     else:
@@ -796,10 +805,13 @@ def detect_in_events(
     if workers == 1:
         parts = [job.run(t_query, i0s, i1s, progress)]
     else:
-        solved = _run_parallel(job, t_query, i0s, i1s, workers, progress, pnp)
+        beside = None if flicker_first else (lambda: tested.append(flicker_events(stream)))
+        solved = _run_parallel(job, t_query, i0s, i1s, workers, progress, pnp, beside)
         parts = [part for part, _ in solved]
         if pnp is not None:
             poses = [e for _, part_poses in solved for e in part_poses]
+    if not flicker_first:
+        flicker, flicker_hz, n_flicker = tested[0] if tested else flicker_events(stream)
     skipped: Counter[str] = Counter()
     secs = {"surfaces": 0.0, "detection": 0.0, "blobs": 0.0, "backfill": 0.0}
     t_out, uv_out, src_out, span_out, win_out = [], [], [], [], []
