@@ -174,3 +174,21 @@ def test_with_worker_processes_the_flicker_test_runs_beside_them_with_the_same_a
     monkeypatch.setattr(track, "SUPPRESS_FLICKER", True)  # then it must run first: the windows use its answer
     suppressed = track.camera_track_from_events(ev, cam, board, workers=2).info
     assert len(calls) == 1 and [suppressed[k] for k in keys] == [one[k] for k in keys]
+
+
+@pytest.mark.parametrize("share", [0.0, 1.01])
+def test_the_flicker_sums_are_the_same_whether_the_steady_pixels_events_are_picked_out_or_not(monkeypatch, share):
+    """The phase sums take every event of a block when most are steady pixels' (a busy scene) and pick the steady ones
+    out otherwise: a pixel's sum is over its own events in their order either way, so the answer is the same to the
+    bit, on flickering lamps and on a scene that does not flicker."""
+    from plsgraph.frontend import noise
+
+    lamp, *_ = _board_sweep(0.6, flicker_depth=0.2, flicker_hz=100.0)
+    quiet = _stream(4.0, HOT)
+    for ev in (lamp, quiet):
+        default = noise.flicker_events(ev)
+        monkeypatch.setattr(noise, "FLICKER_PICK_SHARE", share)
+        forced = noise.flicker_events(ev)
+        monkeypatch.undo()
+        assert np.array_equal(default[0], forced[0]) and default[1:] == forced[1:]
+    assert noise.flicker_events(lamp)[1] == 100.0

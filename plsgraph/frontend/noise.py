@@ -98,6 +98,9 @@ FLICKER_LOCKING = 0.5
 FLICKER_RAYLEIGH = 12.0
 #: Fewest events of one polarity for a pixel to be judged.
 FLICKER_MIN_EVENTS = 10
+#: The phase sums take the steady pixels' events out of each block when they are fewer than this share of the span's
+#: events, and every event otherwise (the same sums; see flicker_events).
+FLICKER_PICK_SHARE = 0.5
 #: Events of a flickering pixel and polarity within this phase (rad) of its mean phase are taken for flicker.
 FLICKER_GATE_RAD = np.pi / 3
 
@@ -149,21 +152,34 @@ def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ
         for a in range(lo, hi, NOISE_BLOCK_EVENTS):
             seen[key[a:min(a + NOISE_BLOCK_EVENTS, hi)]] = True
         steady &= seen
-    # Phase sums of the steady pixels only (the others cannot lock), for every frequency in one pass over the events.
+    # Phase sums of the steady pixels (the others cannot lock), for every frequency in one pass over the events. When
+    # most events are steady pixels' (a busy scene), every event goes into the sums: a key's sum is the same either
+    # way (its own events, in their order), and picking the steady ones out would cost more than the few others.
+    pick = int(counts[steady].sum()) < FLICKER_PICK_SHARE * n
     sums = np.zeros((len(freqs_hz), 2, n_keys))
+    cyc = np.empty(min(n, NOISE_BLOCK_EVENTS))
+    whole = np.empty_like(cyc)
+    ang = np.empty(cyc.size, dtype=np.float32)
     for a, b in blocks:
         kb = key[a:b]
-        idx = np.flatnonzero(steady[kb])
-        if idx.size == 0:
-            continue
-        ks = kb[idx]
-        d = t[a:b][idx] - t0
+        if pick:
+            idx = np.flatnonzero(steady[kb])
+            if idx.size == 0:
+                continue
+            ks = kb[idx]
+            d = t[a:b][idx] - t0
+        else:
+            ks, d = kb, t[a:b] - t0
+        m = d.size
+        c, fl, an = cyc[:m], whole[:m], ang[:m]
         for j, f in enumerate(freqs_hz):
-            cyc = d * (f * 1e-9)  # cycles of the flicker since the span's start
-            cyc -= np.floor(cyc)
-            ang = (cyc * (2.0 * np.pi)).astype(np.float32)
-            sums[j, 0] += np.bincount(ks, np.cos(ang), minlength=n_keys)
-            sums[j, 1] += np.bincount(ks, np.sin(ang), minlength=n_keys)
+            np.multiply(d, f * 1e-9, out=c)  # cycles of the flicker since the span's start
+            np.floor(c, out=fl)
+            c -= fl
+            c *= 2.0 * np.pi
+            an[...] = c
+            sums[j, 0] += np.bincount(ks, np.cos(an), minlength=n_keys)
+            sums[j, 1] += np.bincount(ks, np.sin(an), minlength=n_keys)
     best = (0, None, None, None)  # (pixels, frequency, locked keys, their mean phase)
     for j, f in enumerate(freqs_hz):
         c, s = sums[j]
