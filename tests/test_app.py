@@ -199,17 +199,12 @@ def test_the_worker_is_used_only_when_a_processor_is_free(monkeypatch):
     assert not figure_worker.processor_free()  # one processor: the calibration has it
 
 
-def test_idle_processors_are_read_from_the_kernel_counters(monkeypatch):
-    stats = iter([
-        "cpu  10 0 10 100 0 0 0 0 0 0\ncpu0 5 0 5 50 0 0 0 0 0 0\ncpu1 5 0 5 50 0 0 0 0 0 0\ncpu2 0 0 0 0 0 0 0 0 0 0",
-        # over the look: cpu0 busy 40 of 100 jiffies (idle 50 + iowait 10), cpu1 idle throughout, cpu2 not ours
-        "cpu  0 0 0 0 0 0 0 0 0 0\ncpu0 35 0 15 100 10 0 0 0 0 0\ncpu1 5 0 5 150 0 0 0 0 0 0\n"
-        "cpu2 90 0 0 0 0 0 0 0 0 0",
-    ])
+def _fake_proc_stat(monkeypatch, texts) -> None:
+    """open() gives the next of ``texts`` to read (as /proc/stat)."""
 
     class Stat:
         def __init__(self, *a, **k):
-            self.text = next(stats)
+            self.text = next(texts)
 
         def __enter__(self):
             return self
@@ -221,8 +216,18 @@ def test_idle_processors_are_read_from_the_kernel_counters(monkeypatch):
             return self.text
 
     monkeypatch.setattr("builtins.open", Stat)
+
+
+def test_idle_processors_are_read_from_the_kernel_counters(monkeypatch):
+    stats = iter([
+        "cpu  10 0 10 100 0 0 0 0 0 0\ncpu0 5 0 5 50 0 0 0 0 0 0\ncpu1 5 0 5 50 0 0 0 0 0 0\ncpu2 0 0 0 0 0 0 0 0 0 0",
+        # over the look: cpu0 busy 40 of 100 jiffies (idle 50 + iowait 10), cpu1 idle throughout, cpu2 not ours
+        "cpu  0 0 0 0 0 0 0 0 0 0\ncpu0 35 0 15 100 10 0 0 0 0 0\ncpu1 5 0 5 150 0 0 0 0 0 0\n"
+        "cpu2 90 0 0 0 0 0 0 0 0 0",
+    ])
+    _fake_proc_stat(monkeypatch, stats)
     assert figure_worker.idle_processors({0, 1}, sample_s=0.0) == pytest.approx(2 * 160 / 200)
-    stats = iter(["cpu0 5 0 5\ncpu1 5 0 5 50 0 0 0 0 0 0"])  # a line too short to hold the idle count
+    _fake_proc_stat(monkeypatch, iter(["cpu0 5 0 5\ncpu1 5 0 5 50 0 0 0 0 0 0"]))  # too short to hold the idle count
     assert figure_worker.idle_processors({0, 1}, sample_s=0.0) is None  # then the load average decides
     if Path("/proc/stat").exists():
         monkeypatch.undo()
@@ -248,23 +253,9 @@ def test_a_look_ahead_is_taken_by_the_next_question_and_counts_this_process_as_i
     monkeypatch.undo()
     stats = iter(["cpu0 0 0 0 100 0 0 0 0\ncpu1 0 0 0 100 0 0 0 0",
                   "cpu0 40 0 0 160 0 0 0 0\ncpu1 10 0 0 190 0 0 0 0"])  # 0.5 of 2 processors busy
-
-    class Stat:
-        def __init__(self, *a, **k):
-            self.text = next(stats)
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *a):
-            return False
-
-        def read(self):
-            return self.text
-
     clock = iter([10.0, 10.04])  # this process: 0.04 s of processor time over the look's 0.1 s
     wall = iter([5.0, 5.1])
-    monkeypatch.setattr("builtins.open", Stat)
+    _fake_proc_stat(monkeypatch, stats)
     monkeypatch.setattr(time, "process_time", lambda: next(clock))
     monkeypatch.setattr(time, "monotonic", lambda: next(wall))
     assert figure_worker.idle_processors({0, 1}, sample_s=0.0, own=True) == pytest.approx(1.5 + 0.4)
