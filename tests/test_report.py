@@ -66,3 +66,23 @@ def test_output_dir_refuses_to_overwrite(tmp_path):
 def test_html_escapes_text():
     page = html_report("<t>", [("s", html_table([{"status": "weak", "x": "<b>"}], ["status", "x"]))], [])
     assert "&lt;b&gt;" in page and "<b>" not in page.split("<h2>s</h2>")[1]
+
+
+def test_log_axes_of_the_figures_are_labelled_in_plain_numbers(tmp_path):
+    from PIL import Image
+
+    from plsgraph.report.figures import DPI, _plain_ticks, _plt, _save
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(3.0, 2.0), dpi=DPI)
+    ax.bar([0, 1, 2], [0.002, 0.3, 40.0])
+    ax.set_yscale("log")
+    _plain_ticks(ax.yaxis)
+    fig.canvas.draw()
+    labels = [t.get_text() for t in ax.yaxis.get_ticklabels() if t.get_text()]
+    assert labels and not any("$" in s for s in labels)  # no typeset maths: the dearest text to draw
+    assert {"0.01", "1", "10"} <= set(labels)
+    assert not any(t.get_text() for t in ax.yaxis.get_ticklabels(minor=True))
+    name = _save(plt, fig, tmp_path, "log.png")
+    with Image.open(tmp_path / name) as im:  # made at the resolution it is saved at: the size the layout measured
+        assert im.size == (round(3.0 * DPI), round(2.0 * DPI))

@@ -145,7 +145,7 @@ def fig_coverage(run: Any, out: Path, truth_T: Any = None) -> str | None:
     wo = info.get("window_outcomes")
     if not wo or len(wo["outcome"]) == 0:
         return None
-    from .figures import _plt, _save
+    from .figures import DPI, _plt, _save
 
     plt = _plt()
     t = np.asarray(wo["t"], dtype=float)
@@ -155,7 +155,7 @@ def fig_coverage(run: Any, out: Path, truth_T: Any = None) -> str | None:
     code = np.array([names.index(o) for o in outcome], dtype=int)
     from matplotlib.patches import Patch
 
-    fig, ax = plt.subplots(figsize=(8.0, 1.9))
+    fig, ax = plt.subplots(figsize=(8.0, 1.9), dpi=DPI)
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
     # Runs of windows with one outcome are drawn as one bar each (a bar per window took a second for 600 windows).
     start = np.flatnonzero(np.r_[True, code[1:] != code[:-1]])
@@ -174,7 +174,6 @@ def fig_coverage(run: Any, out: Path, truth_T: Any = None) -> str | None:
     ax.set_xlim(t[0], t[-1] + dt)
     ax.set_xlabel("time in the recording (s)")
     ax.legend(handles=handles, loc="lower center", bbox_to_anchor=(0.5, 1.02), ncol=4, fontsize=7, frameon=False)
-    fig.tight_layout()
     return _save(plt, fig, out, "coverage.png")
 
 

@@ -42,9 +42,23 @@ def frame_residuals(run: Any, T_base_cam: np.ndarray, td: float, T_world_board: 
     return t, rms, flat[np.all(np.isfinite(flat), axis=1)]
 
 
+#: Resolution of the report's figures. They are made at it, not only saved at it: the layout then measures each
+#: label at the size it is drawn, and the drawing reuses those measurements (a quarter of the figures' time).
+DPI = 110
+
+
+def _plain_ticks(axis) -> None:
+    """Tick labels of a log axis as plain numbers (0.01, 1, 100): the default powers of ten are typeset as maths,
+    the dearest text a figure here draws."""
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
+
+
 def _save(plt, fig, out: Path, name: str) -> str:
     fig.tight_layout()
-    fig.savefig(out / name, dpi=110)
+    fig.savefig(out / name, dpi=DPI)
     plt.close(fig)
     return name
 
@@ -52,7 +66,7 @@ def _save(plt, fig, out: Path, name: str) -> str:
 def _fig_trajectories(run: Any, out: Path) -> str | None:
     ref = run.refinement
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5.2, 4.2))
+    fig, ax = plt.subplots(figsize=(5.2, 4.2), dpi=DPI)
     bt = run.base_track.T_world_base[:, :3, 3]
     ax.plot(bt[:, 0], bt[:, 1], "-", lw=1, color="#555", label="base (odometry)")
     if ref is not None:
@@ -80,7 +94,7 @@ def _fig_residuals(run: Any, out: Path) -> str | None:
     if rms.size == 0:
         return None
     plt = _plt()
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(8.5, 3.4))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(8.5, 3.4), dpi=DPI)
     a1.plot(t - t[0], rms, ".", ms=3)
     a1.set_xlabel("camera time (s)")
     a1.set_ylabel("frame RMS (px)")
@@ -98,7 +112,7 @@ def _fig_time_offset(run: Any, out: Path) -> str | None:
     if to is None or to.shifts is None or len(to.shifts) == 0:
         return None
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5.2, 3.4))
+    fig, ax = plt.subplots(figsize=(5.2, 3.4), dpi=DPI)
     order = np.argsort(to.shifts)
     ax.plot(1e3 * np.asarray(to.shifts)[order], np.asarray(to.values)[order], "-", lw=1.2)
     ax.axvline(1e3 * to.td, color="#c62828", lw=1, label=f"closed form {1e3 * to.td:.1f} ms")
@@ -119,10 +133,11 @@ def _fig_observability(run: Any, out: Path) -> str | None:
         return None
     axes = ref.observability.axes
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5.6, 3.4))
+    fig, ax = plt.subplots(figsize=(5.6, 3.4), dpi=DPI)
     ratios = [max(a.ratio, 1e-6) for a in axes]
     ax.bar(range(len(axes)), ratios, color=[status_colour(a.status) for a in axes])
     ax.set_yscale("log")
+    _plain_ticks(ax.yaxis)
     ax.set_xticks(range(len(axes)), [a.name for a in axes], rotation=30, fontsize=8)
     ax.set_ylabel("posterior sigma / prior sigma")
     ax.set_title("observability (green observable, yellow weak, red unobservable)", fontsize=9)
@@ -147,10 +162,11 @@ def _fig_methods(run: Any, out: Path, truth_T: np.ndarray | None) -> str | None:
     if not names:
         return None
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(5.6, 3.4))
+    fig, ax = plt.subplots(figsize=(5.6, 3.4), dpi=DPI)
     ax.bar(range(len(names)), errs, color=["#2e7d32" if n == "refined" else "#1565c0" for n in names])
     ax.set_xticks(range(len(names)), names, rotation=35, fontsize=7, ha="right")
     ax.set_yscale("symlog", linthresh=0.1)
+    _plain_ticks(ax.yaxis)
     ax.set_ylabel("rotation error (deg)" if truth_T is not None else "rotation difference to refined (deg)")
     ax.set_title("closed form vs refined")
     return _save(plt, fig, out, "methods.png")
