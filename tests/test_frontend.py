@@ -88,6 +88,61 @@ def test_the_window_loop_tries_the_last_finds_rim_thickness_first(sim, monkeypat
     assert seen and all(first is None for first, _ in seen)
 
 
+def test_a_rim_search_that_fails_around_the_board_is_not_repeated_on_the_whole_image(sim, monkeypatch):
+    """Once the board was found, each window's rims are searched in the region around it; a span whose search there
+    fails goes on to the next span of the ladder, not to the same span on the whole image (RIMS_OUTSIDE_ROI). Here
+    the region search of every window's first span is made to fail: the board is then found on the next span in the
+    region, the same windows as with the whole-image repeats, which find it on the first span."""
+    import plsgraph.frontend.track as frontend_track
+
+    t, poses, ev = sim
+    real = frontend_track.detect_circle_grid
+    now = {}
+    calls = []
+    surface = frontend_track.surfaces.surface
+
+    def remember(events, kind, t_ns, **kw):
+        now["span"] = now["span"] + 1 if now.get("t") == t_ns else 0  # the ladder's spans of one window in turn
+        now["t"] = t_ns
+        return surface(events, kind, t_ns, **kw)
+
+    def spy(img, board, camera=None, **kw):
+        if kw.get("foreground") != "rims":
+            return real(img, board, camera, **kw)
+        in_region = kw.get("roi") is not None
+        det = real(img, board, camera, **kw)
+        if in_region and now["span"] == 0 and det.ok:
+            det = frontend_track._refused(det)
+        calls.append((now["t"], in_region, det.ok))
+        return det
+
+    monkeypatch.setattr(frontend_track.surfaces, "surface", remember)
+    monkeypatch.setattr(frontend_track, "detect_circle_grid", spy)
+
+    def run(outside: bool):
+        calls.clear()
+        now.clear()
+        monkeypatch.setattr(frontend_track, "RIMS_OUTSIDE_ROI", outside)
+        track = camera_track_from_events(ev, CAM, BOARD, rate_hz=30, kind="count")
+        by_window: dict = {}
+        for tw, in_region, ok in calls:
+            by_window.setdefault(tw, []).append((in_region, ok))
+        return track, by_window
+
+    track, windows = run(False)
+    tracked = {tw: c for tw, c in windows.items() if c[0][0]}  # windows searched around an earlier find
+    assert len(tracked) >= 4
+    for c in tracked.values():
+        assert all(in_region for in_region, _ in c) and not c[0][1]  # never the whole image; the first span failed
+    assert sum(c[-1][1] for c in tracked.values()) >= 4  # ... and a later span found the board around it
+    repeated, windows_full = run(True)
+    for tw in tracked:
+        assert [in_region for in_region, _ in windows_full[tw][:2]] == [True, False]  # the old way: repeated
+    assert np.array_equal(np.asarray(track.info["window_outcomes"]["outcome"]) != "rims",
+                          np.asarray(repeated.info["window_outcomes"]["outcome"]) != "rims")
+    assert np.nanmedian(errors(track, t, poses)[0]) < 0.3
+
+
 def test_event_time_stamps_beat_query_stamps(sim):
     t, poses, ev = sim
     by_events = camera_track_from_events(ev, CAM, BOARD, kind="count", timestamp="events")

@@ -146,6 +146,12 @@ SHORT_BLOB_SPAN = 4.0
 #: After a window without the board, the next windows still search where it was last seen first (for
 #: RECENT_WINDOWS windows): a slow board is still there, and the whole image holds more clutter.
 KEEP_ROI = True
+#: With a region to search (KEEP_ROI), a rim search that fails there is not repeated on the whole image (True: it is,
+#: at every span of the ladder). On the ten cached recordings of the study's first seed those whole-image repeats
+#: found no board in any of 4,773 windows with a region and took a tenth of the detector's time (9 of 91 s); a board
+#: that left the region is still looked for in the whole image by the blob and ring search of the same window, and
+#: by every search once the region is dropped (RECENT_WINDOWS after the last find).
+RIMS_OUTSIDE_ROI = False
 #: Try the rim thickness of the last find first (False: always :data:`~plsgraph.frontend.detect.RIM_THICKNESSES`'
 #: order). On the 20 s benchmark recording the thinnest rims found 431 of 554 boards found on rims, after two
 #: failed thicker ones.
@@ -548,7 +554,7 @@ class _WindowJob:
                             det = detect_circle_grid(rim, board, self.camera, foreground="rims",
                                                      rim_threshold=level, roi=roi, predicted_uv=predicted,
                                                      rim_first=last_rim)
-                        if det is None or det.reason != REASON_OK:
+                        if det is None or (RIMS_OUTSIDE_ROI and det.reason != REASON_OK):
                             det = detect_circle_grid(rim, board, self.camera, foreground="rims",
                                                      rim_threshold=level, rim_first=last_rim)
                         if (det.reason != REASON_OK and DENSE_RETRY and kind == "count" and frac > 1.0
@@ -558,7 +564,7 @@ class _WindowJob:
                             if roi is not None:
                                 det = detect_circle_grid(ex, board, self.camera, foreground="rims", rim_threshold=0.0,
                                                          roi=roi, predicted_uv=predicted)
-                            if det is None or det.reason != REASON_OK:
+                            if det is None or (RIMS_OUTSIDE_ROI and det.reason != REASON_OK):
                                 det = detect_circle_grid(ex, board, self.camera, foreground="rims", rim_threshold=0.0)
                             excess = det.reason == REASON_OK
                             det = det if excess else first  # a miss keeps the plain image's reason
