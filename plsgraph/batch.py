@@ -71,9 +71,10 @@ def _replace_with_failure(log_path: str, out_dir: str, force: bool, error: str) 
     """With --force, a failed recording's folder is replaced by a report.json saying so (an older ok
     calibration.yaml there must not pass for this run's); without --force an existing folder was refused."""
     from .api import failure_to_dir
+    from .report.files import foreign_entries
 
-    if not (force and Path(out_dir).exists()):
-        return
+    if not (force and Path(out_dir).exists()) or foreign_entries(Path(out_dir)):
+        return  # refused, or a folder of the user's own (--force replaces only an earlier result)
     try:
         failure_to_dir(log_path, out_dir, error)
     except Exception:  # another run holds the folder, or it cannot be written: the summary row still says failed
@@ -106,7 +107,7 @@ def run_batch(
     if jobs is not None and jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {jobs}")
     logs = find_recordings(inputs)
-    out = prepare_output_dir(out_dir, force=force)
+    out = prepare_output_dir(out_dir, force=force, whole=False)  # written into; each recording's folder replaced
     items = []
     for p in logs:
         truth = p.with_name(p.stem + ".truth.yaml")

@@ -1,4 +1,5 @@
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -86,3 +87,74 @@ def test_log_axes_of_the_figures_are_labelled_in_plain_numbers(tmp_path):
     name = _save(plt, fig, tmp_path, "log.png")
     with Image.open(tmp_path / name) as im:  # made at the resolution it is saved at: the size the layout measured
         assert im.size == (round(3.0 * DPI), round(2.0 * DPI))
+
+
+def test_force_never_replaces_a_folder_holding_files_plsgraph_did_not_write(tmp_path):
+    """Before: --out set to the recording's own folder with --force replaced it, recording and notes included."""
+    out = tmp_path / "sand"
+    out.mkdir()
+    (out / "rec.mcap").write_bytes(b"recording")
+    (out / "notes.txt").write_text("precious")
+    (out / "report.json").write_text("{}")
+    for force in (False, True):
+        with pytest.raises(InputError, match=r"did not write \(notes.txt, rec.mcap\).*new or empty --out") as exc:
+            prepare_output_dir(out, force=force, create=False)
+        assert ("earlier plsgraph result" in str(exc.value)) is force
+    assert (out / "rec.mcap").read_bytes() == b"recording" and (out / "notes.txt").read_text() == "precious"
+    (out / "rec.mcap").unlink()
+    (out / "notes.txt").unlink()
+    with pytest.raises(InputError, match="already holds a plsgraph result; .*--force"):
+        prepare_output_dir(out, create=False)
+    assert prepare_output_dir(out, force=True, create=False) == out  # an earlier result alone: replaced
+    batch = tmp_path / "batch"
+    (batch / "a").mkdir(parents=True)
+    (batch / "a" / "calibration.yaml").write_text("ok: true")
+    (batch / "summary.json").write_text("{}")
+    assert prepare_output_dir(batch, force=True, create=False) == batch  # a batch's folders of results
+    (batch / "a" / "photo.jpg").write_bytes(b"")
+    with pytest.raises(InputError, match=r"did not write \(a/\)"):
+        prepare_output_dir(batch, force=True, create=False)
+    # A batch writes into its folder (each recording's folder is replaced, and checked, on its own).
+    assert prepare_output_dir(batch, force=True, create=False, whole=False) == batch
+
+
+def test_the_working_folder_is_never_an_output_folder(tmp_path, monkeypatch):
+    """Before: --out . --force calibrated for the whole run and then failed to move the folder it ran in."""
+    here = tmp_path / "work" / "sub"
+    here.mkdir(parents=True)
+    monkeypatch.chdir(here)
+    for out in (".", "..", str(here)):
+        with pytest.raises(InputError, match="folder you are working in"):
+            prepare_output_dir(out, force=True, create=False)
+    assert prepare_output_dir("calib", create=False) == Path("calib")
+
+
+def test_an_output_lock_is_removed_when_its_run_ends_and_still_excludes_a_second_run(tmp_path, monkeypatch):
+    import os
+
+    from plsgraph.report import files
+    from plsgraph.report.files import OutputLock
+
+    out = tmp_path / "out"
+    with OutputLock(out) as a:
+        assert a.path.exists()
+        with pytest.raises(InputError, match="another plsgraph run"):
+            OutputLock(out).__enter__()
+    assert not a.path.exists() and list(tmp_path.iterdir()) == []  # nothing left beside the folder
+    # A run that opens the lock file just before the run holding it removes it must not take the removed file's lock.
+    first = OutputLock(out).__enter__()
+    real_open = os.open
+
+    def open_then_first_ends(*args, **kw):
+        fd = real_open(*args, **kw)
+        if first.fd is not None:
+            first.__exit__(None, None, None)
+        return fd
+
+    monkeypatch.setattr(files.os, "open", open_then_first_ends)
+    with OutputLock(out) as second:
+        assert os.stat(second.path).st_ino == os.fstat(second.fd).st_ino
+        monkeypatch.setattr(files.os, "open", real_open)
+        with pytest.raises(InputError, match="another plsgraph run"):
+            OutputLock(out).__enter__()
+    assert not second.path.exists()

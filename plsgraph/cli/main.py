@@ -90,8 +90,9 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
                    "observable through the board")
     _add_ecosystem_options(p)
     if need_out:
-        p.add_argument("--out", type=Path, required=True, help="output folder (must not exist unless --force)")
-        p.add_argument("--force", action="store_true", help="write into an existing output folder")
+        p.add_argument("--out", type=Path, required=True,
+                       help="output folder: new, empty, or an earlier plsgraph result (replaced with --force)")
+        p.add_argument("--force", action="store_true", help="replace an earlier plsgraph result in the output folder")
 
 
 def _add_ecosystem_options(p: argparse.ArgumentParser) -> None:

@@ -147,16 +147,60 @@ def _writable_parent(out: Path) -> Path:
     return parent
 
 
-def prepare_output_dir(out_dir: str | Path, force: bool = False, create: bool = True) -> Path:
+#: The files plsgraph writes into a result folder (a calibration, a diagnosis, a batch's summary). A folder holding
+#: anything else is never replaced, --force or not: the replacement removes every file in it.
+RESULT_FILES = frozenset({
+    "calibration.yaml", "report.json", "report.html", "base_to_camera.urdf", "static_tf.launch.py",
+    "summary.json", "summary.md", "trajectories.png", "residuals.png", "time_offset.png", "observability.png",
+    "methods.png", "coverage.png", "event_frames.png",
+})
+
+
+def foreign_entries(folder: Path, depth: int = 1) -> list[str]:
+    """The entries of ``folder`` plsgraph did not write (names, sorted): anything but :data:`RESULT_FILES`, and
+    sub-folders (a batch's, up to ``depth`` levels) holding anything else."""
+    out = []
+    for p in sorted(folder.iterdir()):
+        if p.is_symlink() or not (p.is_dir() or p.is_file()):
+            out.append(p.name)
+        elif p.is_file():
+            if p.name not in RESULT_FILES:
+                out.append(p.name)
+        elif depth <= 0 or foreign_entries(p, depth - 1):
+            out.append(p.name + "/")
+    return out
+
+
+def _names(names: list[str], most: int = 4) -> str:
+    return ", ".join(names[:most]) + (f" and {len(names) - most} more" if len(names) > most else "")
+
+
+def prepare_output_dir(out_dir: str | Path, force: bool = False, create: bool = True, whole: bool = True) -> Path:
     """Check (and with ``create`` make) ``out_dir``; refuse (InputError) if it exists and is not empty unless
     ``force``, or if it cannot be written. Callers that may still fail before writing pass ``create=False`` and
-    write through :func:`staged_output`, so a refused run leaves no empty folder behind."""
+    write through :func:`staged_output`, so a refused run leaves no empty folder behind.
+
+    ``whole``: the run replaces the folder as a whole (:func:`staged_output`). Such a folder must then hold nothing
+    but an earlier plsgraph result (:func:`foreign_entries`), even with ``force``: a recording or notes kept in it
+    would go with it. Nor can it be the working folder or one above it."""
     out = Path(out_dir)
     if out.exists():
         if not out.is_dir():
             raise InputError(f"output path {out} exists and is not a folder")
+        if whole:
+            here = Path.cwd().resolve()
+            if out.resolve() == here or out.resolve() in here.parents:
+                raise InputError(f"--out {out_dir!s} is the folder you are working in (or holds it); a result folder "
+                                 "is replaced as a whole, so choose a folder of its own, e.g. --out calib")
+        foreign = foreign_entries(out) if whole else []
+        if foreign:
+            raise InputError(f"output folder {out} holds files plsgraph did not write ({_names(foreign)}); a result "
+                             "folder is replaced as a whole, so they would be lost. Choose a new or empty --out"
+                             + (" (--force only replaces an earlier plsgraph result)" if force else ""))
         if any(out.iterdir()) and not force:
-            raise InputError(f"output folder {out} already holds results; choose another --out or pass --force")
+            raise InputError(f"output folder {out} already holds "
+                             + ("a plsgraph result" if whole else "files")
+                             + "; choose another --out or pass --force to replace it")
     elif any(p.exists() and not p.is_dir() for p in out.parents):
         raise InputError(f"cannot create output folder {out}: a parent is a file")
     parent = _writable_parent(out)
@@ -170,7 +214,10 @@ def prepare_output_dir(out_dir: str | Path, force: bool = False, create: bool = 
 class OutputLock:
     """An exclusive lock on one output folder (a lock file beside it, ``.NAME.plsgraph-lock``), held for the whole
     run: a second run on the same --out fails at once with a clear message instead of mixing files. The lock is
-    released by the kernel when the process ends, however it ends."""
+    released by the kernel when the process ends, however it ends; a run that ends normally also removes the file.
+
+    Removing it is safe because a lock counts only while its file is still the one at the path: a run that locked
+    a file another run removed meanwhile (it opened it just before) sees that and locks the new one instead."""
 
     def __init__(self, out: str | Path):
         self.out = Path(out)
@@ -181,18 +228,29 @@ class OutputLock:
         import fcntl
 
         self.out.absolute().parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            raise InputError(f"another plsgraph run is writing the output folder {self.out} right now; wait for it "
-                             "to finish or choose another --out") from None
-        self.fd = fd
-        return self
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                os.close(fd)
+                raise InputError(f"another plsgraph run is writing the output folder {self.out} right now; wait for "
+                                 "it to finish or choose another --out") from None
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                self.fd = fd
+                return self
+            os.close(fd)  # the file was removed by the run that held it: lock the one at the path now
 
     def __exit__(self, *exc: object) -> None:
         if self.fd is not None:
+            try:
+                os.unlink(self.path)  # still held: no other run can hold this file now
+            except OSError:
+                pass
             os.close(self.fd)  # closing releases the flock
             self.fd = None
 
