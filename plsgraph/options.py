@@ -30,6 +30,14 @@ def _finite_or_none(owner: str, name: str, v: Any) -> None:
         raise InputError(f"{name} ({owner}) must be a finite number of metres, got {v!r}")
 
 
+def _metres_within(owner: str, name: str, v: float | None, lo: float, hi: float, what: str) -> None:
+    """A length the user typed, checked against what a ground robot can have (a value in cm or mm, or a sign slip,
+    would otherwise be used as it is)."""
+    if v is not None and not lo <= v <= hi:
+        raise InputError(f"{name} ({owner}) {v:g} m is outside {lo:g} .. {hi:g} m, the range of {what}; lengths "
+                         "are in metres")
+
+
 @dataclass(frozen=True)
 class InputOptions:
     """Where the data is: topics (by role: events, joints, odometry), an intrinsics file, a second file with the
@@ -78,6 +86,12 @@ class OdometryOptions:
     def __post_init__(self) -> None:
         _positive("--wheel-radius", "wheel_radius", self.wheel_radius)
         _positive("--track-width", "track_width", self.track_width)
+        _metres_within("--wheel-radius", "wheel_radius", self.wheel_radius, 0.005, 2.0, "a ground robot's wheel radius")
+        _metres_within("--track-width", "track_width", self.track_width, 0.05, 5.0,
+                       "a ground robot's track width (the distance between its left and right wheels)")
+        if self.left_joint is not None and self.left_joint == self.right_joint:
+            raise InputError(f"--left-joint and --right-joint name the same joint ({self.left_joint!r}): give the "
+                             "left and the right wheel's joint")
         if self.wheel_order not in WHEEL_ORDER:
             raise InputError(f"wheel_order must be one of {', '.join(WHEEL_ORDER)}, got {self.wheel_order!r}")
 
@@ -126,6 +140,10 @@ class RefineSettings:
     def __post_init__(self) -> None:
         _finite_or_none("--camera-height", "camera_height", self.camera_height)
         _finite_or_none("--board-height", "board_height", self.board_height)
+        _metres_within("--camera-height", "camera_height", self.camera_height, -1.0, 3.0,
+                       "a camera's height above a ground robot's base frame")
+        _metres_within("--board-height", "board_height", self.board_height, 0.0, 5.0,
+                       "a board origin's height above the floor")
 
 
 @dataclass(frozen=True)

@@ -277,3 +277,19 @@ def test_options_reject_nonsense():
         CalibrationOptions.build(wheel_radus=0.1)
     opts = CalibrationOptions.build(board="b", wheel_radius=0.1, surface="polarity", camera_height=0.3)
     assert (opts.odometry.wheel_radius, opts.frontend.surface, opts.refine.camera_height) == (0.1, "polarity", 0.3)
+
+
+@pytest.mark.parametrize("setting, match", [
+    # Before: each was used as given, and the run ended with advice about the driving, or exit 0 with z = -5 m.
+    ({"camera_height": -5.0}, r"camera_height \(--camera-height\) -5 m is outside -1 .. 3 m"),
+    ({"camera_height": 25.0}, "lengths are in metres"),
+    ({"board_height": -0.2}, r"board_height \(--board-height\) -0.2 m"),
+    ({"wheel_radius": 1e-9}, "wheel radius"),
+    ({"wheel_radius": 98.0}, "wheel radius"),
+    ({"track_width": 37.0}, "track width"),
+    ({"left_joint": "front_left_wheel_joint", "right_joint": "front_left_wheel_joint"}, "name the same joint"),
+])
+def test_lengths_no_ground_robot_has_and_one_joint_for_both_wheels_are_refused(setting, match):
+    with pytest.raises(InputError, match=match):
+        CalibrationOptions.build(board="b", **setting)
+    CalibrationOptions.build(board="b", camera_height=-0.2, board_height=0.0, wheel_radius=0.3, track_width=1.2)

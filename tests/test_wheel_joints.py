@@ -47,3 +47,22 @@ def test_wheels_published_in_separate_messages_are_merged():
     got = track.poses_at([ref.t[-1] - 0.01])[0, :3, 3]
     assert np.linalg.norm(got - ref.poses_at([ref.t[-1] - 0.01])[0, :3, 3]) < 1e-3
     assert np.linalg.norm(end) > 0.1  # the robot did move
+
+
+def test_a_stretch_of_messages_without_wheel_values_is_a_gap_not_a_straight_line():
+    """Before: 2.5 s of NaN wheel angles while the robot drove were filled by a straight line between the last angles
+    before and the first after, with no warning; the same stretch of missing messages is reported as a gap."""
+    sim, ref, run = _reference_and_run()
+    t = sim.wheel_t
+    pos = np.stack([sim.wheel_left, sim.wheel_right], axis=1)
+    hole = (t > 2.0) & (t < 4.5)
+    pos[hole] = np.nan
+    js = JointStates((t * 1e9).astype(np.int64), ("left_wheel", "right_wheel"), pos, np.full_like(pos, np.nan))
+    track, cleaning = wheel_track_from_joints(js, *run)
+    assert cleaning.discarded["joint_states_without_wheel_values"] == np.count_nonzero(hole)
+    gaps = track.info["gaps"]
+    assert len(gaps) == 1 and gaps[0][0] <= 2.0 + 0.05 and gaps[0][1] >= 4.5 - 0.05
+    missing = JointStates((t[~hole] * 1e9).astype(np.int64), ("left_wheel", "right_wheel"), pos[~hole],
+                          np.full_like(pos[~hole], np.nan))
+    same, _ = wheel_track_from_joints(missing, *run)
+    assert np.array_equal(track.t, same.t) and np.allclose(track.T_world_base, same.T_world_base)

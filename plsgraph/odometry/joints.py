@@ -74,7 +74,11 @@ def wheel_track_from_joints(
     if np.count_nonzero(np.isfinite(left) & np.isfinite(right)) < 2 and np.any(np.isfinite(left_rate)):
         kind, a, b = "velocity", left_rate, right_rate  # some drivers publish only wheel rates
         warnings.append("the joint states carry no wheel angles; integrated the wheel rates instead")
-    ok = keep & np.isfinite(a) & np.isfinite(b)
+    # A message in which no wheel joint has a value is not a sample (each joint's filling above is for drivers that
+    # publish the wheels in messages of their own): dropped, a run of them is a gap like missing messages, not a
+    # straight line drawn across it.
+    raw = (joints.position if kind == "position" else joints.velocity)[:, lc + rc]
+    ok = keep & np.isfinite(a) & np.isfinite(b) & np.any(np.isfinite(raw), axis=1)
     if np.count_nonzero(keep & ~ok):
         discarded["joint_states_without_wheel_values"] = int(np.count_nonzero(keep & ~ok))
     track = base_track_from_wheels(t[ok], a[ok], b[ok], wheel_radius=wheel_radius, track_width=track_width,
