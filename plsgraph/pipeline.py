@@ -122,7 +122,8 @@ def read_inputs(run: Run) -> Any:
         run.camera = rec.camera
     else:
         raise InputError(
-            f"{run.log_path} has no sensor_msgs/CameraInfo topic; pass the intrinsics with --camera-info FILE "
+            f"{run.log_path} has no usable sensor_msgs/CameraInfo (no such topic, or none of its messages makes a "
+            "camera: see the warnings); pass the intrinsics with --camera-info FILE "
             "(a plsgraph, ROS camera_calibration or OpenCV YAML, or a Kalibr camchain as FILE[:camN])"
         )
     return rec

@@ -142,3 +142,41 @@ def test_a_damaged_camera_info_is_skipped_and_the_next_one_used(tmp_path):
     assert c.bad == 1 and not warnings
     assert got is not None and np.array_equal(got.K, cam.K)
 
+
+
+def test_the_intrinsics_most_camera_info_messages_carry_are_used():
+    """Before: the first message's intrinsics were used, whatever the others said (a first message with fx 4 % off,
+    14 correct ones after it: exit 0 with the lever arm 5 cm off), and a first message with fx = 0 or NaN made the
+    recording look as if it had no camera info at all."""
+    from plsgraph.io.messages import CameraInfoFields
+    from plsgraph.io.recording import _Collector
+
+    K = np.array([[251.3, 0, 171.2], [0, 250.9, 129.8], [0, 0, 1]])
+
+    def fields(scale=1.0, fx=None):
+        k = K.copy()
+        k[:2] *= scale
+        if fx is not None:
+            k[0, 0] = fx
+        return CameraInfoFields(346, 260, "plumb_bob", np.zeros(5), k.ravel())
+
+    def collector(messages):
+        c = _Collector("camera_info", "/camera_info")
+        for i, f in enumerate(messages):  # as add_cdr keeps them: the stamp, the fields
+            c.t.append(i + 1)
+            c.rows.append(f)
+        return c
+
+    for first, unusable in ((fields(1.04), False), (fields(fx=0.0), True), (fields(fx=float("nan")), True)):
+        c = collector([first] + [fields()] * 14)
+        warnings: list[str] = []
+        got = c.build(warnings.append)
+        assert got is not None and np.array_equal(got.K, K)
+        assert len(warnings) == 1 and "14 of 15 carry the ones used (fx 251.3" in warnings[0]
+        assert ("unusable" in warnings[0]) is unusable
+    c = collector([fields(fx=0.0), fields(fx=float("nan"))])
+    warnings = []
+    assert c.build(warnings.append) is None and "none of its 2 camera info messages is usable" in warnings[0]
+    c = collector([fields(1.04)] * 2 + [fields()] * 2)  # no majority: the first of the most frequent
+    warnings = []
+    assert np.allclose(c.build(warnings.append).K[0, 0], 251.3 * 1.04) and "fewer than half agree" in warnings[0]

@@ -269,26 +269,40 @@ class _Collector:
         return JointStates(t[order], tuple(names), pos[order], vel[order])
 
     def _camera(self, warn) -> CameraModel | None:
-        msg = self.rows[0]
-        K = np.asarray(getattr(msg, "k", getattr(msg, "K", None)), float)
-        D = np.asarray(getattr(msg, "d", getattr(msg, "D", [])), float)
-        changed = sum(
-            1
-            for m in self.rows[1:]
-            if not np.array_equal(np.asarray(getattr(m, "k", getattr(m, "K", None)), float), K)
-            or not np.array_equal(np.asarray(getattr(m, "d", getattr(m, "D", [])), float), D)
-        )
-        if changed:
-            warn(f"{self.topic}: intrinsics change in {changed} of {len(self.rows)} messages; using the first")
-        model = msg.distortion_model or "plumb_bob"
-        if model not in ("plumb_bob", "rational_polynomial") or D.size > 5 and np.any(D[5:] != 0):
-            warn(f"{self.topic}: distortion {model!r} with {D.size} coefficients is not plumb_bob; camera ignored")
+        """The intrinsics most of the messages carry (the first such message's), among those that make a camera;
+        a warning names what the others carry. None (with a warning) when no message makes one."""
+        cams: list[tuple] = []  # (key, camera) of each usable message, in order
+        unusable: list[str] = []
+        for msg in self.rows:
+            K = np.asarray(getattr(msg, "k", getattr(msg, "K", None)), float)
+            D = np.asarray(getattr(msg, "d", getattr(msg, "D", [])), float)
+            model = msg.distortion_model or "plumb_bob"
+            if model not in ("plumb_bob", "rational_polynomial") or D.size > 5 and np.any(D[5:] != 0):
+                unusable.append(f"distortion {model!r} with {D.size} coefficients is not plumb_bob")
+                continue
+            try:
+                cam = CameraModel(int(msg.width), int(msg.height), K.reshape(3, 3), D[:5])
+            except (InputError, ValueError) as exc:
+                unusable.append(str(exc))
+                continue
+            cams.append(((int(msg.width), int(msg.height), tuple(K.ravel()), tuple(D[:5])), cam))
+        if not cams:
+            warn(f"{self.topic}: none of its {len(self.rows)} camera info messages is usable ({unusable[0]}); camera "
+                 "ignored")
             return None
-        try:
-            return CameraModel(int(msg.width), int(msg.height), K.reshape(3, 3), D[:5])
-        except (InputError, ValueError) as exc:
-            warn(f"{self.topic}: camera info unusable ({exc}); camera ignored")
-            return None
+        counts: dict[tuple, int] = {}
+        for key, _ in cams:
+            counts[key] = counts.get(key, 0) + 1
+        best = max(counts, key=lambda k: counts[k])  # the first of the most frequent (dicts keep insertion order)
+        cam = next(c for key, c in cams if key == best)
+        others = len(self.rows) - counts[best]
+        if others:
+            why = f"; {len(unusable)} unusable ({unusable[0]})" if unusable else ""
+            warn(f"{self.topic}: the intrinsics differ between messages: {counts[best]} of {len(self.rows)} carry the "
+                 f"ones used (fx {best[2][0]:.6g}, fy {best[2][4]:.6g}, cx {best[2][2]:.6g}, cy {best[2][5]:.6g}){why}"
+                 + ("; fewer than half agree, so check the camera calibration (or pass --camera-info)"
+                    if 2 * counts[best] <= len(self.rows) else ""))
+        return cam
 
 
 def read_recording(
