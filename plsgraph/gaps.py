@@ -122,7 +122,7 @@ def cut_at_gaps(run: Any) -> None:
         if span < MIN_SEGMENT_S or in_seg.sum() < MIN_SEGMENT_FRAMES:
             raise InsufficientDataError(
                 f"the odometry has {len(gaps)} gap(s) the robot moved across ({desc}); the longest stretch without "
-                f"one is {span:.1f} s with {int(in_seg.sum())} camera frames (need {MIN_SEGMENT_S:g} s and "
+                f"one is {span:.2f} s with {int(in_seg.sum())} camera frames (need {MIN_SEGMENT_S:g} s and "
                 f"{MIN_SEGMENT_FRAMES}): record again without dropped messages"
             )
         run.warn(

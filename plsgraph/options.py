@@ -96,6 +96,10 @@ class OdometryOptions:
             raise InputError(f"wheel_order must be one of {', '.join(WHEEL_ORDER)}, got {self.wheel_order!r}")
 
 
+#: The slowest detection rate accepted: a window of 0.2 s already smears a board the robot drives past.
+MIN_RATE_HZ = 5.0
+
+
 @dataclass(frozen=True)
 class FrontendOptions:
     """The event front end: the surface the board is detected on and the detection rate."""
@@ -112,6 +116,9 @@ class FrontendOptions:
         if self.surface not in SURFACES:
             raise InputError(f"surface must be one of {', '.join(SURFACES)}, got {self.surface!r}")
         _positive("--rate", "rate_hz", self.rate_hz)
+        if self.rate_hz < MIN_RATE_HZ:
+            raise InputError(f"rate_hz (--rate) {self.rate_hz:g} Hz is below {MIN_RATE_HZ:g} Hz: windows of "
+                             f"{1.0 / self.rate_hz:.2g} s smear a moving board into streaks; use 10-100 Hz")
         if self.rate_hz > 1000:
             raise InputError(f"rate_hz (--rate) {self.rate_hz:g} Hz is above 1000 Hz: windows that short hold too "
                              "few events to show the board; use 10-100 Hz")

@@ -288,6 +288,7 @@ def test_options_reject_nonsense():
     ({"wheel_radius": 98.0}, "wheel radius"),
     ({"track_width": 37.0}, "track width"),
     ({"left_joint": "front_left_wheel_joint", "right_joint": "front_left_wheel_joint"}, "name the same joint"),
+    ({"rate_hz": 0.5}, "below 5 Hz: windows of 2 s"),
 ])
 def test_lengths_no_ground_robot_has_and_one_joint_for_both_wheels_are_refused(setting, match):
     with pytest.raises(InputError, match=match):

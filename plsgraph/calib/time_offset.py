@@ -367,7 +367,7 @@ def estimate_time_offset(
         inside = cv.valid & (cv.t + lo >= base.t[0] + reach) & (cv.t + hi <= base.t[-1] - reach)
         overlap = (cv.t + lo >= base.t[0] + reach) & (cv.t + hi <= base.t[-1] - reach)
         raise InsufficientDataError(
-            f"only {np.count_nonzero(inside) * dt_c:.1f} s of camera velocity samples fall inside the odometry "
+            f"only {np.count_nonzero(inside) * dt_c:.2f} s of camera velocity samples fall inside the odometry "
             f"for every td in {td_range} (camera track [{span_c[0]:.2f}, {span_c[1]:.2f}] s, "
             f"odometry [{base.t[0]:.2f}, {base.t[-1]:.2f}] s, {np.count_nonzero(overlap) * dt_c:.1f} s of overlap, "
             f"{np.count_nonzero(cv.valid)} of {cv.t.size} camera samples usable, the rest in detection gaps); "
