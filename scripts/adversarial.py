@@ -435,6 +435,45 @@ def _jobsm(w):
         plsgraph("batch", SAMPLE, "--board", BOARD, "--out", "jm", "--jobs", "-1", cwd=w))
 
 
+@case("9a --force into the recording's own folder")
+def _force_own(w):
+    d = w / "own"
+    d.mkdir(exist_ok=True)
+    shutil.copy(SAMPLE, d / "rec.mcap")
+    (d / "notes.txt").write_text("precious")
+    o = plsgraph(*cal(d / "rec.mcap", "own", "--force"), cwd=w)
+    kept = (d / "rec.mcap").exists() and (d / "notes.txt").exists()
+    good, msg = expect_user_error(o, "did not write")
+    return o.code, good and kept, f"{msg} (recording and notes kept: {kept})"
+
+
+@case("9b --out . --force")
+def _out_here(w):
+    d = w / "here"
+    d.mkdir(exist_ok=True)
+    o = plsgraph(*cal(SAMPLE, ".", "--force"), cwd=d)
+    return (o.code, *expect_user_error(o, "working in"))
+
+
+@case("9c --camera-height 25 (cm typed as m)")
+def _height_cm(w):
+    return (lambda o: (o.code, *expect_user_error(o, "metres")))(plsgraph(*cal(SAMPLE, "h25", "--camera-height",
+                                                                                 "25"), cwd=w))
+
+
+@case("9d one joint for both wheels")
+def _same_joint(w):
+    o = plsgraph(*cal(SAMPLE, "joint", "--left-joint", "front_left_wheel_joint", "--right-joint",
+                      "front_left_wheel_joint"), cwd=w)
+    return (o.code, *expect_user_error(o, "same joint"))
+
+
+@case("9e no lock files left beside the results")
+def _locks(w):
+    left = sorted(p.name for p in w.iterdir() if p.name.endswith(".plsgraph-lock"))
+    return 0, not left, f"lock files left: {left or 'none'}"
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--work", type=Path, help="scratch folder (default: a new temporary one, removed after)")
