@@ -112,3 +112,13 @@ def test_holes_and_gaps_are_discarded_and_counted():
     assert pairs.discarded["odometry_gap_or_jump"] >= 30
     assert not np.any((pairs.t + rec.td > 10.0) & (pairs.t + rec.td < 11.0))
     assert pairs.omega_cam.shape == pairs.omega_base.shape == pairs.v_cam.shape == pairs.v_base.shape
+
+
+def test_wheels_that_stand_still_while_the_camera_moves_are_named_not_the_driving():
+    """Before: a frozen encoder (constant wheel angles) while the robot drove gave 'the robot neither turns nor
+    drives', with advice about the driving."""
+    rec, _, cam = setup()
+    frozen = base_track_from_wheels(rec.wheel_t, np.zeros_like(rec.wheel_left), np.zeros_like(rec.wheel_right),
+                                    rec.wheel_radius, rec.track_width)
+    with pytest.raises(DegenerateMotionError, match="wheel odometry shows no motion .* while the camera turned"):
+        estimate_time_offset(cam, frozen)

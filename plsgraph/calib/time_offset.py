@@ -45,6 +45,9 @@ MIN_TURN_RATE = 0.05
 DEFAULT_WINDOW_S = 0.5
 #: Below this RMS speed (m/s) the speed signal is too weak to correlate (the turn rate is used, or none).
 MIN_SIGNAL_SPEED = 0.02
+#: When the odometry shows no motion but the camera turned at this many times MIN_TURN_RATE against the board, the
+#: wheel data are wrong (a frozen encoder, the wrong joints, a wheel radius far too small), not the driving.
+CAMERA_MOVED_FACTOR = 3.0
 
 
 @dataclass(frozen=True)
@@ -396,6 +399,14 @@ def estimate_time_offset(
             "cannot fix the time offset. Turn while recording or use signal='linear'"
         )
     if used == "linear" and speed_rms < MIN_SIGNAL_SPEED:
+        cam_turn = float(np.sqrt(np.mean(np.sum(w_c**2, axis=1)))) if w_c.size else 0.0
+        if cam_turn >= CAMERA_MOVED_FACTOR * MIN_TURN_RATE:
+            raise DegenerateMotionError(
+                f"the wheel odometry shows no motion (RMS turn rate {turn_rms:.3f} rad/s, speed {speed_rms:.3f} m/s) "
+                f"while the camera turned (RMS {cam_turn:.3f} rad/s against the board): the wheel angles do not "
+                "follow the wheels (a frozen encoder, the wrong joints: --left-joint/--right-joint) or "
+                "--wheel-radius/--track-width are far too small"
+            )
         raise DegenerateMotionError(
             f"the robot neither turns (RMS {turn_rms:.3f} rad/s) nor drives (RMS speed {speed_rms:.3f} m/s); "
             "the time offset is unobservable. Record while driving and turning"
