@@ -131,3 +131,14 @@ def test_output_into_a_file_is_a_user_error(tmp_path, capsys):
     f.write_text("x")
     code = main(["simulate", "--duration", "2", "--out", str(f / "x.mcap")])
     assert code == 2 and "Traceback" not in capsys.readouterr().err
+
+
+def test_inspect_says_each_warning_once_on_each_stream(tmp_path):
+    """Before: every reader warning came three times, twice on stderr (logged, then printed again)."""
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(Path(SAMPLE).read_bytes()[:6_000_000])
+    p = subprocess.run([sys.executable, "-m", "plsgraph.cli.main", "inspect", str(cut)], capture_output=True, text=True,
+                       timeout=120, env=dict(os.environ, PYTHONPATH=str(Path(plsgraph.__file__).parents[1])))
+    assert p.returncode == 0
+    assert p.stdout.count("file is truncated or corrupt") == 1
+    assert p.stderr.count("file is truncated or corrupt") == 1

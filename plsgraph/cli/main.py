@@ -234,10 +234,8 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
         why = "; ".join(info.get("warnings", [])) or "no messages"
         print(f"plsgraph: error: nothing readable in {args.log}: {why}", file=sys.stderr)
         return 2
+    # The reader's warnings are in the listing (or the JSON) and were logged on stderr as they came: not again.
     print(json.dumps(info, indent=2) if args.json else format_inspection(info))
-    if info.get("warnings") and not args.json:
-        for w in info["warnings"]:
-            print(f"warning: {w}", file=sys.stderr)
     return 0
 
 
