@@ -177,7 +177,8 @@ class McapSource:
         extra = f", {salvaged} of them from the damaged chunk's readable start" if salvaged else ""
         self.log.warn(
             f"{self.path.name}: file is truncated or corrupt near byte {pos} of {self.size} "
-            f"({type(exc).__name__}: {exc}); kept the {sum(read.values())} messages read before it{extra}"
+            f"({type(exc).__name__}: {exc}); kept the {sum(read.values())} messages "
+            f"{'' if topics is None else 'of ' + ', '.join(sorted(topics)) + ' '}read before it{extra}"
         )
 
     def _report_lost(self, read: Counter, topics: set[str] | None) -> None:
