@@ -293,7 +293,7 @@ def upside_down_problems(T_base_cam: np.ndarray, allow: bool) -> list[str]:
     return [
         "the camera comes out upside down (its image 'down' axis points up in the base frame): the wheels are "
         "probably swapped or reversed (check --left-joint/--right-joint), which mirrors the whole solution; if the "
-        "camera really is mounted upside down, pass --upside-down"
+        "camera really is mounted upside down, pass --upside-down-camera"
     ]
 
 

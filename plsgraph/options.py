@@ -8,6 +8,7 @@ any work, with a message naming the setting.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -164,9 +165,10 @@ class MountOptions:
     def __post_init__(self) -> None:
         for name in ("parent_frame", "child_frame"):
             v = getattr(self, name)
-            if not isinstance(v, str) or not v or any(c.isspace() or c in "<>&\"'" for c in v):
-                raise InputError(f"{name} (--{name.replace('_', '-')}) must be a non-empty frame name without spaces "
-                                 f"or quotes, got {v!r}")
+            if not isinstance(v, str) or not re.fullmatch(r"[A-Za-z0-9_.\-]+(/[A-Za-z0-9_.\-]+)*", v):
+                raise InputError(f"{name} (--{name.replace('_', '-')}) must be a frame name of letters, digits and "
+                                 "_ . - with / between parts (not first or last: tf2 refuses a leading /), got "
+                                 f"{v!r}")
 
 
 @dataclass(frozen=True)

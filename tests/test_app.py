@@ -294,3 +294,15 @@ def test_lengths_no_ground_robot_has_and_one_joint_for_both_wheels_are_refused(s
     with pytest.raises(InputError, match=match):
         CalibrationOptions.build(board="b", **setting)
     CalibrationOptions.build(board="b", camera_height=-0.2, board_height=0.0, wheel_radius=0.3, track_width=1.2)
+
+
+def test_the_summary_of_a_flagged_result_says_so_before_any_number(sim_run):
+    """Before: the terminal summary of a flagged result opened with T_base_cam and rpy and named the problems only
+    on line 33, never saying 'flagged'."""
+    _, result = sim_run
+    report = result.to_dict()
+    assert report["ok"] and "FLAGGED" not in calibration_text(report)
+    flagged = {**report, "ok": False, "problems": ["yaw disagrees with the closed form by 4.1 sigma"]}
+    lines = calibration_text(flagged).splitlines()
+    assert lines[0].startswith("FLAGGED: do not use this calibration (1 problem(s)")
+    assert lines.index("PROBLEMS (the calibration is flagged: do not use it):") > 0

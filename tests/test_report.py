@@ -158,3 +158,26 @@ def test_an_output_lock_is_removed_when_its_run_ends_and_still_excludes_a_second
         with pytest.raises(InputError, match="another plsgraph run"):
             OutputLock(out).__enter__()
     assert not second.path.exists()
+
+
+def test_frame_names_make_valid_robot_files():
+    """Before: --child-frame robot1/event-camera.0 gave the launch file a node name ROS 2 refuses, --parent-frame
+    /base_link (which tf2 refuses) was written as given, and the URDF said 't_odom = t_cam + -0.09 s'."""
+    import ast
+    import re
+
+    from plsgraph.options import CalibrationOptions
+    from plsgraph.report.robot_files import launch_text, node_name, urdf_text
+
+    for child, node in (("robot1/event-camera.0", "robot1_event_camera_0_static_tf"), ("3cam", "_3cam_static_tf"),
+                        ("event_camera", "event_camera_static_tf")):
+        assert node_name(child) == node and re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", node)
+        CalibrationOptions.build(board="b", child_frame=child)
+        text = launch_text(_T(), "base_link", child)
+        ast.parse(text)
+        assert f'name="{node}"' in text and f'"--child-frame-id", "{child}"' in text
+    for bad in ("/base_link", "base_link/", "a//b", "my camera", "cam<1>"):
+        with pytest.raises(InputError, match="frame name of letters"):
+            CalibrationOptions.build(board="b", parent_frame=bad)
+    assert "t_odom = t_cam - 0.091165188 s" in urdf_text(_T(), "base_link", "cam", time_offset_s=-0.091165188)
+    assert "t_odom = t_cam + 0.030000000 s" in urdf_text(_T(), "base_link", "cam", time_offset_s=0.03)

@@ -9,6 +9,7 @@ measured: planar driving cannot observe it.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import quoteattr
@@ -54,7 +55,8 @@ def urdf_text(T_base_cam: np.ndarray, parent: str, child: str, *, ok: bool = Tru
     note = _height_note(height_measured)
     lines = head + ['<robot name="plsgraph_camera_mount">']
     if time_offset_s is not None:
-        lines.append(f"  <!-- time offset: t_odom = t_cam + {time_offset_s:.9f} s (not part of the URDF) -->")
+        sign = "-" if time_offset_s < 0 else "+"
+        lines.append(f"  <!-- time offset: t_odom = t_cam {sign} {abs(time_offset_s):.9f} s (not part of the URDF) -->")
     if note:
         lines.append(f"  <!-- {_xml_comment(note)} -->")
     lines += [
@@ -69,6 +71,14 @@ def urdf_text(T_base_cam: np.ndarray, parent: str, child: str, *, ok: bool = Tru
         "",
     ]
     return "\n".join(lines)
+
+
+def node_name(child: str) -> str:
+    """The static transform publisher's ROS 2 node name for ``child``: ``<child>_static_tf`` with every character a node
+    name may not hold ([A-Za-z0-9_] only, not starting with a digit) as ``_`` (frame "robot1/cam.0" ->
+    "robot1_cam_0_static_tf")."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", child) + "_static_tf"
+    return "_" + name if name[0].isdigit() else name
 
 
 def _xml_comment(text: str) -> str:
@@ -105,7 +115,7 @@ def launch_text(T_base_cam: np.ndarray, parent: str, child: str, *, ok: bool = T
         "        Node(",
         '            package="tf2_ros",',
         '            executable="static_transform_publisher",',
-        f'            name="{child}_static_tf",',
+        f'            name="{node_name(child)}",',
         "            arguments=[",
         '                "--x", str(X), "--y", str(Y), "--z", str(Z),',
         '                "--roll", str(ROLL), "--pitch", str(PITCH), "--yaw", str(YAW),',

@@ -28,7 +28,11 @@ def _offset_line(c: dict) -> str:
 def calibration_text(report: dict) -> str:
     """The summary of a calibration's report dict."""
     c = report["calibration"]
-    lines = [
+    lines = []
+    if not report.get("ok", True):  # first, before any number a reader could copy
+        lines.append(f"FLAGGED: do not use this calibration ({len(report['problems'])} problem(s), listed under "
+                     "PROBLEMS below; the robot files hold no transform)")
+    lines += [
         f"recording      {report['recording']}",
         f"result from    {c['source']}",
         "T_base_cam     " + "\n               ".join(" ".join(_num(v, 9, 5) for v in row) for row in c["T_base_cam"]),
@@ -58,7 +62,7 @@ def calibration_text(report: dict) -> str:
         lines.append("errors against truth:")
         lines += [f"  {k:<36} {v:.4g}" for k, v in report["truth_errors"].items() if v is not None]
     if report["problems"]:
-        lines.append("PROBLEMS:")
+        lines.append("PROBLEMS (the calibration is flagged: do not use it):")
         lines += [f"  - {p}" for p in report["problems"]]
     if report["warnings"]:
         lines.append(f"warnings ({len(report['warnings'])}):")
