@@ -108,7 +108,15 @@ def diagnose(
 
     opts = _options(board, options, settings)
     run = Run(Path(recording), opts)
-    build_tracks(run, progress)
+    try:
+        build_tracks(run, progress)
+    except (DegenerateMotionError, InsufficientDataError) as exc:  # as calibrate: a diagnosis (exit 1), not an error
+        from .report.output import FRONTEND_ADVICE
+
+        advice = FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else MOTION_ADVICE_DEFAULT
+        counts = {"camera_frames": len(run.camera_track) if run.camera_track is not None else 0,
+                  "odometry_samples": len(run.base_track) if run.base_track is not None else 0}
+        return Diagnosis(str(recording), False, (str(exc),), (advice,), **counts, warnings=tuple(run.warnings))
     counts = {"camera_frames": len(run.camera_track), "odometry_samples": len(run.base_track)}
     try:
         cut_at_gaps(run)  # the same data calibrate would use

@@ -142,3 +142,18 @@ def test_inspect_says_each_warning_once_on_each_stream(tmp_path):
     assert p.returncode == 0
     assert p.stdout.count("file is truncated or corrupt") == 1
     assert p.stderr.count("file is truncated or corrupt") == 1
+
+
+def test_diagnose_and_compare_answer_a_recording_too_short_to_calibrate_as_calibrate_does(tmp_path, capsys):
+    """Before: calibrate gave exit 1 and a diagnosis for a recording cut after 300 kB, diagnose exit 2 (and --json
+    printed nothing), compare exit 2."""
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(Path(SAMPLE).read_bytes()[:300_000])
+    args = [str(cut), "--board", "acircles_4x11_a2"]
+    assert main(["calibrate", *args, "--out", str(tmp_path / "c")]) == 1
+    capsys.readouterr()
+    assert main(["diagnose", *args, "--json"]) == 1
+    d = json.loads(capsys.readouterr().out)
+    assert d["ok"] is False and d["problems"] and d["advice"]
+    assert main(["compare", *args]) == 1
+    assert "no comparison" in capsys.readouterr().err

@@ -295,13 +295,13 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
 def _cmd_compare(args: argparse.Namespace) -> int:
     from ..api import compare
-    from ..errors import DegenerateMotionError
+    from ..errors import DegenerateMotionError, InsufficientDataError
     from ..report.text import comparison_text
     from .progress import ProgressBar
 
     try:
         res = compare(args.log, options=_options(args), progress=ProgressBar)
-    except DegenerateMotionError as exc:  # a result of the recording, not a user error
+    except (DegenerateMotionError, InsufficientDataError) as exc:  # a result of the recording, not a user error
         print(f"plsgraph: no comparison: {exc}", file=sys.stderr)
         return 1
     return _emit(args, json.dumps(res.to_dict(), indent=2) if args.json else comparison_text(res), 0 if res.ok else 1)
