@@ -111,9 +111,11 @@ def diagnose(
     try:
         build_tracks(run, progress)
     except (DegenerateMotionError, InsufficientDataError) as exc:  # as calibrate: a diagnosis (exit 1), not an error
-        from .report.output import FRONTEND_ADVICE
+        from .pipeline import _damaged
+        from .report.output import DAMAGED_ADVICE, FRONTEND_ADVICE
 
-        advice = FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else MOTION_ADVICE_DEFAULT
+        advice = (DAMAGED_ADVICE if _damaged(run) else
+                  FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else MOTION_ADVICE_DEFAULT)
         counts = {"camera_frames": len(run.camera_track) if run.camera_track is not None else 0,
                   "odometry_samples": len(run.base_track) if run.base_track is not None else 0}
         return Diagnosis(str(recording), False, (str(exc),), (advice,), **counts, warnings=tuple(run.warnings))
@@ -184,6 +186,7 @@ def calibrate_to_dir(
     from .report.figure_worker import FigureWorker, processor_free
     from .report.files import prepare_output_dir
     from .report.output import (
+        DAMAGED_ADVICE,
         DIAGNOSIS_ADVICE,
         FRONTEND_ADVICE,
         write_calibration,
@@ -208,8 +211,10 @@ def calibrate_to_dir(
                                                           progress=progress, tracks_final=tracks_final))
             except (DegenerateMotionError, InsufficientDataError) as exc:
                 # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
-                advice = FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else DIAGNOSIS_ADVICE
-                return write_diagnosis_only(stage, recording, str(exc), advice, getattr(exc, "coverage", None))
+                advice = (DAMAGED_ADVICE if getattr(exc, "damaged", False) else
+                          FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else DIAGNOSIS_ADVICE)
+                return write_diagnosis_only(stage, recording, str(exc), advice, getattr(exc, "coverage", None),
+                                            getattr(exc, "warnings", None))
             written = write_calibration(stage, result, figures)
         text = calibration_text(result.report) + "\n\nwritten: " + ", ".join(str(out / p.name) for p in written)
         return {"ok": result.ok, "text": text, "report": result.report, "result": result}

@@ -263,13 +263,25 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
         if k in track.info:
             run.discarded[f"frontend_{k}"] = to_jsonable(track.info[k])
     if len(track) < MIN_CAMERA_FRAMES:
-        exc = InsufficientDataError(
-            f"the board was found in only {len(track)} of the event windows; check the board definition "
-            f"(--board), the intrinsics and that the board is in view while the robot moves"
-        )
+        windows = int(track.info.get("windows") or 0)
+        if windows < MIN_CAMERA_FRAMES:  # the events are too short to hold that many windows
+            why = (f"the events span only {windows} detection windows ({counts['events']:,} events), fewer than the "
+                   f"{MIN_CAMERA_FRAMES} board detections a calibration needs"
+                   + ("; the file is cut short or damaged (see the warnings)" if _damaged(run) else ""))
+        else:
+            why = (f"the board was found in only {len(track)} of the {windows} event windows (a calibration needs "
+                   f"{MIN_CAMERA_FRAMES}); check the board definition (--board), the intrinsics and that the board is "
+                   "in view while the robot moves")
+        exc = InsufficientDataError(why)
         exc.frontend_info = track.info
         raise exc
     return track
+
+
+def _damaged(run: Run) -> bool:
+    """Whether reading the recording lost messages (a file cut short or damaged)."""
+    return bool(run.discarded.get("lost_while_reading")) or any(
+        "truncated or corrupt" in w or "cut short" in w for w in run.warnings)
 
 
 def run_closed_form(run: Run) -> Any:
@@ -368,6 +380,8 @@ def run_recording(
         build_tracks(run, progress)
         return solve(run, refine, progress, tracks_final)
     except (DegenerateMotionError, InsufficientDataError) as exc:
+        exc.warnings = list(run.warnings)  # the diagnosis keeps them: a file cut short says so there
+        exc.damaged = _damaged(run)
         try:
             exc.coverage = diagnosis_coverage(run, exc)
         except Exception as cov_exc:  # noqa: BLE001 - the diagnosis matters, its coverage is extra

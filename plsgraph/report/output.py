@@ -78,6 +78,9 @@ DIAGNOSIS_ADVICE = (
     "drive forwards and backwards while turning (arcs, S-curves) with the board in view; straight "
     "driving leaves the camera yaw and lever arm undetermined, turning in place the yaw"
 )
+#: The advice when reading the recording lost messages (it is cut short or damaged) and too little was left.
+DAMAGED_ADVICE = ("the recording is cut short or damaged (see the warnings): use a complete copy, or recover what is "
+                  "readable (for MCAP: `mcap recover`) and record again if too little is left")
 #: The advice when the front end found (almost) no board: the board or camera files come before the driving.
 FRONTEND_ADVICE = (
     "check --board against the printed target (pattern, rows x columns, spacing) and --camera-info against the "
@@ -86,9 +89,9 @@ FRONTEND_ADVICE = (
 
 
 def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: str = DIAGNOSIS_ADVICE,
-                         coverage: dict | None = None) -> dict:
+                         coverage: dict | None = None, warnings: list[str] | None = None) -> dict:
     """A run that could not calibrate: report.json with the reason and advice (and the front end's ``coverage``
-    when it ran), no calibration.yaml."""
+    when it ran, and the run's ``warnings``: a file cut short says so), no calibration.yaml."""
     from .. import __version__
 
     out.mkdir(parents=True, exist_ok=True)
@@ -99,6 +102,7 @@ def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: s
         "calibration": None,
         "problems": [reason],
         "advice": [advice] if advice else [],
+        "warnings": list(warnings or []),
     }
     if coverage is not None:
         report["coverage"] = coverage
@@ -109,6 +113,7 @@ def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: s
         f"  - {reason}",
         *([coverage_line(coverage)] if coverage is not None else []),
         *([f"advice: {advice}"] if advice else []),
+        *([f"warnings ({len(warnings)}):", *[f"  - {w}" for w in warnings[:12]]] if warnings else []),
         "",
         f"written: {out / 'report.json'} (diagnosis only)",
     ])
