@@ -411,3 +411,28 @@ def test_random_inputs_give_a_rotation_or_a_typed_error():
             except PlsgraphError:
                 continue
             assert is_rotation(res.R_base_cam, 1e-9)
+
+
+def test_opencv_prints_nothing_of_its_own_during_the_hand_eye_comparisons(monkeypatch):
+    """Before: a failing Tsai printed OpenCV's '[ERROR:0@3.858] ... Hand-eye calibration failed!' on stderr of a run
+    that ended with exit 0. Its logging is silenced for the call (the failure is told by the result) and restored."""
+    import cv2
+
+    from plsgraph.core.geometry import make_T, so3_exp
+
+    rng = np.random.default_rng(0)
+    Tw = np.stack([make_T(so3_exp([0.3 * a, 0.2 * b, c]), [x, y, 0.1 * z]) for a, b, c, x, y, z in
+                   rng.normal(size=(30, 6))])
+    X = make_T(so3_exp([0.1, -1.5, 0.2]), [0.2, 0.05, 0.3])
+    Tbc = np.stack([T @ X for T in Tw])
+    before = cv2.utils.logging.getLogLevel()
+    seen = []
+    real = cv2.calibrateHandEye
+
+    def spy(*args, **kw):
+        seen.append(cv2.utils.logging.getLogLevel())
+        return real(*args, **kw)
+
+    monkeypatch.setattr(cv2, "calibrateHandEye", spy)
+    hand_eye(Tw, Tbc, method="tsai")
+    assert seen == [cv2.utils.logging.LOG_LEVEL_SILENT] and cv2.utils.logging.getLogLevel() == before

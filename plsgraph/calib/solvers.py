@@ -599,7 +599,11 @@ def hand_eye(
     import cv2
 
     T_cam_board = inv_T(Tc)
+    quiet = getattr(getattr(cv2, "utils", None), "logging", None)  # OpenCV prints its own failures on stderr
+    level = quiet.getLogLevel() if quiet is not None else None
     try:
+        if quiet is not None:
+            quiet.setLogLevel(quiet.LOG_LEVEL_SILENT)  # a failure is told below (or by the NaN check), once
         R_c, t_c = cv2.calibrateHandEye(
             list(Tb[:, :3, :3]),
             list(Tb[:, :3, 3:4]),
@@ -612,6 +616,9 @@ def hand_eye(
             f"hand_eye({method}): OpenCV failed ({str(exc).strip().splitlines()[-1]}); the motion does not "
             "determine X. Add rotations about different axes or use solve(..., method='pls')"
         ) from exc
+    finally:
+        if quiet is not None:
+            quiet.setLogLevel(level)
     R_c = np.asarray(R_c, dtype=float)
     t_c = np.asarray(t_c, dtype=float).reshape(3)
     if not (np.all(np.isfinite(R_c)) and np.all(np.isfinite(t_c))):

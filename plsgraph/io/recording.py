@@ -333,6 +333,13 @@ def read_recording(
     if not used:
         from .events_reader import describe_topics
 
+        events = _ROLES["events"][0]
+        if not with_events and any(i.msgtype in events for i in all_topics.values()):
+            # The events were not asked for here: what is missing is the robot's side (and the intrinsics).
+            raise RecordingError(
+                f"{src.path.name} has events but no odometry (sensor_msgs/JointState or nav_msgs/Odometry) and no "
+                f"camera info; a calibration needs the odometry too (in this file, or another one given with "
+                f"--odometry) and the intrinsics (--camera-info); {describe_topics(all_topics, src.log)}")
         raise RecordingError(f"{src.path.name}: nothing plsgraph can use; {describe_topics(all_topics, src.log)}")
     by_topic = {t: r for r, t in used.items()}
     collectors = {t: _Collector(r, t) for r, t in used.items() if r != "events"}
