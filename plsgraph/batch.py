@@ -132,4 +132,24 @@ def run_batch(
     )
     write_text(out / "summary.md", table + "\n")
     ok = all(r["status"] == "ok" for r in rows)
-    return {"ok": ok, "text": table + f"\n\nwritten: {out / 'summary.json'}, {out / 'summary.md'}", "rows": rows}
+    text = table + f"\n\nwritten: {out / 'summary.json'}, {out / 'summary.md'}"
+    if force:
+        stale = _remove_stale_results(out, {Path(item[1]).name for item in items})
+        if stale:
+            text += f"\nremoved the earlier results of recordings not in this batch: {', '.join(stale)}"
+    return {"ok": ok, "text": text, "rows": rows}
+
+
+def _remove_stale_results(out: Path, current: set[str]) -> list[str]:
+    """With --force the batch's folder holds this batch's results only: remove the folders of earlier results
+    (nothing but what plsgraph writes) of recordings not in it; anything else stays."""
+    import shutil
+
+    from .report.files import RESULT_FILES, foreign_entries
+
+    stale = []
+    for d in sorted(p for p in out.iterdir() if p.is_dir() and not p.is_symlink() and p.name not in current):
+        if not foreign_entries(d, depth=0) and any(f.name in RESULT_FILES for f in d.iterdir()):
+            shutil.rmtree(d)
+            stale.append(d.name)
+    return stale

@@ -183,3 +183,18 @@ def test_a_recording_with_events_alone_is_said_to_lack_the_odometry(tmp_path, ca
     assert main(["calibrate", str(only), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "c")]) == 2
     err = capsys.readouterr().err
     assert "has events but no odometry" in err and "--odometry" in err and "nothing plsgraph can use" not in err
+
+
+def test_batch_force_leaves_no_result_of_a_recording_no_longer_given(tmp_path, capsys):
+    """Before: a recording's folder from an earlier batch stayed beside the new summary, which no longer listed it."""
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "a.mcap").write_bytes(b"not a recording")
+    out = tmp_path / "out"
+    (out / "gone").mkdir(parents=True)
+    (out / "gone" / "report.json").write_text('{"ok": false}')
+    (out / "mine").mkdir()
+    (out / "mine" / "notes.txt").write_text("kept")
+    assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11_a2", "--out", str(out), "--force",
+                 "--jobs", "1"]) == 1
+    assert "removed the earlier results of recordings not in this batch: gone" in capsys.readouterr().out
+    assert not (out / "gone").exists() and (out / "mine" / "notes.txt").read_text() == "kept"
