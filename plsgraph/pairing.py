@@ -154,6 +154,17 @@ def pair_tracks(run: Any) -> None:
         if not alignment.ok:  # pragma: no cover - align_clocks(strict=True) raised already
             raise ClockAlignmentError(alignment.reason)
     shift = float(clock["offset_s"])
+    if given is not None and not coarse:
+        cam, odo = run.camera_track.t, run.base_track.t
+        lo, hi = cam[0] + given, cam[-1] + given
+        if hi + w < odo[0] or lo - w > odo[-1]:  # no td in the search range puts them side by side
+            from .errors import InputError
+
+            raise InputError(
+                f"with --clock-offset {given:g} s the camera's span on the odometry clock is [{lo:.2f}, {hi:.2f}] s "
+                f"and the odometry's [{odo[0]:.2f}, {odo[-1]:.2f}] s: they do not overlap for any time offset within "
+                f"+-{w:g} s. Check the offset and its sign (t_odom = t_cam + offset), or leave --clock-offset out "
+                "to have the clocks aligned from the motion")
     if shift != 0.0:
         run.camera_track = shift_camera_track(run.camera_track, shift)
         run.clock_offset_s = shift

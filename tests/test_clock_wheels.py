@@ -159,3 +159,15 @@ def test_option_checks():
         CalibrationOptions.build(wheel_order="guess")
     with pytest.raises(InputError, match="child_frame"):
         CalibrationOptions.build(child_frame="my camera")
+
+
+def test_a_clock_offset_that_leaves_the_two_spans_apart_is_refused_with_its_sign_named(sim):
+    """Before: --clock-offset with the wrong sign ran to a diagnosis advising to record longer and drive more."""
+    from plsgraph.errors import InputError
+
+    run = _run(sim, "as_given", clock_offset=-DIFF)
+    with pytest.raises(InputError, match=r"--clock-offset -3725.4 s .* do not overlap .* its sign"):
+        pair_tracks(run)
+    run = _run(sim, "as_given", clock_offset=DIFF)
+    pair_tracks(run)  # the right one
+    assert run.clock_offset_s == DIFF
