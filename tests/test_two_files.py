@@ -124,4 +124,8 @@ def test_report_html_puts_the_result_first_and_every_image_exists(calibrated):
     for src in p.images:
         assert (out / src).is_file(), f"report.html references a missing image {src}"
     assert p.headings[0] == "Result" and p.headings.index("Figures") < p.headings.index("Observability")
-    assert "± " in (out / "report.html").read_text()
+    page = (out / "report.html").read_text()
+    assert "± " in page
+    # Before: the page named neither the odometry file nor the clock step, which the terminal and report.json gave.
+    assert "odometry read from" in page and "odometry.mcap" in page and "clocks aligned coarsely" in page
+    assert "effective wheel radius" in page

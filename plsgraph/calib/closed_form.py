@@ -292,7 +292,9 @@ def _scale_warnings(s_v: float, s_w: float, info: dict) -> list[str]:
         "the translation was computed from the corrected odometry"
     )
     if "track_width_m" in rep:
-        msg += f". Effective wheel radius {rep['wheel_radius_m']:.4f} m and track width {rep['track_width_m']:.4f} m"
+        msg += (f". The closed form's effective wheel radius {rep['wheel_radius_m']:.4f} m and track width "
+                f"{rep['track_width_m']:.4f} m (the refinement estimates them again, with sigmas: calibration.yaml's "
+                "odometry)")
         if s_w < 1 - SCALE_WARN:
             msg += " (skid-steer robots turn less than their geometric track width predicts)"
     return [msg]

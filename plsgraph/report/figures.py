@@ -251,7 +251,7 @@ def write_html_report(out: Path, run: Any, report: dict,
     sections = []  # what a person needs first: the result with its sigmas, then what is wrong, then the pictures
     status = "OK" if report["ok"] else "FLAGGED: do not use this calibration"
     sections.append(("Result", f"<p><b>{html.escape(status)}</b> (from {html.escape(c['source'])})</p>"
-                     + _summary_table(c) + "<pre>" + html.escape(_result_block(c)) + "</pre>"))
+                     + _summary_table(c) + _robot_notes(report) + "<pre>" + html.escape(_result_block(c)) + "</pre>"))
     if report["problems"]:
         sections.append(("Problems", "<ul>" + "".join(f"<li class='warn'><b>{html.escape(p)}</b></li>"
                                                       for p in report["problems"]) + "</ul>"))
@@ -298,6 +298,28 @@ def _summary_table(c: dict) -> str:
     note = ("<p>sigma: one standard deviation from the refinement's covariance (rotations as small angles about the "
             "base axes); '-' when there is none (closed form only). A sigma of 1 m on z means: not observable.</p>")
     return html_table(rows, ["parameter", "value", "sigma"]) + note
+
+
+def _robot_notes(report: dict) -> str:
+    """The odometry file (two-file runs), the clock alignment and the effective wheel geometry, as the terminal
+    summary gives them."""
+    c = report["calibration"]
+    notes = []
+    odo_file = ((report.get("options") or {}).get("inputs") or {}).get("odometry_file")
+    if odo_file:
+        notes.append(f"odometry read from {odo_file} (a second file, its own clock)")
+    clock = c.get("clock_alignment") or {}
+    if clock.get("coarse"):
+        notes.append(f"clocks aligned coarsely from the motion: {clock['offset_s']:.3f} s (correlation "
+                     f"{clock.get('score', float('nan')):.2f}, second peak ratio "
+                     f"{clock.get('second_peak_ratio', float('nan')):.2f}); {clock.get('rule', '')}")
+    odo = c.get("odometry") or {}
+    if odo.get("wheel_radius_m") is not None:
+        sr, sb = odo.get("wheel_radius_sigma_m"), odo.get("track_width_sigma_m")
+        notes.append(f"effective wheel radius {odo['wheel_radius_m']:.4f} m"
+                     + ("" if sr is None else f" ± {sr:.4f}") + f", track width {odo['track_width_m']:.3f} m"
+                     + ("" if sb is None else f" ± {sb:.3f}") + f" ({odo.get('source', '')})")
+    return "".join(f"<p>{html.escape(n)}</p>" for n in notes)
 
 
 def _result_block(c: dict) -> str:

@@ -44,6 +44,16 @@ def calibration_text(report: dict) -> str:
     if clock.get("coarse"):
         lines.append(f"clocks         coarse alignment {clock['offset_s']:.3f} s (correlation {clock['score']:.2f}, "
                      f"second peak ratio {clock['second_peak_ratio']:.2f}); {clock['rule']}")
+    odo = c.get("odometry") or {}
+    if odo.get("wheel_radius_m") is not None:
+        def pm(v, sig, digits):
+            return f"{v:.{digits}f}" + ("" if sig is None else f" +- {sig:.{digits}f}")
+
+        radius = pm(odo["wheel_radius_m"], odo.get("wheel_radius_sigma_m"), 4)
+        lines.append(f"odometry       effective wheel radius {radius} m, track width "
+                     f"{pm(odo['track_width_m'], odo.get('track_width_sigma_m'), 3)} m (nominal "
+                     f"{odo.get('wheel_radius_nominal_m', odo.get('nominal_wheel_radius_m'))} m, "
+                     f"{odo.get('track_width_nominal_m', odo.get('nominal_track_width_m'))} m)")
     wo = c.get("wheel_order") or {}
     if wo.get("corrected"):
         lines.append(f"wheels         CORRECTED: {wo['description']} (see warnings)")
