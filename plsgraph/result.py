@@ -181,7 +181,9 @@ def truth_errors(run: Run) -> dict | None:
     if ref is not None:
         out["refined.rot_err_deg"] = float(rotation_error_deg(ref.R_base_cam, T_gt[:3, :3]))
         out["refined.t_xy_err_m"] = float(np.linalg.norm(ref.T_base_cam[:2, 3] - T_gt[:2, 3]))
-        out["refined.t_z_err_m"] = float(ref.T_base_cam[2, 3] - T_gt[2, 3])
+        rs = run.options.refine
+        if rs.camera_height is not None or rs.board_height is not None:  # else z is not measured: written as 0
+            out["refined.t_z_err_m"] = float(ref.T_base_cam[2, 3] - T_gt[2, 3])
         out["refined.td_err_ms"] = 1e3 * (ref.td + run.clock_offset_s - td_gt)
     return out
 

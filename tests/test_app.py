@@ -302,6 +302,8 @@ def test_the_summary_of_a_flagged_result_says_so_before_any_number(sim_run):
     _, result = sim_run
     report = result.to_dict()
     assert report["ok"] and "FLAGGED" not in calibration_text(report)
+    # No height given: z is written as 0 and has no error against the truth (before: one of the unwritten seed's).
+    assert "refined.t_z_err_m" not in report["truth_errors"] and "refined.t_xy_err_m" in report["truth_errors"]
     flagged = {**report, "ok": False, "problems": ["yaw disagrees with the closed form by 4.1 sigma"]}
     lines = calibration_text(flagged).splitlines()
     assert lines[0].startswith("FLAGGED: do not use this calibration (1 problem(s)")
