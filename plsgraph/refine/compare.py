@@ -23,7 +23,7 @@ def solution_rms_px(
     camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, T_base_cam: np.ndarray, td: float,
     translation_known: bool = True,
 ) -> float:
-    """Reprojection RMS (px) of a calibration with the odometry taken as is and the board fitted to it.
+    """Reprojection RMS (px) of a calibration with the odometry ``base_track`` as given and the board fitted to it.
 
     When ``translation_known`` is False (a rotation-only closed form), the camera translation is fitted
     by least squares first, so that the number compares rotations and td, not a missing translation.
@@ -73,6 +73,12 @@ def _as_solution(sol) -> tuple[np.ndarray, float | None, bool]:
     return a, None, a.shape == (4, 4)
 
 
+def _height_unobserved(refinement: RefinementResult) -> bool:
+    """Whether the refinement left the camera height at its seed (planar motion, no height given)."""
+    obs = getattr(refinement, "observability", None)
+    return any(a.name == "z" and a.status != "observable" for a in (obs.axes if obs is not None else ()))
+
+
 def compare_solutions(
     solutions: Mapping[str, object],
     refinement: RefinementResult,
@@ -88,12 +94,20 @@ def compare_solutions(
     ``solutions``: name -> closedform.RotationResult, a 3 x 3 rotation, a 4 x 4 transform or a dict with
     ``R_base_cam`` / ``T_base_cam`` (and optionally ``t_base_cam``, ``td``). A solution without td uses
     the refinement's seed td. With truth: rotation error (deg), translation and xy errors (m), td error
-    (ms). Without: differences to the refinement. With the tracks and the camera: reprojection RMS (px).
+    (ms). Without: differences to the refinement. With the tracks and the camera: reprojection RMS (px), every
+    solution under the odometry as the refinement's estimated speed and turn scales correct it (when it has them).
     """
     entries = dict(solutions)
     entries["refined"] = refinement
     rows = []
     have_tracks = camera_track is not None and base_track is not None and camera is not None
+    odo = getattr(refinement, "odometry", None) or {}
+    if have_tracks and odo.get("speed_scale") is not None and odo.get("turn_scale") is not None:
+        # Every solution is scored under the odometry as the refinement corrected it (effective wheel radius and
+        # track): taken as is, a skid-steer robot's track makes every answer's residuals large, the best one's too.
+        from .graph import scaled_base_track
+
+        base_track = scaled_base_track(base_track, float(odo["speed_scale"]), float(odo["turn_scale"]))
     for name, sol in entries.items():
         T, td, t_known = _as_solution(sol)
         td = refinement.seed_td if td is None else float(td)
@@ -101,6 +115,8 @@ def compare_solutions(
         row: dict = {"method": name}
         ref_T = refinement.T_base_cam if truth_T_base_cam is None else np.asarray(truth_T_base_cam, float)
         z_unknown = t_known and T.shape == (4, 4) and not np.isfinite(T[2, 3])
+        if name == "refined" and _height_unobserved(refinement):
+            z_unknown = t_known and T.shape == (4, 4)  # its z is the seed's: no error to report (x, y are scored)
         if z_unknown:  # a planar closed form knows x, y only: borrow the reference height to score the rest
             T = T.copy()
             T[2, 3] = ref_T[2, 3]
