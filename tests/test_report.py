@@ -181,3 +181,13 @@ def test_frame_names_make_valid_robot_files():
             CalibrationOptions.build(board="b", parent_frame=bad)
     assert "t_odom = t_cam - 0.091165188 s" in urdf_text(_T(), "base_link", "cam", time_offset_s=-0.091165188)
     assert "t_odom = t_cam + 0.030000000 s" in urdf_text(_T(), "base_link", "cam", time_offset_s=0.03)
+
+
+def test_the_demos_folder_with_its_paper_tables_is_an_earlier_result(tmp_path):
+    """scripts/demo.sh writes the paper's tables into a sub-folder of the calibration's folder; run again, its
+    calibrate --force must replace that folder (before the guard knew those files, the second run was refused)."""
+    out = tmp_path / "demo"
+    (out / "paper_tables").mkdir(parents=True)
+    for name in ("calibration.yaml", "report.json", "paper_tables/paper_tables.md", "paper_tables/paper_tables.json"):
+        (out / name).write_text("x")
+    assert prepare_output_dir(out, force=True, create=False) == out

@@ -147,12 +147,12 @@ def _writable_parent(out: Path) -> Path:
     return parent
 
 
-#: The files plsgraph writes into a result folder (a calibration, a diagnosis, a batch's summary). A folder holding
-#: anything else is never replaced, --force or not: the replacement removes every file in it.
+#: The files plsgraph writes into a result folder (a calibration, a diagnosis, a batch's summary, the paper's tables).
+#: A folder holding anything else is never replaced, --force or not: the replacement removes every file in it.
 RESULT_FILES = frozenset({
     "calibration.yaml", "report.json", "report.html", "base_to_camera.urdf", "static_tf.launch.py",
     "summary.json", "summary.md", "trajectories.png", "residuals.png", "time_offset.png", "observability.png",
-    "methods.png", "coverage.png", "event_frames.png",
+    "methods.png", "coverage.png", "event_frames.png", "paper_tables.md", "paper_tables.json",
 })
 
 
