@@ -254,3 +254,47 @@ def test_ros2_robot_topics_serialized_by_rosbags(tmp_path):
     assert (o.frame_id, o.child_frame_id) == ("odom", "base_link")
     np.testing.assert_array_equal(np.c_[rec.imu.gyro, rec.imu.accel], imu[order])
     assert any("zero header stamp" in w for w in rec.warnings)
+
+
+def _chunked_bag(path, n_msgs: int = 400):
+    """A ROS 1 bag of odometry-sized messages (std_msgs/String of 200 bytes) in bz2 chunks of about 8 kB."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    w = Writer(path)
+    w.set_compression(Writer.CompressionFormat.BZ2)
+    w.chunk_threshold = 8 * 1024
+    with w:
+        c = w.add_connection("/odom_text", "std_msgs/msg/String", typestore=ts)
+        for k in range(n_msgs):
+            text = f"{k:06d}" + "".join(chr(65 + (k * 7 + i) % 26) for i in range(194))
+            w.write(c, T0 + k * 20_000_000, ts.serialize_ros1(ts.types["std_msgs/msg/String"](data=text),
+                                                               "std_msgs/msg/String"))
+    return n_msgs
+
+
+def test_a_ros1_bag_with_one_damaged_chunk_keeps_the_chunks_after_it(tmp_path):
+    """Before: one flipped byte in a chunk's compressed data, or in its record header, lost every later chunk too,
+    although the bag's index says where each chunk starts."""
+    from plsgraph.io.ros1_scan import _OP_CHUNK, MAGIC, _records
+    from plsgraph.io.source import open_source
+
+    p = tmp_path / "good.bag"
+    n = _chunked_bag(p)
+    data = p.read_bytes()
+    chunks = [(off, len(body)) for op, _, body, off in _records(data, len(MAGIC), len(data)) if op == _OP_CHUNK]
+    assert len(chunks) >= 6
+    off, size = chunks[2]
+    middle = data.index(b"BZh", off) + size // 2  # in the middle of the chunk's bz2 stream
+    for name, at in (("inside", middle), ("header", off + 2)):
+        bad = bytearray(data)
+        bad[at] ^= 0x5A
+        q = tmp_path / f"{name}.bag"
+        q.write_bytes(bytes(bad))
+        src = open_source(q)
+        times = [m.log_time_ns for m in src.iter_raw({"/odom_text"})]
+        last = (T0 + (n - 1) * 20_000_000)
+        assert times[-1] == last, name  # the chunks after the damaged one are read
+        assert n // 2 < len(times) < n and len(set(times)) == len(times), name  # one chunk lost, nothing twice
+        assert any("chunk" in w for w in src.log.warnings), name

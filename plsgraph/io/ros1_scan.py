@@ -51,24 +51,51 @@ def _fields(buf: bytes) -> dict[bytes, bytes]:
 
 
 def _records(buf: memoryview | bytes, pos: int, end: int) -> Iterator[tuple[int, dict[bytes, bytes], memoryview, int]]:
-    """(op, header fields, data, offset) of consecutive records in ``buf[pos:end]``; raises _Corrupt."""
+    """(op, header fields, data, offset) of consecutive records in ``buf[pos:end]``; raises _Corrupt (its ``pos``:
+    where the record that could not be read starts)."""
     mv = memoryview(buf)
     while pos < end:
-        if end - pos < 4:
-            raise _Corrupt("record cut off in its header length")
-        (hl,) = struct.unpack_from("<I", mv, pos)
-        if hl > end - pos - 4:
-            raise _Corrupt(f"record header of {hl} bytes runs past the end")
-        hdr = _fields(bytes(mv[pos + 4 : pos + 4 + hl]))
-        p = pos + 4 + hl
-        if end - p < 4:
-            raise _Corrupt("record cut off in its data length")
-        (dl,) = struct.unpack_from("<I", mv, p)
-        if dl > end - p - 4:
-            raise _Corrupt(f"record data of {dl} bytes runs past the end")
+        try:
+            if end - pos < 4:
+                raise _Corrupt("record cut off in its header length")
+            (hl,) = struct.unpack_from("<I", mv, pos)
+            if hl > end - pos - 4:
+                raise _Corrupt(f"record header of {hl} bytes runs past the end")
+            hdr = _fields(bytes(mv[pos + 4 : pos + 4 + hl]))
+            p = pos + 4 + hl
+            if end - p < 4:
+                raise _Corrupt("record cut off in its data length")
+            (dl,) = struct.unpack_from("<I", mv, p)
+            if dl > end - p - 4:
+                raise _Corrupt(f"record data of {dl} bytes runs past the end")
+        except _Corrupt as exc:
+            exc.pos = pos
+            raise
         op = hdr.get(b"op", b"\xff")[:1]
         yield op[0] if op else 0xFF, hdr, mv[p + 4 : p + 4 + dl], pos
         pos = p + 4 + dl
+
+
+def _index(buf: memoryview | bytes) -> tuple[list[int], list[tuple[dict[bytes, bytes], memoryview]]]:
+    """The chunk positions (sorted) and the connection records of the bag's index, as far as they can be read (a
+    bag cut short has none): where to go on after a damaged record, and the connections of chunks skipped."""
+    positions: list[int] = []
+    conns: list[tuple[dict[bytes, bytes], memoryview]] = []
+    try:
+        op, hdr, _, _ = next(_records(buf, len(MAGIC), len(buf)))
+        if op != _OP_BAG_HEADER or len(hdr.get(b"index_pos", b"")) != 8:
+            return positions, conns
+        (index_pos,) = struct.unpack("<Q", hdr[b"index_pos"])
+        if not len(MAGIC) < index_pos < len(buf):
+            return positions, conns
+        for op, hdr, body, _ in _records(buf, index_pos, len(buf)):
+            if op == _OP_CONN:
+                conns.append((hdr, body))
+            elif op == _OP_CHUNK_INFO and len(hdr.get(b"chunk_pos", b"")) == 8:
+                positions.append(struct.unpack("<Q", hdr[b"chunk_pos"])[0])
+    except (_Corrupt, StopIteration):
+        pass
+    return sorted(p for p in positions if len(MAGIC) < p < len(buf)), conns
 
 
 def _u32(hdr: dict[bytes, bytes], key: bytes) -> int:
@@ -131,36 +158,26 @@ class Ros1ScanSource:
             data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
         read: Counter[str] = Counter()
         problem = None
-        try:
-            for op, hdr, body, off in _records(data, len(MAGIC), len(data)):
-                if op == _OP_CONN:
-                    self._connection(hdr, body)
-                elif op == _OP_MSG:
-                    m = self._message(hdr, body, topics)
-                    if m is not None:
-                        read[m.topic] += 1
-                        yield m
-                elif op == _OP_CHUNK:
-                    try:
-                        inner = _decompress(hdr, body)
-                    except Exception as exc:  # noqa: BLE001 - bz2/lz4 raise assorted types on bad data
-                        if not quiet:
-                            self.log.warn(f"{self.path.name}: skipped a corrupt chunk at byte {off} ({exc})")
-                        continue
-                    try:
-                        for op2, hdr2, body2, _ in _records(inner, 0, len(inner)):
-                            if op2 == _OP_CONN:
-                                self._connection(hdr2, body2)
-                            elif op2 == _OP_MSG:
-                                m = self._message(hdr2, body2, topics)
-                                if m is not None:
-                                    read[m.topic] += 1
-                                    yield m
-                    except _Corrupt as exc:
-                        if not quiet:
-                            self.log.warn(f"{self.path.name}: chunk at byte {off} is damaged ({exc}); rest of it lost")
-        except _Corrupt as exc:
-            problem = exc
+        index = None
+        pos = len(MAGIC)
+        while True:
+            try:
+                yield from self._walk(data, pos, topics, quiet, read)
+                break
+            except _Corrupt as exc:
+                if index is None:
+                    index = _index(data)
+                    for hdr, body in index[1]:  # the connections of any chunk skipped below
+                        self._connection(hdr, body)
+                nxt = next((p for p in index[0] if p > getattr(exc, "pos", len(data))), None)
+                if nxt is None:
+                    problem = exc
+                    break
+                if not quiet:
+                    self.log.warn(f"{self.path.name}: damaged record at byte {getattr(exc, 'pos', '?')} ({exc}); "
+                                  f"went on at the next chunk, byte {nxt} (from the bag's index); what lay between "
+                                  "is lost")
+                pos = nxt
         if not quiet:
             for t, n in read.items():
                 self.log.messages_read[t] = self.log.messages_read.get(t, 0) + n
@@ -170,6 +187,36 @@ class Ros1ScanSource:
                     f"{self.path.name}: bag is cut short or corrupt ({problem}); kept the {sum(read.values())} "
                     "messages before it (how many were lost is unknown: the index is gone)"
                 )
+
+    def _walk(self, data, pos: int, topics: set[str] | None, quiet: bool, read: Counter) -> Iterator[RawMessage]:
+        """The messages of the records from ``pos`` on; raises _Corrupt at the first record that cannot be read."""
+        for op, hdr, body, off in _records(data, pos, len(data)):
+            if op == _OP_CONN:
+                self._connection(hdr, body)
+            elif op == _OP_MSG:
+                m = self._message(hdr, body, topics)
+                if m is not None:
+                    read[m.topic] += 1
+                    yield m
+            elif op == _OP_CHUNK:
+                try:
+                    inner = _decompress(hdr, body)
+                except Exception as exc:  # noqa: BLE001 - bz2/lz4 raise assorted types on bad data
+                    if not quiet:
+                        self.log.warn(f"{self.path.name}: skipped a corrupt chunk at byte {off} ({exc})")
+                    continue
+                try:
+                    for op2, hdr2, body2, _ in _records(inner, 0, len(inner)):
+                        if op2 == _OP_CONN:
+                            self._connection(hdr2, body2)
+                        elif op2 == _OP_MSG:
+                            m = self._message(hdr2, body2, topics)
+                            if m is not None:
+                                read[m.topic] += 1
+                                yield m
+                except _Corrupt as exc:
+                    if not quiet:
+                        self.log.warn(f"{self.path.name}: chunk at byte {off} is damaged ({exc}); rest of it lost")
 
     def _connection(self, hdr: dict[bytes, bytes], body: memoryview) -> None:
         cid = _u32(hdr, b"conn")

@@ -78,6 +78,7 @@ class RosbagsSource:
     def iter_raw(self, topics: set[str] | None = None) -> Iterator[RawMessage]:
         conns = [c for c in self._reader.connections if topics is None or c.topic in topics]
         read: Counter[str] = Counter()
+        given: Counter[tuple[str, int]] = Counter()  # (topic, time) of the messages handed out
         it = self._reader.messages(connections=conns)
         while True:
             try:
@@ -85,10 +86,16 @@ class RosbagsSource:
             except StopIteration:
                 break
             except Exception as exc:  # noqa: BLE001 - corrupt chunk or sqlite page
+                if not self._reader.is2 and self.path.is_file():
+                    # A ROS 1 bag: read it front to back past the damage (chunk by chunk, the index's chunk
+                    # positions to go on after a damaged record), handing out what was not handed out yet.
+                    yield from self._past_damage(exc, topics, given, read)
+                    break
                 self.log.stopped_early = True
                 self.log.warn(f"{self.path.name}: reading stopped at a corrupt part ({type(exc).__name__}: {exc})")
                 break
             read[c.topic] += 1
+            given[(c.topic, int(t))] += 1
             yield RawMessage(c.topic, normalize_type(c.msgtype), int(t), raw, self.serialization)
         for tp, n in read.items():
             self.log.messages_read[tp] = self.log.messages_read.get(tp, 0) + n
@@ -96,6 +103,25 @@ class RosbagsSource:
             want = self._topics[tp].messages
             if self.log.stopped_early and want is not None and read[tp] < want:
                 self.log.warn(f"{self.path.name}: topic {tp}: {want - read[tp]} of {want} messages lost")
+
+    def _past_damage(self, exc: Exception, topics: set[str] | None, given: Counter, read: Counter
+                     ) -> Iterator[RawMessage]:
+        from .base import ReadLog
+        from .ros1_scan import Ros1ScanSource
+
+        self.log.warn(f"{self.path.name}: a corrupt part ({type(exc).__name__}: {exc}); read the bag front to back "
+                      "from there on")
+        scan = Ros1ScanSource(self.path, ReadLog())
+        for m in scan.iter_raw(topics):
+            key = (m.topic, m.log_time_ns)
+            if given[key]:
+                given[key] -= 1
+                continue
+            read[m.topic] += 1
+            yield RawMessage(m.topic, m.msgtype, m.log_time_ns, m.data, self.serialization)
+        for w in scan.log.warnings:
+            self.log.warn(w)
+        self.log.stopped_early = True  # the per-topic counts below say what was lost
 
     def deserialize(self, m: RawMessage):
         """A message object (rosbags dataclass) using the bag's own type definitions."""
