@@ -66,3 +66,23 @@ def test_a_stretch_of_messages_without_wheel_values_is_a_gap_not_a_straight_line
                           np.full_like(pos[~hole], np.nan))
     same, _ = wheel_track_from_joints(missing, *run)
     assert np.array_equal(track.t, same.t) and np.allclose(track.T_world_base, same.T_world_base)
+
+
+def test_a_joint_name_seen_in_two_messages_is_not_taken_for_a_wheel():
+    """Before: two damaged messages whose joint names had a flipped bit ('fro.t_left_wheel_joint') added two 'wheels'
+    with values in two messages only; averaged with them, the sides had no usable sample left."""
+    sim, ref, run = _reference_and_run()
+    t = sim.wheel_t
+    names = ("front_left_wheel_joint", "front_right_wheel_joint", "fro.t_left_wheel_joint",
+             "front_right_wheel_j\x8aint")
+    pos = np.full((t.size, 4), np.nan)
+    pos[:, 0], pos[:, 1] = sim.wheel_left, sim.wheel_right
+    pos[[100, 200], 2] = 1.0  # the damaged messages: the stray names only
+    pos[[100, 200], 1] = np.nan
+    pos[[150], 3] = 2.0
+    js = JointStates((t * 1e9).astype(np.int64), names, pos, np.full_like(pos, np.nan))
+    track, cleaning = wheel_track_from_joints(js, *run)
+    assert cleaning.wheel_joints == {"left": ["front_left_wheel_joint"], "right": ["front_right_wheel_joint"]}
+    assert any("not taken for wheels" in w and "fro.t_left_wheel_joint" in w for w in cleaning.warnings)
+    end = ref.poses_at([ref.t[-1] - 0.01])[0, :3, 3]
+    assert np.linalg.norm(track.poses_at([ref.t[-1] - 0.01])[0, :3, 3] - end) < 0.01

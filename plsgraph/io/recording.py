@@ -69,9 +69,17 @@ class JointStates:
                     f"joint states: cannot tell the {side} wheel among joints {', '.join(self.names)}; "
                     f"pass its name (left=..., right=...)"
                 )
-            return cols
+            return [i for i in cols if i not in self.stray_columns()]
 
         return pick("left", left), pick("right", right)
+
+    def stray_columns(self) -> set[int]:
+        """Joints with a value in under a tenth of the messages the most frequent joint has one in: a name that
+        appears now and then (a damaged message's bit-flipped name, a joint published once) is not a wheel."""
+        has = np.isfinite(self.position) | np.isfinite(self.velocity)
+        counts = has.sum(axis=0) if has.size else np.zeros(len(self.names), int)
+        top = int(counts.max()) if counts.size else 0
+        return {i for i, c in enumerate(counts) if top >= 20 and c < 0.1 * top}
 
     def wheels(self, left: str | None = None, right: str | None = None) -> tuple[np.ndarray, ...]:
         """(left angle, right angle, left rate, right rate) in rad and rad/s, averaged over each side's joints."""

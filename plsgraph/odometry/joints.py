@@ -57,6 +57,10 @@ def wheel_track_from_joints(
     names = {"left": [joints.names[i] for i in lc], "right": [joints.names[i] for i in rc]}
     discarded: dict[str, int] = {}
     warnings: list[str] = []
+    stray = sorted(joints.stray_columns())
+    if stray and left_joint is None and right_joint is None:
+        warnings.append("joints named in only a few messages were not taken for wheels: "
+                        + ", ".join(repr(joints.names[i]) for i in stray[:6]))
     t = joints.t.astype(np.float64) * 1e-9
     # Per joint, before the sides are averaged: unwrap angles that a driver reports in [-pi, pi) (a wrap of one
     # wheel of a pair would move the average by only ~pi, below what unwrapping catches), and fill each joint
