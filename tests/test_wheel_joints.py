@@ -86,3 +86,17 @@ def test_a_joint_name_seen_in_two_messages_is_not_taken_for_a_wheel():
     assert any("not taken for wheels" in w and "fro.t_left_wheel_joint" in w for w in cleaning.warnings)
     end = ref.poses_at([ref.t[-1] - 0.01])[0, :3, 3]
     assert np.linalg.norm(track.poses_at([ref.t[-1] - 0.01])[0, :3, 3] - end) < 0.01
+
+
+def test_joint_states_that_all_carry_one_stamp_are_named_as_such():
+    """Before: 'wheel odometry: need at least 2 samples, got 1', of 751 messages that all carried one stamp."""
+    import pytest
+
+    from plsgraph.errors import InputError
+
+    sim, _, run = _reference_and_run()
+    pos = np.stack([sim.wheel_left, sim.wheel_right], axis=1)
+    js = JointStates(np.full(sim.wheel_t.size, 1_700_000_000_000_000_000, np.int64), ("left_wheel", "right_wheel"),
+                     pos, np.full_like(pos, np.nan))
+    with pytest.raises(InputError, match=f"all {sim.wheel_t.size} joint state messages carry the same header stamp"):
+        wheel_track_from_joints(js, *run)

@@ -73,6 +73,10 @@ def wheel_track_from_joints(
     keep = np.r_[True, np.diff(joints.t) > 0]  # a driver that republishes a state repeats its stamp
     if not np.all(keep):
         discarded["joint_states_repeated_stamp"] = int(np.count_nonzero(~keep))
+        if np.count_nonzero(keep) < 2 <= keep.size:
+            raise InputError(f"all {keep.size} joint state messages carry the same header stamp "
+                             f"({int(joints.t[0])} ns): the driver does not stamp them, so the wheel motion has no "
+                             "time; fix the driver's stamps (or record nav_msgs/Odometry)")
     kind = "position"
     a, b = left, right
     if np.count_nonzero(np.isfinite(left) & np.isfinite(right)) < 2 and np.any(np.isfinite(left_rate)):
