@@ -191,10 +191,8 @@ class Ros1ScanSource:
     def _walk(self, data, pos: int, topics: set[str] | None, quiet: bool, read: Counter) -> Iterator[RawMessage]:
         """The messages of the records from ``pos`` on; raises _Corrupt at the first record that cannot be read."""
         for op, hdr, body, off in _records(data, pos, len(data)):
-            if op == _OP_CONN:
-                self._connection(hdr, body)
-            elif op == _OP_MSG:
-                m = self._message(hdr, body, topics)
+            if op in (_OP_CONN, _OP_MSG):
+                m = self._record(op, hdr, body, topics)
                 if m is not None:
                     read[m.topic] += 1
                     yield m
@@ -207,16 +205,22 @@ class Ros1ScanSource:
                     continue
                 try:
                     for op2, hdr2, body2, _ in _records(inner, 0, len(inner)):
-                        if op2 == _OP_CONN:
-                            self._connection(hdr2, body2)
-                        elif op2 == _OP_MSG:
-                            m = self._message(hdr2, body2, topics)
-                            if m is not None:
-                                read[m.topic] += 1
-                                yield m
+                        m = self._record(op2, hdr2, body2, topics)
+                        if m is not None:
+                            read[m.topic] += 1
+                            yield m
                 except _Corrupt as exc:
                     if not quiet:
                         self.log.warn(f"{self.path.name}: chunk at byte {off} is damaged ({exc}); rest of it lost")
+
+    def _record(self, op: int, hdr: dict[bytes, bytes], body: memoryview, topics: set[str] | None
+                ) -> RawMessage | None:
+        """A connection record is taken in; a message record gives its message (None if not wanted)."""
+        if op == _OP_CONN:
+            self._connection(hdr, body)
+        elif op == _OP_MSG:
+            return self._message(hdr, body, topics)
+        return None
 
     def _connection(self, hdr: dict[bytes, bytes], body: memoryview) -> None:
         cid = _u32(hdr, b"conn")
