@@ -71,9 +71,9 @@ def _replace_with_failure(log_path: str, out_dir: str, force: bool, error: str) 
     """With --force, a failed recording's folder is replaced by a report.json saying so (an older ok
     calibration.yaml there must not pass for this run's); without --force an existing folder was refused."""
     from .api import failure_to_dir
-    from .report.files import foreign_entries
+    from .report.files import CALIBRATION_SUBFOLDERS, foreign_entries
 
-    if not (force and Path(out_dir).exists()) or foreign_entries(Path(out_dir)):
+    if not (force and Path(out_dir).exists()) or foreign_entries(Path(out_dir), subfolders=CALIBRATION_SUBFOLDERS):
         return  # refused, or a folder of the user's own (--force replaces only an earlier result)
     try:
         failure_to_dir(log_path, out_dir, error)

@@ -110,12 +110,16 @@ def test_force_never_replaces_a_folder_holding_files_plsgraph_did_not_write(tmp_
     (batch / "a").mkdir(parents=True)
     (batch / "a" / "calibration.yaml").write_text("ok: true")
     (batch / "summary.json").write_text("{}")
-    assert prepare_output_dir(batch, force=True, create=False) == batch  # a batch's folders of results
-    (batch / "a" / "photo.jpg").write_bytes(b"")
+    # A batch's folder of results is not a calibration's to replace (nor another calibration's folder in it) ...
     with pytest.raises(InputError, match=r"did not write \(a/\)"):
         prepare_output_dir(batch, force=True, create=False)
-    # A batch writes into its folder (each recording's folder is replaced, and checked, on its own).
+    # ... but a batch writes into it (each recording's folder is replaced, and checked, on its own).
     assert prepare_output_dir(batch, force=True, create=False, whole=False) == batch
+    from plsgraph.report.files import foreign_entries
+
+    assert foreign_entries(batch) == []  # as a batch sees it: results only
+    (batch / "a" / "photo.jpg").write_bytes(b"")
+    assert foreign_entries(batch) == ["a/"]
 
 
 def test_the_working_folder_is_never_an_output_folder(tmp_path, monkeypatch):

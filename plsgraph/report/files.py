@@ -156,9 +156,14 @@ RESULT_FILES = frozenset({
 })
 
 
-def foreign_entries(folder: Path, depth: int = 1) -> list[str]:
+#: The one sub-folder a calibration's folder may hold: the paper's tables, which scripts/demo.sh writes into it.
+CALIBRATION_SUBFOLDERS = frozenset({"paper_tables"})
+
+
+def foreign_entries(folder: Path, depth: int = 1, subfolders: frozenset[str] | None = None) -> list[str]:
     """The entries of ``folder`` plsgraph did not write (names, sorted): anything but :data:`RESULT_FILES`, and
-    sub-folders (a batch's, up to ``depth`` levels) holding anything else."""
+    sub-folders (a batch's, up to ``depth`` levels; only those named in ``subfolders`` when given) holding anything
+    else."""
     out = []
     for p in sorted(folder.iterdir()):
         if p.is_symlink() or not (p.is_dir() or p.is_file()):
@@ -166,7 +171,7 @@ def foreign_entries(folder: Path, depth: int = 1) -> list[str]:
         elif p.is_file():
             if p.name not in RESULT_FILES:
                 out.append(p.name)
-        elif depth <= 0 or foreign_entries(p, depth - 1):
+        elif depth <= 0 or (subfolders is not None and p.name not in subfolders) or foreign_entries(p, depth - 1):
             out.append(p.name + "/")
     return out
 
@@ -192,7 +197,9 @@ def prepare_output_dir(out_dir: str | Path, force: bool = False, create: bool = 
             if out.resolve() == here or out.resolve() in here.parents:
                 raise InputError(f"--out {out_dir!s} is the folder you are working in (or holds it); a result folder "
                                  "is replaced as a whole, so choose a folder of its own, e.g. --out calib")
-        foreign = foreign_entries(out) if whole else []
+        # A calibration's folder holds no other results' folders (another calibration's, a batch's): they are not
+        # this run's to replace.
+        foreign = foreign_entries(out, subfolders=CALIBRATION_SUBFOLDERS) if whole else []
         if foreign:
             raise InputError(f"output folder {out} holds files plsgraph did not write ({_names(foreign)}); a result "
                              "folder is replaced as a whole, so they would be lost. Choose a new or empty --out"
