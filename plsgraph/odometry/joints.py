@@ -95,7 +95,8 @@ def wheel_track_from_joints(
     if kind == "position" and n_jumps > 0.5 * max(1, ok.sum() - 1):
         raise InputError(
             f"{n_jumps} of {ok.sum() - 1} wheel steps are implausibly large: the joint positions do not look like "
-            "wheel angles in radians (encoder ticks?); convert them or check --wheel-radius"
+            "wheel angles in radians (encoder ticks?); convert them or check --wheel-radius. If a warning says the "
+            "joint states' stamps go backwards, the stamps are wrong instead (messages sorted by a scrambled stamp)"
         )
     from .wheel_order import WheelSignals
 
