@@ -100,3 +100,18 @@ def test_joint_states_that_all_carry_one_stamp_are_named_as_such():
                      pos, np.full_like(pos, np.nan))
     with pytest.raises(InputError, match=f"all {sim.wheel_t.size} joint state messages carry the same header stamp"):
         wheel_track_from_joints(js, *run)
+
+
+def test_wheel_positions_that_jump_every_step_are_refused_with_both_likely_causes():
+    """Encoder ticks instead of radians, or messages sorted by scrambled stamps: each step jumps."""
+    import pytest
+
+    from plsgraph.errors import InputError
+
+    sim, _, run = _reference_and_run()
+    rng = np.random.default_rng(0)
+    pos = np.stack([sim.wheel_left, sim.wheel_right], axis=1)[rng.permutation(sim.wheel_t.size)]  # scrambled order
+    js = JointStates((sim.wheel_t * 1e9).astype(np.int64), ("left_wheel", "right_wheel"), pos,
+                     np.full_like(pos, np.nan))
+    with pytest.raises(InputError, match="implausibly large.*encoder ticks.*stamps are wrong"):
+        wheel_track_from_joints(js, *run)
