@@ -436,3 +436,20 @@ def test_opencv_prints_nothing_of_its_own_during_the_hand_eye_comparisons(monkey
     monkeypatch.setattr(cv2, "calibrateHandEye", spy)
     hand_eye(Tw, Tbc, method="tsai")
     assert seen == [cv2.utils.logging.LOG_LEVEL_SILENT] and cv2.utils.logging.getLogLevel() == before
+
+
+def test_hand_eye_on_a_floor_leaves_the_height_unknown_and_keeps_the_floor_position():
+    rng = np.random.default_rng(17)
+    Twb, Tbc, X = _hand_eye_poses(rng, planar_motion=True, n=40)
+    solved = 0
+    for method in ("tsai", "park", "horaud", "andreff", "daniilidis"):
+        try:
+            res = hand_eye(Twb, Tbc, method)
+        except DegenerateMotionError:
+            continue
+        assert np.isnan(res.t_base_cam[2])  # OpenCV's number along the turn axis is not an answer
+        assert any("height is not determined" in w for w in res.warnings)
+        if angle_deg(res.R_base_cam, X[:3, :3]) < 1e-4:
+            assert np.allclose(res.t_base_cam[:2], X[:2, 3], atol=1e-3)
+            solved += 1
+    assert solved >= 1

@@ -548,6 +548,30 @@ def _check_poses(name: str, T: np.ndarray) -> np.ndarray:
     return T
 
 
+def _planar_hand_eye_t(t: np.ndarray, axis: np.ndarray, method: str, warns: list[str]) -> np.ndarray:
+    """The part of a hand-eye translation that motion about one ``axis`` (base frame) determines.
+
+    A X = X B fixes nothing of t along the common rotation axis; OpenCV's solvers still return a number there,
+    anywhere from zero to 1e12 m. That component is removed, and when the axis is the base's vertical (a robot on
+    a floor) the height is NaN: unknown, as the planar closed form reports it.
+    """
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    along = float(t @ a)
+    t = t - along * a
+    if abs(a[2]) > 0.95:
+        t[2] = np.nan
+        warns.append(
+            f"hand_eye({method}): the camera height is not determined by motion on a floor (OpenCV returned "
+            f"{along:.3g} m along the turn axis); it is left unknown"
+        )
+    else:
+        warns.append(
+            f"hand_eye({method}): the translation along the common turn axis {np.round(a, 3)} is not determined "
+            f"(OpenCV returned {along:.3g} m there); it is set to zero"
+        )
+    return t
+
+
 def hand_eye(
     T_world_base_seq: np.ndarray,
     T_board_cam_seq: np.ndarray,
@@ -627,6 +651,8 @@ def hand_eye(
             "different axes or use solve(..., method='pls')"
         )
     R, s = _nearest_rotation(R_c)
+    if ea.rank < 2:
+        t_c = _planar_hand_eye_t(t_c, ea.directions[:, 0], method, warns)
     log.debug("hand_eye(%s) on %d poses", method, Tb.shape[0])
     diag = {
         "n_poses": int(Tb.shape[0]),
