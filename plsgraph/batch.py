@@ -41,6 +41,13 @@ def _batch_item(item: tuple[str, str, CalibrationOptions, bool], seed: int = 0) 
     """Worker: calibrate one recording into its own folder; never raises for a user-level failure.
 
     The pipeline is deterministic, so the per-item ``seed`` that the executor layer hands out is not needed."""
+    from .core.logs import warnings_once
+
+    with warnings_once(Path(item[0]).name):  # a damaged file's reader warnings once, not once per pass over it
+        return _calibrate_item(item)
+
+
+def _calibrate_item(item: tuple[str, str, CalibrationOptions, bool]) -> dict:
     from .api import calibrate_to_dir
 
     log_path, out_dir, opts, force = item

@@ -2,7 +2,9 @@
 sample recording through the command line). Here: simulated tracks, no events, so each case costs a second or two."""
 
 import json
+import logging
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -538,3 +540,37 @@ def test_a_start_that_fails_does_not_cost_the_other_answer(skid_sim, monkeypatch
     two = r.run.refinement.two_starts
     assert two["chosen"] == "search" and two["converged"] == [True, False] and "outlier" in two["failed"][0]
     assert r.run.refinement.converged and r.run.refinement.td == pytest.approx(two["td_end_s"][0])
+
+
+def test_warnings_once_says_each_warning_once_with_whose_it_is_and_forgets_after():
+    from plsgraph.core.logs import warnings_once
+
+    lg = logging.getLogger("plsgraph.test_once")
+    root = logging.getLogger()
+    records: list[str] = []
+    handler = logging.Handler(logging.WARNING)
+    handler.emit = lambda r: records.append(r.getMessage())
+    root.addHandler(handler)
+    try:
+        with warnings_once("a.mcap"):
+            for n in (10, 20, 30):  # a reader's pass over a damaged file: same warning, other counts
+                lg.warning("file is cut short; kept the %d messages read before it", n)
+            lg.warning("a.mcap: said with its name already")
+        lg.warning("file is cut short; kept the %d messages read before it", 40)
+    finally:
+        root.removeHandler(handler)
+    assert records == ["a.mcap: file is cut short; kept the 10 messages read before it",
+                       "a.mcap: said with its name already",
+                       "file is cut short; kept the 40 messages read before it"]
+
+
+def test_batch_says_a_damaged_files_reader_warnings_once(tmp_path, caplog):
+    sample = Path(__file__).resolve().parents[1] / "data" / "sample" / "rich_sample.mcap"
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(sample.read_bytes()[:5_000_000])
+    with caplog.at_level(logging.WARNING):
+        row = _batch_item((str(cut), str(tmp_path / "cut"), CalibrationOptions(board=BOARD), False))
+    said = [r.getMessage() for r in caplog.records if "truncated or corrupt" in r.getMessage()]
+    assert said and len(said) == len(set(said))  # each pass over the file used to repeat them
+    assert all(m.startswith("cut.mcap: ") for m in said)
+    assert row["status"] in ("ok", "flagged") and any("truncated" in w for w in row["warnings"])

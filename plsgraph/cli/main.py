@@ -186,25 +186,6 @@ def _build_parser() -> argparse.ArgumentParser:
     return p
 
 
-class _OncePerMessage(logging.Filter):
-    """Each warning once: several passes over one damaged file repeat theirs (with other counts in them)."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.seen: set[str] = set()
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        import re
-
-        if record.levelno < logging.WARNING:
-            return True
-        key = re.sub(r"\d+", "#", record.getMessage())
-        if key in self.seen:
-            return False
-        self.seen.add(key)
-        return True
-
-
 def _emit(args: argparse.Namespace, text: str, code: int) -> int:
     """Print the command's output with its exit code decided first, so a reader that closes the pipe early
     (| head) does not change the code."""
@@ -332,11 +313,13 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from ..core.logs import OncePerMessage
+
     parser = _build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
     for h in logging.getLogger().handlers:
-        h.addFilter(_OncePerMessage())
+        h.addFilter(OncePerMessage())
     try:
         return int(args.func(args) or 0)
     except PlsgraphError as exc:
