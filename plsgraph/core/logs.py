@@ -20,19 +20,18 @@ class OncePerMessage(logging.Filter):
         if record.levelno < logging.WARNING:
             return True
         decided = getattr(record, "_said_once", None)
-        if decided is not None:  # one filter on several handlers: each handler gets the same answer
-            return decided
-        record._said_once = self._first(record)
-        return record._said_once
+        if decided is None:  # one record, several handlers (and filters): each gets the first answer
+            decided = record._said_once = self._first(record)
+        text = record.getMessage()
+        if decided and self.label and not text.startswith(f"{self.label}:"):  # whose, among recordings run together
+            record.msg, record.args = f"{self.label}: {text}", ()
+        return decided
 
     def _first(self, record: logging.LogRecord) -> bool:
-        text = record.getMessage()
-        key = re.sub(r"\d+", "#", text)
+        key = re.sub(r"\d+", "#", record.getMessage())
         if key in self.seen:
             return False
         self.seen.add(key)
-        if self.label and not text.startswith(f"{self.label}:"):  # whose warning, among recordings run together
-            record.msg, record.args = f"{self.label}: {text}", ()
         return True
 
 
