@@ -23,6 +23,10 @@ pytestmark = pytest.mark.skipif(not MCAP.is_file(), reason="real recording not a
 BOARD = load_board("aprilgrid_4x3_tagboard")
 
 
+def test_the_board_file_says_the_tags_border():
+    assert BOARD.tag_border_bits == 1 and load_board("aprilgrid_6x6").tag_border_bits == 2
+
+
 @pytest.fixture(scope="module")
 def events():
     from plsgraph.io.events_reader import read_events
@@ -36,7 +40,7 @@ def query_times(ev, rate=30.0):
 
 
 def tags_per_window(ev, kind, blur=0.0, **kw):
-    det = make_aruco_detector(border_bits=1)
+    det = make_aruco_detector(border_bits=BOARD.tag_border_bits)
     out = []
     for t in query_times(ev):
         img = surfaces.surface_at(ev, int(t), kind, **kw)
@@ -79,7 +83,7 @@ def test_front_end_on_real_tags(events):
     cam = davis346_default()  # the recording has no intrinsics; the nominal preset stands in
     track = camera_track_from_events(
         events, cam, BOARD, 30.0, "leaky", surface_params={"tau_s": 0.3}, window_s=0.9,
-        tag_layout="kalibr", tag_border_bits=1, max_rms_px=5.0,
+        tag_layout="kalibr", max_rms_px=5.0,  # the board file says its tags' 1-bit border
     )
     assert len(track) >= 3
     assert track.info["poses"] + sum(track.info["skipped"].values()) == track.info["windows"]

@@ -381,6 +381,16 @@ def test_bad_board_definitions_are_named(over, expect):
         Board.from_dict(d)
 
 
+@pytest.mark.parametrize("bits, expect", [(0, "must be 1, 2 or 3"), (1.5, "whole number"), ("two", "whole number")])
+def test_an_aprilgrids_tag_border_is_checked(bits, expect):
+    d = {"target_type": "aprilgrid", "pattern": "aprilgrid", "tagCols": 6, "tagRows": 6, "tagSize": 0.088,
+         "tagSpacing": 0.3}
+    assert Board.from_dict(d).tag_border_bits == 2  # Kalibr's print
+    assert Board.from_dict(dict(d, tag_border_bits=1)).tag_border_bits == 1
+    with pytest.raises(InputError, match=expect):
+        Board.from_dict(dict(d, tag_border_bits=bits))
+
+
 @pytest.mark.parametrize("args, expect", [
     (["--duration", "nan"], "--duration"),
     (["--td", "nan"], "--td"),

@@ -35,6 +35,7 @@ class Board:
     tag_size: float = 0.0
     tag_spacing: float = 0.0
     tag_family: str = "tag36h11"
+    tag_border_bits: int = 2  # black border around each tag's code, in cells: Kalibr prints 2, OpenCV's default 1
     name: str = ""
 
     def __post_init__(self) -> None:
@@ -62,6 +63,9 @@ class Board:
                 )
         elif self.tag_size <= 0 or self.tag_spacing < 0:
             raise InputError("board: aprilgrid needs positive tag_size and non-negative tag_spacing")
+        elif self.tag_border_bits not in (1, 2, 3):
+            raise InputError(f"board: tag_border_bits must be 1, 2 or 3 (cells of black border around each tag; "
+                             f"Kalibr's AprilGrids have 2), got {self.tag_border_bits!r}")
 
     @property
     def pattern_size(self) -> tuple[int, int]:
@@ -122,6 +126,7 @@ class Board:
                 tag_size=float(d.get("tag_size", d.get("tagSize", 0.0))),
                 tag_spacing=float(d.get("tag_spacing", d.get("tagSpacing", 0.0))),
                 tag_family=str(d.get("tag_family", "tag36h11")),
+                tag_border_bits=_whole(d.get("tag_border_bits", 2), "tag_border_bits"),
                 name=name,
             )
         try:
@@ -143,6 +148,12 @@ class Board:
         if d.get("target_type") == "aprilgrid":  # a Kalibr target file
             d = dict(d, pattern="aprilgrid")
         return cls.from_dict(d, name=path.stem)
+
+
+def _whole(v: object, key: str) -> int:
+    if isinstance(v, bool) or not (isinstance(v, int) or (isinstance(v, float) and v.is_integer())):
+        raise InputError(f"board: {key} has the wrong type: it must be a whole number, got {v!r}")
+    return int(v)
 
 
 def aprilgrid_points(cols: int, rows: int, tag_size: float, spacing_ratio: float) -> np.ndarray:

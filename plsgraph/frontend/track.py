@@ -743,7 +743,7 @@ def detect_in_events(
     min_events: int = 100,
     timestamp: str = "events",
     tag_layout: str = "kalibr",
-    tag_border_bits: int = 2,
+    tag_border_bits: int | None = None,
     tag_blur_sigma: float = 1.0,
     workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
@@ -803,8 +803,8 @@ def detect_in_events(
     i1s = np.searchsorted(stream.t, t_query, side="right")
     i0s = np.searchsorted(stream.t, t_query - window_ns, side="right")
     job = _WindowJob(
-        stream, camera, board, kind, params, window_s, min_events, timestamp, tag_layout, tag_border_bits,
-        tag_blur_sigma,
+        stream, camera, board, kind, params, window_s, min_events, timestamp, tag_layout,
+        board.tag_border_bits if tag_border_bits is None else tag_border_bits, tag_blur_sigma,
     )
     workers = max(1, min(int(workers), t_query.size))
     poses: list | None = None  # each detection's pose, when solved in the worker processes (``pnp``)
@@ -899,7 +899,7 @@ def camera_track_from_events(
     max_rms_px: float = 1.5,
     sigma_px: float | None = None,
     tag_layout: str = "kalibr",
-    tag_border_bits: int = 2,
+    tag_border_bits: int | None = None,
     tag_blur_sigma: float = 1.0,
     workers: int = 1,
     progress: Callable[[int, int], None] | None = None,
@@ -912,8 +912,9 @@ def camera_track_from_events(
     ``surface_params`` override :data:`DEFAULT_PARAMS`. Windows with fewer than ``min_events``
     events are skipped. ``timestamp``: how detections are stamped (module docstring). PnP frames
     with reprojection RMS above ``max_rms_px`` are dropped; ``sigma_px`` fixes the pixel noise of the
-    covariance (default: estimated per frame). AprilGrids: ``tag_layout`` / ``tag_border_bits`` as
-    in :func:`plsgraph.frontend.detect.detect_aprilgrid`, the image blurred by ``tag_blur_sigma`` px first.
+    covariance (default: estimated per frame). AprilGrids: ``tag_layout`` / ``tag_border_bits`` (default: the
+    board's) as in :func:`plsgraph.frontend.detect.detect_aprilgrid`, the image blurred by ``tag_blur_sigma`` px
+    first.
     ``workers`` > 1 processes the windows in that many forked processes (Linux). Each chunk of
     windows starts its search afresh (no region of interest, full span first), so an occasional
     window may be found from another span than in one process. ``progress(done, total)`` is called
