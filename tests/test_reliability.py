@@ -453,12 +453,6 @@ def test_a_search_peak_that_traps_the_refinement_is_escaped_by_the_second_start(
     err = np.r_[d_rot, ref.T_base_cam[:2, 3] - s.T_base_cam[:2, 3], ref.td - s.td]
     sig = np.sqrt(np.diag(ref.cov_base_axes))[[0, 1, 2, 3, 4, 6]]
     assert np.all(np.abs(err) <= 3 * sig), (err, sig)
-    # No sigma is smaller than the two answers' difference, and the report says the raised sigmas.
-    spread = np.array([two["spread"][a] for a in ("roll", "pitch", "yaw", "x", "y", "z", "td")])
-    full = np.sqrt(np.diag(ref.cov_base_axes))
-    assert np.all(full >= spread * (1 - 1e-9))
-    td_axis = next(a for a in ref.observability.axes if a.name == "td")
-    assert td_axis.sigma == pytest.approx(1e3 * full[6], rel=1e-6) or td_axis.sigma == pytest.approx(full[6], rel=1e-6)
     # The search's start alone (the behaviour before): its answer is farther from the truth in x and td.
     cf = r.run.closed_form
     sc = cf.odometry_scale
@@ -519,12 +513,6 @@ def test_two_starts_keep_the_answer_both_graphs_prefer():
     kept = graph._two_starts(far, near, -0.05, 0.0, opt)
     assert kept.two_starts["chosen"] == "closed_form" and kept.T_base_cam[0, 3] == pytest.approx(0.1)
     assert "ambiguous" not in kept.two_starts  # decisively worse: not a second answer
-    # ... but the answer depends on the start by 10 cm in x: its sigma is at least that (correlations kept).
-    assert kept.two_starts["raised"] == ["x"] and kept.two_starts["spread"]["x"] == pytest.approx(0.1)
-    assert np.sqrt(kept.cov_base_axes[3, 3]) == pytest.approx(0.1) and kept.cov_base_axes[4, 4] == 1e-4
-    assert "at least the two answers' difference (x 100 mm)" in kept.warnings[-1]
-    plain = graph._two_starts(far, near, -0.05, 0.0, replace(opt, add_two_start_spread=False))
-    assert plain.cov_base_axes[3, 3] == 1e-4 and "raised" not in plain.two_starts
     assert graph._two_starts(near, far, -0.05, 0.0, opt).two_starts["chosen"] == "search"
     # Nearly as good (the scores differ by less than two_starts_decisive) but 5 sigmas apart in x: ambiguous.
     a, b = toy(0.1, 0.0, 0.01, 1e-6), toy(0.105, 0.0, 0.01, 1e-6)
@@ -596,27 +584,3 @@ def test_batch_says_a_damaged_files_reader_warnings_once(tmp_path, caplog):
     assert said and len(said) == len(set(said))  # each pass over the file used to repeat them
     assert all(m.startswith("cut.mcap: ") for m in said)
     assert row["status"] in ("ok", "flagged") and any("truncated" in w for w in row["warnings"])
-
-
-def test_a_sigma_floor_keeps_the_correlations_and_leaves_larger_sigmas():
-    import plsgraph.refine.graph as graph
-
-    rng = np.random.default_rng(5)
-    A = rng.normal(size=(7, 7))
-    cov = A @ A.T * 1e-4 + np.eye(7) * 1e-6
-    res = graph.RefinementResult(
-        T_base_cam=np.eye(4), td=0.0, T_world_board=np.eye(4), knot_t=np.zeros(2),
-        T_world_base=np.stack([np.eye(4)] * 2), converged=True, iterations=1, initial_error=1.0, final_error=1.0,
-        rms_px_initial=0.2, rms_px_final=0.2, n_frames=10, n_frames_rejected=0, n_frames_dropped=0, n_points=100,
-        cov_base_axes=cov, seed_T_base_cam=np.eye(4), seed_td=0.0)
-    sig = np.sqrt(np.diag(cov))
-    floor = sig.copy()
-    floor[2], floor[6] = 3 * sig[2], 0.5 * sig[6]  # yaw raised threefold, td's floor below its sigma
-    out = graph.with_sigma_floor(res, floor, graph.RefinementOptions())
-    s2 = np.sqrt(np.diag(out.cov_base_axes))
-    assert s2[2] == pytest.approx(3 * sig[2]) and s2[6] == pytest.approx(sig[6])
-    assert np.allclose(np.delete(s2, 2), np.delete(sig, 2))
-    corr = lambda c: c / np.outer(np.sqrt(np.diag(c)), np.sqrt(np.diag(c)))  # noqa: E731
-    assert np.allclose(corr(out.cov_base_axes), corr(cov))
-    assert out.cov is not None and np.allclose(out.cov, out.cov_base_axes)  # identity rotation: same axes
-    assert graph.with_sigma_floor(res, 0.1 * sig, graph.RefinementOptions()) is res

@@ -202,12 +202,6 @@ class RefinementOptions:
     # (docs/refinement.md, "A second opinion on the lever arm: the frame jackknife").
     frame_jackknife_segments: int = 10
     add_frame_jackknife: bool = True
-    # Second opinion when the refinement was solved from two time offsets (td_two_starts) and both converged: per
-    # axis, how far the two answers lie apart. Where a recording holds two minima, the answer depends on the start
-    # by that much whichever the data prefer; the larger of it and the sigma is reported (RefinementResult.two_starts
-    # ["spread"]). On the three 30-run studies it raised a sigma on 5 runs and moved no summary figure; on a 12 s
-    # cut of the realistic sample it put the td error at 2.5 instead of 3.2 sigma (docs/refinement.md).
-    add_two_start_spread: bool = True
     max_odometry_noise_factor: float = 400.0
     freeze_unobservable: bool = True  # hold directions the data does not observe at the seed (see refine)
     freeze_ratio: float = OBSERVABLE_RATIO  # posterior/prior sigma above which a direction is held at the seed
@@ -297,9 +291,6 @@ class RefinementResult:
     # When the refinement was solved from two time offsets (see _two_starts): both starts and ends, which was kept,
     # how the two answers differ in sigmas, and the axes on which they differ while the data hardly prefer either.
     two_starts: dict | None = None
-    # What the covariance's report and the disagreement check were computed from, to redo them when a later second
-    # opinion raises sigmas (prior information, prior notes, td reference, whether the rotation is compared).
-    sigma_inputs: dict | None = field(default=None, repr=False, compare=False)
 
     @property
     def R_base_cam(self) -> np.ndarray:
@@ -1110,29 +1101,6 @@ def _difference(a: RefinementResult, b: RefinementResult) -> np.ndarray:
     return np.r_[d, a.T_base_cam[:3, 3] - b.T_base_cam[:3, 3], a.td - b.td]
 
 
-def with_sigma_floor(res: RefinementResult, floor: np.ndarray, opt: RefinementOptions) -> RefinementResult:
-    """``res`` with each base axis's sigma raised to at least ``floor`` (7: roll, pitch, yaw, x, y, z, td;
-    correlations scaled along), its observability report and disagreement with the seed redone on it."""
-    if res.cov_base_axes is None:
-        return res
-    cb = res.cov_base_axes
-    k = np.maximum(np.asarray(floor, float) / np.maximum(np.sqrt(np.diag(cb)), 1e-300), 1.0)
-    if not np.any(k > 1.0):
-        return res
-    cb = cb * np.outer(k, k)
-    Ji = np.linalg.inv(user_axes_jacobian(res.T_base_cam[:3, :3]))
-    changes: dict = {"cov_base_axes": cb, "cov": Ji @ cb @ Ji.T}
-    inputs = res.sigma_inputs
-    if inputs is not None:
-        changes["observability"] = observability_report(
-            cb, inputs["prior_info"], converged=True, regularized=True, planar_motion=opt.planar,
-            prior_notes=inputs["prior_notes"])
-        changes["disagreement"] = disagreement_with_seed(
-            res.T_base_cam, res.td, cb, res.seed_T_base_cam, inputs["td_ref"], opt,
-            rotation=inputs["compare_rotation"])
-    return replace(res, **changes)
-
-
 def _two_starts(first: tuple | None, second: tuple | None, td_search: float, td_given: float,
                 opt: RefinementOptions, failed: list[Exception] | None = None) -> RefinementResult:
     """Of two refinements of one recording, started from the search's time offset (``first``) and from the closed
@@ -1188,13 +1156,6 @@ def _two_starts(first: tuple | None, second: tuple | None, td_search: float, td_
         off = [a for a, v in zip(AXES, z, strict=True) if v > 3.0]
         if off and close:
             record["ambiguous"] = off
-        if opt.add_two_start_spread:
-            spread = np.abs(_difference(chosen, other))
-            spread[5] = 0.0
-            record["spread"] = dict(zip(AXES, spread.tolist(), strict=True))
-            before = np.sqrt(np.diag(chosen.cov_base_axes))
-            chosen = with_sigma_floor(chosen, spread, opt)
-            record["raised"] = [a for a, d, s0 in zip(AXES, spread, before, strict=True) if d > s0]
     which = "the closed form's" if pick_second else "the search's"
     other_name = "the search's" if pick_second else "the closed form's"
     if other is None or not other.converged:
@@ -1209,11 +1170,6 @@ def _two_starts(first: tuple | None, second: tuple | None, td_search: float, td_
         note = (f"the refinement was solved from the search's time offset ({1e3 * td_search:+.1f} ms) and from the "
                 f"closed form's ({1e3 * td_given:+.1f} ms); the one from {which} ended at {1e3 * chosen.td:+.1f} ms "
                 f"and is reported{why}; the one from {other_name} ended at {1e3 * other.td:+.1f} ms")
-    if record.get("raised"):
-        units = {"td": (1e3, "ms"), "x": (1e3, "mm"), "y": (1e3, "mm")}
-        told = ", ".join(f"{a} {record['spread'][a] * units.get(a, (np.degrees(1.0), 'deg'))[0]:.3g} "
-                         f"{units.get(a, (0, 'deg'))[1]}" for a in record["raised"])
-        note += f"; the sigmas reported are at least the two answers' difference ({told})"
     timing = dict(chosen.timing, starts_s=[None if x is None else float(x[0].timing.get("total_s", 0.0))
                                            for x in (first, second)])
     return replace(chosen, warnings=tuple(chosen.warnings) + (note,), two_starts=record, timing=timing)
@@ -1590,8 +1546,6 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                        ("roll", "pitch", "yaw", "x", "y", "z", "td"), jackknife.tolist(), strict=True))},
         td_searched=None if td_ref == td_given else float(td_search),
         held_solution=held_solution,
-        sigma_inputs={"prior_info": prior_info, "prior_notes": _prior_notes(opt, frozen), "td_ref": td_ref,
-                      "compare_rotation": compare_rotation},
     ), score, values
 
 
