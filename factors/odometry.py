@@ -213,6 +213,11 @@ class EdgeMotions:
         self._key: tuple[float, float] | None = None
         self._M = self._D = None
 
+    @property
+    def heading_change(self) -> np.ndarray:
+        """Every edge's nominal heading change (rad, at turn scale 1)."""
+        return self._dtheta
+
     def at(self, s_v: float, s_w: float) -> tuple[np.ndarray, np.ndarray]:
         """Every edge's motion (E, 4, 4) and its derivative (E, 6, 2) (as :func:`scaled_edge_motion`)."""
         key = (float(s_v), float(s_w))

@@ -29,6 +29,7 @@ from plsgraph.refine.graph import (
     regular_stamps,
     speed_scale_jackknife,
     turn_angle_td_search,
+    turn_scale_jackknife,
 )
 from plsgraph.report.files import calibration_dict, ros_static_transform
 from plsgraph.sim.realism import only
@@ -518,3 +519,50 @@ def test_a_jackknife_that_cannot_be_solved_is_said(monkeypatch):
     res = refine(case.track, case.base, case.rec.camera, case.seed_T, case.seed_td)
     assert res.inflation["frame_jackknife_sigma"] is None and res.cov_base_axes is not None
     assert any("jackknife over stretches of frames could not be solved" in w for w in res.warnings)
+
+
+def _knots_on_turn_scaled_odometry(seg_turn_scales, seed=5, edges=200):
+    """As _knots_on_scaled_odometry, with the turn scale s_w changing per stretch (the arc-length scale 1)."""
+    rng = np.random.default_rng(seed)
+    n = 5 * edges
+    x, y, th = integrate_planar(rng.uniform(0.002, 0.012, n), 0.02 * np.sin(np.arange(n) / 40.0))
+    steps = PlanarSteps.from_poses(make_T(rot_z(th), np.stack([x, y, 0 * x], 1)))
+    knots = np.arange(0, n + 1, 5)
+    per_edge = np.repeat(np.asarray(seg_turn_scales, dtype=float), edges // len(seg_turn_scales))
+    edge = EdgeMotions(steps, knots)
+    T = [np.eye(4)]
+    for i, s_w in enumerate(per_edge):
+        T.append(T[-1] @ edge.at(1.0, float(s_w))[0][i])
+    return steps, knots, np.array(T)
+
+
+def test_turn_scale_jackknife_is_zero_for_one_scale_and_measures_the_spread_of_stretch_scales():
+    """The turn scale's (effective track's) second opinion, as the arc-length scale's: one turn scale throughout gives
+    no spread; a turn scale that changes from stretch to stretch gives the spread of the whole recording's
+    least-squares turn scale over many draws."""
+    steps, knots, T = _knots_on_turn_scaled_odometry([0.7] * 10)
+    assert turn_scale_jackknife(T, steps, knots, 10) < 1e-9
+    rng = np.random.default_rng(0)
+    whole, jk = [], []
+    for _ in range(60):
+        steps, knots, T = _knots_on_turn_scaled_odometry(0.7 * (1.0 + 0.03 * rng.normal(size=10)))
+        rel = np.einsum("nji,njk->nik", T[:-1, :3, :3], T[1:, :3, :3])
+        z = np.arctan2(rel[:, 1, 0], rel[:, 0, 0])
+        m = EdgeMotions(steps, knots).heading_change
+        whole.append(np.sum(z * m) / np.sum(m * m))
+        jk.append(turn_scale_jackknife(T, steps, knots, 10))
+    spread = np.std(whole)
+    assert 0.7 * spread < np.sqrt(np.mean(np.square(jk))) < 1.4 * spread
+    assert turn_scale_jackknife(T[:15], steps, knots[:15], 10) is None  # too few edges for 10 stretches
+
+
+def test_the_track_widths_sigma_takes_the_turn_scale_jackknife_when_it_is_larger():
+    rec, base, track, seed_T = _case("odom_jitter")
+    res = refine(track, base, rec.camera, seed_T, rec.td + 0.005, RefinementOptions(), seed_odometry_scale=(1.0, 1.0))
+    off = refine(track, base, rec.camera, seed_T, rec.td + 0.005, RefinementOptions(turn_scale_jackknife=False),
+                 seed_odometry_scale=(1.0, 1.0))
+    jk = res.inflation["turn_scale_jackknife_sigma"]
+    assert jk is not None and off.inflation["turn_scale_jackknife_sigma"] is None
+    assert res.odometry["turn_scale_sigma"] == pytest.approx(max(jk, off.odometry["turn_scale_sigma"]), rel=1e-6)
+    assert res.odometry["track_width_sigma_m"] >= off.odometry["track_width_sigma_m"] * (1 - 1e-9)
+    assert res.odometry["track_width_m"] == off.odometry["track_width_m"]  # a sigma, not an estimate
