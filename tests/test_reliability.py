@@ -481,6 +481,19 @@ def test_two_answers_the_data_cannot_choose_between_are_flagged(sim):
     assert "answers more than 3 sigma apart on x, td" in text
 
 
+def test_frames_that_disagree_point_at_the_intrinsics(sim):
+    from dataclasses import replace
+
+    r = _calibrate(sim)
+    ref = replace(r.run.refinement, warnings=("outlier rejection / re-bracketing / freezing did not settle within "
+                                              "max_passes",))
+    text = " ".join(problems_of(r.run.closed_form, ref))
+    assert "did not settle" in text and "intrinsics" in text
+    many = replace(r.run.refinement, n_frames_rejected=r.run.refinement.n_frames)  # half the frames rejected
+    text = " ".join(problems_of(r.run.closed_form, many))
+    assert "as outliers" in text and "intrinsics" in text
+
+
 def test_two_starts_keep_the_answer_both_graphs_prefer():
     # Two "solves" of one toy problem whose graphs differ in their noise (as adapted noise models do): each graph
     # scores both answers; the sum of the differences decides, and answers that differ beyond their sigmas while the
