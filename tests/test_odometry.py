@@ -109,6 +109,30 @@ def test_gaps_and_jumps_are_reported():
     assert mask.tolist() == [False, True, True, False]
 
 
+def test_wheel_messages_stamped_in_bursts_keep_their_motion():
+    # Stamps given on arrival: a late message pulls the next one to just after it (1 us apart). The wheel angles are
+    # cumulative, so merging the pair loses nothing; taken as a 1 us step of 20 ms of driving it was a "reset" that
+    # dropped that motion, and heading and distance came out short.
+    t_true = np.arange(0, 10, 0.02)
+    left, right = wheels_for(t_true, 0.4, 0.3)
+    stamps = t_true.copy()
+    late = np.arange(20, t_true.size - 1, 37)
+    stamps[late] += 0.0199  # each of these is stamped just before the next message ...
+    stamps[late + 1] = stamps[late] + 1e-6  # ... which is stamped right after it
+    track = base_track_from_wheels(stamps, left, right, R, B)
+    clean = base_track_from_wheels(t_true, left, right, R, B)
+    assert track.info["jumps"].size == 0
+    assert any(f"{late.size} wheel message(s) stamped within" in w for w in track.info["warnings"])
+    assert float(yaw_of(track.T_world_base[-1, :3, :3])) == pytest.approx(float(yaw_of(clean.T_world_base[-1, :3, :3])),
+                                                                           abs=1e-9)
+    assert np.allclose(track.T_world_base[-1, :2, 3], clean.T_world_base[-1, :2, 3], atol=2e-3)
+    assert track.t.size == t_true.size - late.size and np.all(np.abs(track.v[:, 0]) < 1.0)
+    # A reset right after a bunched stamp is still a jump, not merged motion.
+    right2 = right.copy()
+    right2[late[0] + 1:] += 50.0
+    assert base_track_from_wheels(stamps, left, right2, R, B).info["jumps"].size == 1
+
+
 def test_odometry_messages_round_trip_and_jump():
     rec = simulate_robot("rich", duration=10.0, seed=5, realism="ideal")
     t = rec.wheel_t

@@ -117,6 +117,32 @@ def diff_drive(
     return 0.5 * (vr + vl), (vr - vl) / track_width
 
 
+#: Wheel messages stamped closer than this share of the median step to the next one are taken for stamps given on
+#: arrival in a burst (the wheels' angles are cumulative, so merging such a message into the next loses no motion).
+BUNCHED_STEP = 0.25
+
+
+def _unbunched(t: np.ndarray, left: np.ndarray, right: np.ndarray, wheel_radius: float, track_width: float,
+               max_speed: float, max_yaw_rate: float) -> np.ndarray:
+    """Which wheel-angle samples to keep: a sample stamped within :data:`BUNCHED_STEP` of the median step before the
+    next kept one is dropped when the motion from it to the next is one a median step allows (a larger one is an
+    encoder reset or a jump, left to the jump test). Receive-time stamps bunch up like that when messages arrive in
+    bursts; taken as they are, a step of 1 us carrying 20 ms of driving implies an impossible speed."""
+    n = t.size
+    keep = np.ones(n, dtype=bool)
+    if n < 3:
+        return keep
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    if not med > 0 or not np.any(dt < BUNCHED_STEP * med):
+        return keep
+    ds, dth = diff_drive(np.diff(left), np.diff(right), wheel_radius, track_width)
+    plausible = (np.abs(ds) <= max_speed * med) & (np.abs(dth) <= max_yaw_rate * med)
+    for i in np.flatnonzero((dt < BUNCHED_STEP * med) & plausible):
+        keep[i] = False  # sample i merges into sample i + 1: the step before it now ends at i + 1
+    return keep
+
+
 def base_track_from_wheels(
     t: np.ndarray,
     left: np.ndarray,
@@ -149,6 +175,16 @@ def base_track_from_wheels(
     else:
         raise InputError(f"kind must be 'position' or 'velocity', got {kind!r}")
     warnings: list[str] = []
+    if kind == "position":
+        keep = _unbunched(t, left, right, wheel_radius, track_width, max_speed, max_yaw_rate)
+        if not keep.all():
+            n_merged = int(t.size - keep.sum())
+            warnings.append(
+                f"{n_merged} wheel message(s) stamped within {BUNCHED_STEP:g} of a step of the next (stamped on "
+                "arrival, in bursts); each was merged into the next, whose wheel angles hold its motion"
+            )
+            t, left, right = t[keep], left[keep], right[keep]
+            ds, dth = diff_drive(np.diff(left), np.diff(right), wheel_radius, track_width)
     dt = np.diff(t)
     jump = (np.abs(ds) / dt > max_speed) | (np.abs(dth) / dt > max_yaw_rate)
     jumps = t[1:][jump]
