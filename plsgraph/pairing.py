@@ -132,6 +132,7 @@ def pair_tracks(run: Any) -> None:
             info["corrected"] = True
             run.warn(chk.message + "; corrected: the base motion was integrated with that wheel order "
                      "(--wheel-order flag keeps the wheels as named and flags the result)")
+            run.warn(*chk.base_track.info.get("warnings", []))  # the re-integrated track's gaps and jumps
             alignment = chk.alignment
         elif chk.wrong:
             info["corrected"] = False

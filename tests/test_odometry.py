@@ -228,3 +228,21 @@ def test_rescale_planar_track_corrects_track_width_and_radius():
     assert np.allclose(same.T_world_base, nominal.T_world_base, atol=1e-12)
     with pytest.raises(InputError):
         rescale_planar_track(nominal, 0.0, 1.0)
+
+
+def test_a_wheel_order_hypothesis_does_not_log_its_jumps(caplog):
+    # Under "one wheel reversed" driving becomes turning, which can pass for jumps: those are not the recording's, and
+    # only the track that is used says its warnings.
+    from plsgraph.odometry.wheel_order import WheelSignals
+
+    t = np.arange(0, 4, 0.02)
+    left, right = wheels_for(t, 0.4, 0.0)
+    stamps = t.copy()
+    stamps[50] = stamps[51] - 0.006  # a step of 6 ms: 4x the median speed as driving, far more as turning
+    sig = WheelSignals(stamps, left, right, "position", R, B)
+    with caplog.at_level("WARNING"):
+        rev = sig.base_track("left_reversed")
+    assert rev.info["jumps"].size and not caplog.records
+    with caplog.at_level("WARNING"):
+        base_track_from_wheels(stamps, -left, right, R, B)
+    assert any("treated as resets" in r.getMessage() for r in caplog.records)

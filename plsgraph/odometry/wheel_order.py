@@ -77,7 +77,10 @@ class WheelSignals:
 
     def base_track(self, hypothesis: str = "as_given") -> BaseTrack:
         lft, rgt = self.under(hypothesis)
-        return base_track_from_wheels(self.t, lft, rgt, self.wheel_radius, self.track_width, kind=self.kind)
+        # Quiet: a hypothesis's gaps and jumps are not the recording's (a reversed wheel turns driving into
+        # turning, which can pass for a jump); the chosen track's warnings are told by whoever uses it.
+        return base_track_from_wheels(self.t, lft, rgt, self.wheel_radius, self.track_width, kind=self.kind,
+                                      quiet=True)
 
 
 @dataclass(frozen=True)

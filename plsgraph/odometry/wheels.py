@@ -154,6 +154,7 @@ def base_track_from_wheels(
     gap_factor: float = 5.0,
     max_speed: float = 3.0,
     max_yaw_rate: float = 6.0,
+    quiet: bool = False,
 ) -> BaseTrack:
     """BaseTrack from left/right wheel joint angles (``kind="position"``, rad) or rates (``"velocity"``, rad/s).
 
@@ -161,7 +162,7 @@ def base_track_from_wheels(
     clock replaces the wheels as the source of heading and turn rate (wheels slip most when turning).
     Steps longer than ``gap_factor`` times the median are reported as gaps; steps faster than
     ``max_speed`` (m/s) or ``max_yaw_rate`` (rad/s) as jumps (they add no motion). Both go to
-    ``info["gaps"]`` / ``info["jumps"]`` and ``info["warnings"]``.
+    ``info["gaps"]`` / ``info["jumps"]`` and ``info["warnings"]``, and are logged unless ``quiet``.
     """
     t, left, right = _check_stream("wheel odometry", t, left, right)
     if left.ndim != 1 or right.ndim != 1:
@@ -219,7 +220,7 @@ def base_track_from_wheels(
     omega = np.zeros((n, 3))
     v[:, 0] = _rates_at_samples(t, ds)
     omega[:, 2] = _rates_at_samples(t, dth) if gyro is None else np.interp(t, tg, wz)
-    for msg in warnings:
+    for msg in [] if quiet else warnings:
         log.warning(msg)
     info = {
         "source": f"wheels ({kind}), heading from {w_src}",
