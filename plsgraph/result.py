@@ -47,7 +47,8 @@ def odometry_section(run: Run) -> dict | None:
         "track_width_nominal_m": o.get("track_width_nominal_m"),
         "status": dict(o.get("status", {})),
         "note": "effective values that explain the wheel odometry (a skid-steer robot's track is wider than its "
-                "geometric one); in the board's length unit (a misprinted board scales the radius alike)",
+                "geometric one); in the board's length unit and the camera's scale (a misprinted board, or camera "
+                "intrinsics whose focal length is off, scales the radius alike; their error is not in the sigmas)",
     }
 
 

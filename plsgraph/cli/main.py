@@ -313,13 +313,16 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from ..core.logs import OncePerMessage
+    from ..core.logs import warnings_once
 
     parser = _build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
-    for h in logging.getLogger().handlers:
-        h.addFilter(OncePerMessage())
+    with warnings_once():  # each warning once; taken off the handlers again when the command ends
+        return _run_command(args)
+
+
+def _run_command(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except PlsgraphError as exc:
