@@ -133,14 +133,15 @@ def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
             f"freedom {chi2:.1f} (limits {RMS_LIMIT_PX} px, {CHI2_LIMIT:g}); check the intrinsics, the board and "
             "the odometry"
         )
-    if any("did not settle" in w for w in ref.warnings):
+    unsettled = any("did not settle" in w for w in ref.warnings)
+    if unsettled:
         problems.append("the refinement's outlier rejection did not settle: the frames it keeps disagree; "
                         f"{_CONTRADICTION_CAUSES}")
     n_all = ref.n_frames + ref.n_frames_rejected
     if n_all and ref.n_frames_rejected / n_all > REJECTED_FRACTION_LIMIT:
         problems.append(
             f"the refinement rejected {ref.n_frames_rejected} of {n_all} frames as outliers (more than "
-            f"{REJECTED_FRACTION_LIMIT:.0%}); {_CONTRADICTION_CAUSES}"
+            f"{REJECTED_FRACTION_LIMIT:.0%})" + ("" if unsettled else f"; {_CONTRADICTION_CAUSES}")
         )
     if cf is not None and cf.R_base_cam is not None:
         cov = ref.cov_base_axes

@@ -128,11 +128,14 @@ def pair_tracks(run: Any) -> None:
         chk = check_wheel_order(run.camera_track, wheels, window, upside_down_camera=opts.mount.upside_down_camera)
         info = chk.to_dict()
         if chk.wrong and opts.odometry.wheel_order == "fix":
+            # The wheels as named were a wrong hypothesis: their track's gaps and jumps give way to the corrected one's.
+            named = set(run.base_track.info.get("warnings", [])) if run.base_track is not None else set()
+            run.warnings = [w for w in run.warnings if w not in named]
             run.base_track = chk.base_track
             info["corrected"] = True
             run.warn(chk.message + "; corrected: the base motion was integrated with that wheel order "
                      "(--wheel-order flag keeps the wheels as named and flags the result)")
-            run.warn(*chk.base_track.info.get("warnings", []))  # the re-integrated track's gaps and jumps
+            run.warn(*chk.base_track.info.get("warnings", []))
             alignment = chk.alignment
         elif chk.wrong:
             info["corrected"] = False

@@ -127,6 +127,15 @@ def test_wheel_messages_stamped_in_bursts_keep_their_motion():
                                                                            abs=1e-9)
     assert np.allclose(track.T_world_base[-1, :2, 3], clean.T_world_base[-1, :2, 3], atol=2e-3)
     assert track.t.size == t_true.size - late.size and np.all(np.abs(track.v[:, 0]) < 1.0)
+    # Every message in a burst of three (stamped on arrival of the last): most steps are bursts, and the typical
+    # step is still the messages' interval, not a burst's microsecond.
+    n3 = t_true.size - t_true.size % 3
+    burst = np.repeat(t_true[2:n3:3], 3) + 1e-6 * np.tile(np.arange(3), n3 // 3)
+    tr3 = base_track_from_wheels(burst, left[:n3], right[:n3], R, B)
+    last = slice(2, n3, 3)  # each burst's last message stays; the others merge into it
+    clean3 = base_track_from_wheels(t_true[last], left[last], right[last], R, B)
+    assert tr3.info["jumps"].size == 0 and tr3.t.size == n3 // 3
+    assert np.allclose(tr3.T_world_base[-1, :2, 3], clean3.T_world_base[-1, :2, 3], atol=1e-6)
     # A reset right after a bunched stamp is still a jump, not merged motion.
     right2 = right.copy()
     right2[late[0] + 1:] += 50.0

@@ -389,6 +389,9 @@ def test_an_aprilgrids_tag_border_is_checked(bits, expect):
     assert Board.from_dict(dict(d, tag_border_bits=1)).tag_border_bits == 1
     with pytest.raises(InputError, match=expect):
         Board.from_dict(dict(d, tag_border_bits=bits))
+    for bad in (True, 2.0):  # built directly, without the file reader's check
+        with pytest.raises(InputError, match="tag_border_bits"):
+            Board("aprilgrid", 6, 6, tag_size=0.088, tag_spacing=0.3, tag_border_bits=bad)
 
 
 @pytest.mark.parametrize("args, expect", [
@@ -585,6 +588,38 @@ def test_warnings_once_says_each_warning_once_with_whose_it_is_and_forgets_after
     assert records == ["a.mcap: file is cut short; kept the 10 messages read before it",
                        "a.mcap: said with its name already",
                        "file is cut short; kept the 40 messages read before it"]
+
+
+def test_recordings_in_threads_of_one_process_keep_their_own_warnings():
+    # A Dask worker runs recordings in threads: each says its own warnings, once, under its own name.
+    import threading
+
+    from plsgraph.core.logs import warnings_once
+
+    lg = logging.getLogger("plsgraph.test_once_threads")
+    root = logging.getLogger()
+    records: list[str] = []
+    handler = logging.Handler(logging.WARNING)
+    handler.emit = lambda r: records.append(r.getMessage())
+    root.addHandler(handler)
+    both = threading.Barrier(2)
+
+    def recording(name: str, n: int) -> None:
+        with warnings_once(name):
+            both.wait()
+            for _ in range(3):
+                lg.warning("%d gap(s) in odometry", n)
+            both.wait()
+
+    try:
+        threads = [threading.Thread(target=recording, args=(f"{c}.mcap", n)) for c, n in (("a", 2), ("b", 7))]
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+    finally:
+        root.removeHandler(handler)
+    assert sorted(records) == ["a.mcap: 2 gap(s) in odometry", "b.mcap: 7 gap(s) in odometry"]
 
 
 def test_batch_says_a_damaged_files_reader_warnings_once(tmp_path, caplog):

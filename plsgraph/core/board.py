@@ -63,7 +63,8 @@ class Board:
                 )
         elif self.tag_size <= 0 or self.tag_spacing < 0:
             raise InputError("board: aprilgrid needs positive tag_size and non-negative tag_spacing")
-        elif self.tag_border_bits not in (1, 2, 3):
+        elif (isinstance(self.tag_border_bits, bool) or not isinstance(self.tag_border_bits, int | np.integer)
+              or self.tag_border_bits not in (1, 2, 3)):
             raise InputError(f"board: tag_border_bits must be 1, 2 or 3 (cells of black border around each tag; "
                              f"Kalibr's AprilGrids have 2), got {self.tag_border_bits!r}")
 

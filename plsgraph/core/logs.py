@@ -2,37 +2,52 @@
 
 from __future__ import annotations
 
+import contextvars
 import logging
 import re
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+
+@dataclass
+class _Said:
+    """What one command or one recording has said so far, and whose it is."""
+
+    label: str | None = None
+    seen: set[str] = field(default_factory=set)
+
+
+# Per thread (and per asyncio task): recordings calibrated in threads of one process (a Dask worker, a thread pool)
+# each have their own, so one recording's warnings are neither dropped for another's nor labelled with its name.
+_SAID: contextvars.ContextVar[_Said | None] = contextvars.ContextVar("plsgraph_warnings_said", default=None)
+_INSTALL = threading.Lock()
 
 
 class OncePerMessage(logging.Filter):
-    """Each warning once: several passes over one damaged file repeat theirs (with other counts in them)."""
+    """Each warning once within a :func:`warnings_once` block (several passes over one damaged file repeat theirs,
+    with other counts in them), prefixed with the block's label; outside every block it lets everything through.
 
-    def __init__(self, label: str | None = None) -> None:
-        super().__init__()
-        self.seen: set[str] = set()
-        self.label = label
+    One filter serves every block of the process: what was said is looked up in the emitting thread's context."""
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if record.levelno < logging.WARNING:
+        said = _SAID.get()
+        if said is None or record.levelno < logging.WARNING:
             return True
         decided = getattr(record, "_said_once", None)
-        if decided is None:  # one record, several handlers (and filters): each gets the first answer
-            decided = record._said_once = self._first(record)
-        text = record.getMessage()
-        if decided and self.label and not text.startswith(f"{self.label}:"):  # whose, among recordings run together
-            record.msg, record.args = f"{self.label}: {text}", ()
+        if decided is None:  # one record, several handlers: each gets the first answer
+            text = record.getMessage()
+            key = re.sub(r"\d+", "#", text)
+            decided = key not in said.seen
+            said.seen.add(key)
+            if decided and said.label and not text.startswith(f"{said.label}:"):  # whose, among recordings run together
+                record.msg, record.args = f"{said.label}: {text}", ()
+            record._said_once = decided
         return decided
 
-    def _first(self, record: logging.LogRecord) -> bool:
-        key = re.sub(r"\d+", "#", record.getMessage())
-        if key in self.seen:
-            return False
-        self.seen.add(key)
-        return True
+
+_FILTER = OncePerMessage()
 
 
 @contextmanager
@@ -40,19 +55,20 @@ def warnings_once(label: str | None = None) -> Iterator[None]:
     """Within the block, each warning reaches the root logger's handlers once (prefixed ``label: `` if given).
 
     A process without handlers (a batch worker) gets one that prints ``LEVEL message`` on stderr, as the command
-    does; the filter is taken off again at the end, so a long-lived worker says the next recording's warnings."""
+    does. The filter stays on the handlers but does nothing outside a block, so a long-lived worker says the next
+    recording's warnings, and blocks in other threads keep their own account."""
     root = logging.getLogger()
-    if not root.handlers:
-        handler = logging.StreamHandler()
-        handler.setFormatter(logging.Formatter("%(levelname)s %(message)s"))
-        handler.setLevel(logging.WARNING)
-        root.addHandler(handler)
-    once = OncePerMessage(label)
-    handlers = list(root.handlers)
-    for h in handlers:
-        h.addFilter(once)
+    with _INSTALL:
+        if not root.handlers:
+            handler = logging.StreamHandler()
+            handler.setFormatter(logging.Formatter("%(levelname)s %(message)s"))
+            handler.setLevel(logging.WARNING)
+            root.addHandler(handler)
+        for h in root.handlers:
+            if _FILTER not in h.filters:
+                h.addFilter(_FILTER)
+    token = _SAID.set(_Said(label))
     try:
         yield
     finally:
-        for h in handlers:
-            h.removeFilter(once)
+        _SAID.reset(token)

@@ -124,7 +124,7 @@ BUNCHED_STEP = 0.25
 
 def _unbunched(t: np.ndarray, left: np.ndarray, right: np.ndarray, wheel_radius: float, track_width: float,
                max_speed: float, max_yaw_rate: float) -> np.ndarray:
-    """Which wheel-angle samples to keep: a sample stamped within :data:`BUNCHED_STEP` of the median step before the
+    """Which wheel-angle samples to keep: a sample stamped within :data:`BUNCHED_STEP` of the typical step before the
     next kept one is dropped when the motion from it to the next is one a median step allows (a larger one is an
     encoder reset or a jump, left to the jump test). Receive-time stamps bunch up like that when messages arrive in
     bursts; taken as they are, a step of 1 us carrying 20 ms of driving implies an impossible speed."""
@@ -133,12 +133,15 @@ def _unbunched(t: np.ndarray, left: np.ndarray, right: np.ndarray, wheel_radius:
     if n < 3:
         return keep
     dt = np.diff(t)
-    med = float(np.median(dt))
-    if not med > 0 or not np.any(dt < BUNCHED_STEP * med):
+    # The typical step: the median of the longer half of the steps, or the mean step if smaller. Bursts that make up
+    # half the steps or more pull the plain median down to a burst's step (then nothing would be merged); the mean
+    # is the messages' real interval however they bunch (a long gap raises it, the longer half's median does not).
+    step = min(float(np.median(np.sort(dt)[dt.size // 2:])), float(np.mean(dt)))
+    if not step > 0 or not np.any(dt < BUNCHED_STEP * step):
         return keep
     ds, dth = diff_drive(np.diff(left), np.diff(right), wheel_radius, track_width)
-    plausible = (np.abs(ds) <= max_speed * med) & (np.abs(dth) <= max_yaw_rate * med)
-    for i in np.flatnonzero((dt < BUNCHED_STEP * med) & plausible):
+    plausible = (np.abs(ds) <= max_speed * step) & (np.abs(dth) <= max_yaw_rate * step)
+    for i in np.flatnonzero((dt < BUNCHED_STEP * step) & plausible):
         keep[i] = False  # sample i merges into sample i + 1: the step before it now ends at i + 1
     return keep
 
