@@ -68,9 +68,10 @@ def test_scaled_odometry_factor_jacobians(seed, noise_scale):
         assert_jacobians(f, v)
 
 
-def _knots_on_scaled_odometry(seg_scales, s_w=0.6, seed=5, edges=200, ds=None):
+def _knots_on_scaled_odometry(seg_scales, s_w=0.6, seed=5, edges=200, ds=None, turn=False):
     """Odometry steps, knot indices and knots whose edges are the odometry's at arc-length scale seg_scales[j]
-    in the j-th of len(seg_scales) equal stretches (slip that holds for a stretch); ``ds`` the step lengths."""
+    in the j-th of len(seg_scales) equal stretches (slip that holds for a stretch); ``ds`` the step lengths. With
+    ``turn`` the stretches' scales are turn scales instead (the arc-length scale 1)."""
     rng = np.random.default_rng(seed)
     n = 5 * edges
     ds = rng.uniform(0.002, 0.012, n) if ds is None else ds
@@ -80,8 +81,8 @@ def _knots_on_scaled_odometry(seg_scales, s_w=0.6, seed=5, edges=200, ds=None):
     per_edge = np.repeat(np.asarray(seg_scales, dtype=float), edges // len(seg_scales))
     edge = EdgeMotions(steps, knots)
     T = [np.eye(4)]
-    for i, s_v in enumerate(per_edge):
-        T.append(T[-1] @ edge.at(float(s_v), s_w)[0][i])
+    for i, k in enumerate(per_edge):
+        T.append(T[-1] @ (edge.at(1.0, float(k)) if turn else edge.at(float(k), s_w))[0][i])
     return steps, knots, np.array(T)
 
 
@@ -521,31 +522,16 @@ def test_a_jackknife_that_cannot_be_solved_is_said(monkeypatch):
     assert any("jackknife over stretches of frames could not be solved" in w for w in res.warnings)
 
 
-def _knots_on_turn_scaled_odometry(seg_turn_scales, seed=5, edges=200):
-    """As _knots_on_scaled_odometry, with the turn scale s_w changing per stretch (the arc-length scale 1)."""
-    rng = np.random.default_rng(seed)
-    n = 5 * edges
-    x, y, th = integrate_planar(rng.uniform(0.002, 0.012, n), 0.02 * np.sin(np.arange(n) / 40.0))
-    steps = PlanarSteps.from_poses(make_T(rot_z(th), np.stack([x, y, 0 * x], 1)))
-    knots = np.arange(0, n + 1, 5)
-    per_edge = np.repeat(np.asarray(seg_turn_scales, dtype=float), edges // len(seg_turn_scales))
-    edge = EdgeMotions(steps, knots)
-    T = [np.eye(4)]
-    for i, s_w in enumerate(per_edge):
-        T.append(T[-1] @ edge.at(1.0, float(s_w))[0][i])
-    return steps, knots, np.array(T)
-
-
 def test_turn_scale_jackknife_is_zero_for_one_scale_and_measures_the_spread_of_stretch_scales():
     """The turn scale's (effective track's) second opinion, as the arc-length scale's: one turn scale throughout gives
     no spread; a turn scale that changes from stretch to stretch gives the spread of the whole recording's
     least-squares turn scale over many draws."""
-    steps, knots, T = _knots_on_turn_scaled_odometry([0.7] * 10)
+    steps, knots, T = _knots_on_scaled_odometry([0.7] * 10, turn=True)
     assert turn_scale_jackknife(T, steps, knots, 10) < 1e-9
     rng = np.random.default_rng(0)
     whole, jk = [], []
     for _ in range(60):
-        steps, knots, T = _knots_on_turn_scaled_odometry(0.7 * (1.0 + 0.03 * rng.normal(size=10)))
+        steps, knots, T = _knots_on_scaled_odometry(0.7 * (1.0 + 0.03 * rng.normal(size=10)), turn=True)
         rel = np.einsum("nji,njk->nik", T[:-1, :3, :3], T[1:, :3, :3])
         z = np.arctan2(rel[:, 1, 0], rel[:, 0, 0])
         m = EdgeMotions(steps, knots).heading_change

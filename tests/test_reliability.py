@@ -1,6 +1,7 @@
 """No confident wrong answer, no mixed or stale result files (scripts/adversarial.py reruns the same cases on the
 sample recording through the command line). Here: simulated tracks, no events, so each case costs a second or two."""
 
+import contextlib
 import json
 import logging
 import os
@@ -568,23 +569,30 @@ def test_a_start_that_fails_does_not_cost_the_other_answer(skid_sim, monkeypatch
     assert r.run.refinement.converged and r.run.refinement.td == pytest.approx(two["td_end_s"][0])
 
 
-def test_warnings_once_says_each_warning_once_with_whose_it_is_and_forgets_after():
-    from plsgraph.core.logs import warnings_once
-
-    lg = logging.getLogger("plsgraph.test_once")
+@contextlib.contextmanager
+def _root_warnings():
+    """The messages of the warnings that reach a handler on the root logger within the block."""
     root = logging.getLogger()
     records: list[str] = []
     handler = logging.Handler(logging.WARNING)
     handler.emit = lambda r: records.append(r.getMessage())
     root.addHandler(handler)
     try:
+        yield records
+    finally:
+        root.removeHandler(handler)
+
+
+def test_warnings_once_says_each_warning_once_with_whose_it_is_and_forgets_after():
+    from plsgraph.core.logs import warnings_once
+
+    lg = logging.getLogger("plsgraph.test_once")
+    with _root_warnings() as records:
         with warnings_once("a.mcap"):
             for n in (10, 20, 30):  # a reader's pass over a damaged file: same warning, other counts
                 lg.warning("file is cut short; kept the %d messages read before it", n)
             lg.warning("a.mcap: said with its name already")
         lg.warning("file is cut short; kept the %d messages read before it", 40)
-    finally:
-        root.removeHandler(handler)
     assert records == ["a.mcap: file is cut short; kept the 10 messages read before it",
                        "a.mcap: said with its name already",
                        "file is cut short; kept the 40 messages read before it"]
@@ -597,11 +605,6 @@ def test_recordings_in_threads_of_one_process_keep_their_own_warnings():
     from plsgraph.core.logs import warnings_once
 
     lg = logging.getLogger("plsgraph.test_once_threads")
-    root = logging.getLogger()
-    records: list[str] = []
-    handler = logging.Handler(logging.WARNING)
-    handler.emit = lambda r: records.append(r.getMessage())
-    root.addHandler(handler)
     both = threading.Barrier(2)
 
     def recording(name: str, n: int) -> None:
@@ -611,14 +614,12 @@ def test_recordings_in_threads_of_one_process_keep_their_own_warnings():
                 lg.warning("%d gap(s) in odometry", n)
             both.wait()
 
-    try:
+    with _root_warnings() as records:
         threads = [threading.Thread(target=recording, args=(f"{c}.mcap", n)) for c, n in (("a", 2), ("b", 7))]
         for th in threads:
             th.start()
         for th in threads:
             th.join()
-    finally:
-        root.removeHandler(handler)
     assert sorted(records) == ["a.mcap: 2 gap(s) in odometry", "b.mcap: 7 gap(s) in odometry"]
 
 

@@ -1608,18 +1608,23 @@ def speed_scale_jackknife(T_knots: np.ndarray, steps: PlanarSteps, knot_idx: np.
     z = np.einsum("nij,nj->ni", np.linalg.inv(T[:-1]), T[1:, :, 3])[:, 0]  # forward motion of the knots
     M = EdgeMotions(steps, np.asarray(knot_idx, dtype=int)).at(1.0, s_w)[0]
     m = M[:, 0, 3]
-    if not (np.all(np.isfinite(z)) and np.all(np.isfinite(m))):
+    return _stretch_ratio_jackknife(z, m, segments, MIN_JACKKNIFE_STRETCH_M)
+
+
+def _stretch_ratio_jackknife(z: np.ndarray, m: np.ndarray, segments: int, min_total: float) -> float | None:
+    """Jackknife sigma of the least-squares ratio sum(z m) / sum(m^2) over ``segments`` consecutive stretches of the
+    edges. Stretches whose sum |m| is below ``min_total`` (the robot hardly drives or turns there: their ratio is
+    noise over noise) take no part; None with fewer than two that do, or with non-finite input."""
+    if z.shape != m.shape or not (np.all(np.isfinite(z)) and np.all(np.isfinite(m))):
         return None
     part = np.array_split(np.arange(m.size), segments)
     zm = np.array([np.sum(z[i] * m[i]) for i in part])
     mm = np.array([np.sum(m[i] ** 2) for i in part])
-    # Stretches where the robot hardly drives tell nothing about the scale (their ratio is noise over noise): only
-    # those that drive at least MIN_JACKKNIFE_STRETCH_M forward or back take part.
-    moving = np.array([np.sum(np.abs(m[i])) >= MIN_JACKKNIFE_STRETCH_M for i in part])
-    g = int(np.count_nonzero(moving))
+    used = np.array([np.sum(np.abs(m[i])) >= min_total for i in part])
+    g = int(np.count_nonzero(used))
     if g < 2:
         return None
-    zm, mm = zm[moving], mm[moving]
+    zm, mm = zm[used], mm[used]
     loo = (zm.sum() - zm) / (mm.sum() - mm)
     return float(np.sqrt((g - 1) / g * np.sum((loo - loo.mean()) ** 2)))
 
@@ -1643,18 +1648,7 @@ def turn_scale_jackknife(T_knots: np.ndarray, steps: PlanarSteps, knot_idx: np.n
     rel = np.einsum("nji,njk->nik", T[:-1, :3, :3], T[1:, :3, :3])
     z = np.arctan2(rel[:, 1, 0], rel[:, 0, 0])  # the knots' heading change per edge
     m = EdgeMotions(steps, np.asarray(knot_idx, dtype=int)).heading_change
-    if z.shape != m.shape or not (np.all(np.isfinite(z)) and np.all(np.isfinite(m))):
-        return None
-    part = np.array_split(np.arange(m.size), segments)
-    zm = np.array([np.sum(z[i] * m[i]) for i in part])
-    mm = np.array([np.sum(m[i] ** 2) for i in part])
-    turning = np.array([np.sum(np.abs(m[i])) >= MIN_JACKKNIFE_STRETCH_RAD for i in part])
-    g = int(np.count_nonzero(turning))
-    if g < 2:
-        return None
-    zm, mm = zm[turning], mm[turning]
-    loo = (zm.sum() - zm) / (mm.sum() - mm)
-    return float(np.sqrt((g - 1) / g * np.sum((loo - loo.mean()) ** 2)))
+    return _stretch_ratio_jackknife(z, m, segments, MIN_JACKKNIFE_STRETCH_RAD)
 
 
 def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 10) -> np.ndarray | None:

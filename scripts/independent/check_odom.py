@@ -2,18 +2,14 @@ import os
 import sys
 
 import numpy as np
-import yaml
-from mcap_ros2.reader import read_ros2_messages
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from evread import wheels_and_truth  # noqa: E402
 
 BASE = os.environ.get("BASE", "out/independent")
 seed = sys.argv[1]
-tr = dict(np.load(f"{BASE}/rec_{seed}.indep_traj.npz")); truth = yaml.safe_load(open(f"{BASE}/rec_{seed}.indep_truth.yaml"))
-ts, pos = [], []
-for m in read_ros2_messages(f"{BASE}/rec_{seed}.mcap", topics=["/joint_states"]):
-    ts.append(m.ros_msg.header.stamp.sec + m.ros_msg.header.stamp.nanosec * 1e-9 - 1.7e9); pos.append(m.ros_msg.position)
-ts, pos = np.array(ts), np.array(pos)
+tr, truth, ts, ql, qr = wheels_and_truth(BASE, seed)
 r, b = truth["wheel_radius_eff"], truth["track_width_eff"]
-ql, qr = pos[:, :2].mean(1), pos[:, 2:].mean(1)
 ds = r * (np.diff(ql) + np.diff(qr)) / 2; dth = r * (np.diff(qr) - np.diff(ql)) / b
 x0 = np.array([np.interp(ts[0], tr["tt"], tr["X"][:, k]) for k in range(3)])
 th = x0[2] + np.concatenate([[0], np.cumsum(dth)])

@@ -34,3 +34,20 @@ def read_events(path, t0_ns=None, t1_ns=None):
         m = (t >= t0_ns) & (t < t1_ns)
         t, x, y, p = t[m], x[m], y[m], p[m]
     return t, x, y, p
+
+
+def wheels_and_truth(base, tag):
+    """The truth trajectory (npz), the truth YAML, and the recorded wheel-joint stamps (s, less 1.7e9) with the mean
+    left and right wheel angles (rad) of recording ``tag`` in folder ``base``."""
+    import yaml
+    from mcap_ros2.reader import read_ros2_messages
+
+    tr = dict(np.load(f"{base}/rec_{tag}.indep_traj.npz"))
+    with open(f"{base}/rec_{tag}.indep_truth.yaml") as f:
+        truth = yaml.safe_load(f)
+    ts, pos = [], []
+    for m in read_ros2_messages(f"{base}/rec_{tag}.mcap", topics=["/joint_states"]):
+        ts.append(m.ros_msg.header.stamp.sec + m.ros_msg.header.stamp.nanosec * 1e-9 - 1.7e9)
+        pos.append(m.ros_msg.position)
+    ts, pos = np.array(ts), np.array(pos)
+    return tr, truth, ts, pos[:, :2].mean(1), pos[:, 2:].mean(1)
