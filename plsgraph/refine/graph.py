@@ -1648,6 +1648,11 @@ def turn_scale_jackknife(T_knots: np.ndarray, steps: PlanarSteps, knot_idx: np.n
     rel = np.einsum("nji,njk->nik", T[:-1, :3, :3], T[1:, :3, :3])
     z = np.arctan2(rel[:, 1, 0], rel[:, 0, 0])  # the knots' heading change per edge
     m = EdgeMotions(steps, np.asarray(knot_idx, dtype=int)).heading_change
+    if z.shape == m.shape and np.all(np.isfinite(z)) and np.all(np.isfinite(m)) and np.any(m):
+        # The knots' yaw is known modulo a turn; an edge that turns more than half a turn (sparse knots) is unwrapped
+        # around what the odometry's turn at the recording's scale predicts.
+        pred = m * float(np.sum(z * m) / np.sum(m * m))
+        z = pred + (z - pred + np.pi) % (2.0 * np.pi) - np.pi
     return _stretch_ratio_jackknife(z, m, segments, MIN_JACKKNIFE_STRETCH_RAD)
 
 
