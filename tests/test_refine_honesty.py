@@ -25,6 +25,7 @@ from plsgraph.refine.graph import (
     autocorrelation_time,
     disagreement_with_seed,
     noise_model_sensitivity,
+    odometry_given_calibration,
     refine,
     regular_stamps,
     speed_scale_jackknife,
@@ -187,6 +188,33 @@ def test_autocorrelation_time_white_and_ar1():
     assert 7.0 < autocorrelation_time(x) < 11.0  # (1 + 0.8) / (1 - 0.8) = 9
 
 
+def _linear_gaussian_joint(S_cc, B, S_e):
+    """The joint covariance of (c, s) with s = B c + e, c ~ N(0, S_cc), e ~ N(0, S_e) independent of c."""
+    return np.block([[S_cc, S_cc @ B.T], [B @ S_cc, B @ S_cc @ B.T + S_e]])
+
+
+def test_odometry_intrinsics_inherit_the_calibrations_second_opinions_through_their_correlation():
+    """The odometry intrinsics regressed on the calibration (s = B c + e): when the calibration's reported covariance
+    grows (second opinions, td's model floor), the intrinsics' covariance is that of the same regression on the
+    larger calibration covariance; nothing changes without inflation or without correlation."""
+    rng = np.random.default_rng(4)
+    A = rng.normal(size=(7, 7))
+    S_cc = A @ A.T * 1e-4 + np.diag(np.full(7, 1e-6))
+    B = rng.normal(size=(2, 7)) * 0.3
+    S_e = np.array([[4e-6, 1e-6], [1e-6, 9e-6]])
+    joint = _linear_gaussian_joint(S_cc, B, S_e)
+    assert np.allclose(odometry_given_calibration(joint, np.ones(7), 0.0), joint, rtol=0, atol=1e-15)
+    k = np.array([1.0, 1.0, 2.0, 5.0, 1.0, 1.0, 1.5])
+    out = odometry_given_calibration(joint, k, 0.008)
+    S_new = S_cc * np.outer(k, k)
+    S_new[6, 6] += 0.008**2
+    assert np.allclose(out, _linear_gaussian_joint(S_new, B, S_e), rtol=1e-8, atol=1e-14)
+    assert np.all(np.diag(out)[7:] >= np.diag(joint)[7:])
+    # Intrinsics uncorrelated with the calibration keep their covariance.
+    apart = _linear_gaussian_joint(S_cc, np.zeros((2, 7)), S_e)
+    assert np.allclose(odometry_given_calibration(apart, k, 0.008)[7:, 7:], S_e, rtol=0, atol=1e-15)
+
+
 def test_disagreement_only_beyond_the_combined_sigmas():
     opt = RefinementOptions()
     cov = np.diag(np.r_[np.full(3, np.radians(0.1)) ** 2, np.full(3, 1e-4), 1e-6])
@@ -250,6 +278,23 @@ def test_skid_steer_track_is_estimated_and_fixes_the_lever_arm():
     rot_h, txy_h, td_h = _errors(rec, held)
     assert txy < 0.03 and rot < 0.3 and td < 0.002, (rot, txy, td)
     assert txy_h > 2 * txy and rot_h > rot, (rot_h, txy_h, td_h)
+
+
+def test_the_odometry_intrinsics_sigmas_hold_the_calibrations_inflated_uncertainty():
+    """Cause: the odometry intrinsics' sigmas came from the marginal alone, while the calibration's sigmas carry second
+    opinions. On an independent recording (h101) the lever arm's forward sigma was 100 mm by the frame jackknife and
+    its error 123 mm; the track width, correlated with it, came out 6.3 sigma off. Carried over, the intrinsics'
+    sigmas grow with the calibration's, and their estimates stay."""
+    rec, base, track, seed_T = _case("skid_steer")
+    on = refine(track, base, rec.camera, seed_T, rec.td + 0.005, seed_odometry_scale=(1.0, 1.0))
+    off = refine(track, base, rec.camera, seed_T, rec.td + 0.005, RefinementOptions(propagate_to_odometry=False),
+                 seed_odometry_scale=(1.0, 1.0))
+    a, b = on.odometry, off.odometry
+    for name in ("wheel_radius", "track_width"):
+        assert a[f"{name}_m"] == b[f"{name}_m"]
+        assert a[f"{name}_sigma_m"] >= b[f"{name}_sigma_m"] * (1 - 1e-9)
+        assert abs(a[f"{name}_m"] - getattr(rec, name)) <= 3 * a[f"{name}_sigma_m"]
+    assert np.allclose(on.cov_base_axes, off.cov_base_axes, rtol=1e-9, atol=0)
 
 
 def test_jittered_odometry_stamps_are_put_back_on_their_clock():

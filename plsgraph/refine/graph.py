@@ -195,6 +195,9 @@ class RefinementOptions:
     # the odometry's, per stretch. On recordings from an independent generator with a vibrating base and dim light
     # the track came out 6.3 sigma off with exit 0 (docs/refinement.md, "The track width's sigma").
     turn_scale_jackknife: bool = True
+    # The calibration's second opinions carried over to the odometry intrinsics through their correlation with it
+    # (odometry_given_calibration).
+    propagate_to_odometry: bool = True
     # Second opinion on T_base_cam and td: a linearized jackknife over this many consecutive stretches of camera
     # frames (frame_jackknife: one Gauss-Newton step from the solution without a stretch's reprojection factors,
     # per stretch). Errors shared by a stretch's frames (a slip episode the graph explains with the extrinsic, a
@@ -1444,6 +1447,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         sensitivity = noise_model_sensitivity(C, td, *held_solution)
     if cov_base is not None:
         cov_base = _honest_covariance(cov_base, opt, bool(frozen), cov_plain)
+        k_all = np.ones(7)
         if sensitivity is not None and opt.add_noise_model_sensitivity:
             # Second opinion: what the solution moved by when the noise model was adapted is an uncertainty of
             # the model itself, which the marginals (of either model) do not hold. Per axis, the larger of the two
@@ -1451,11 +1455,15 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             sig = np.sqrt(np.diag(cov_base))
             k = np.maximum(sensitivity / np.maximum(sig, 1e-300), 1.0)
             cov_base = cov_base * np.outer(k, k)
+            k_all = k_all * k
         if jackknife is not None and opt.add_frame_jackknife:
             # Second opinion: the spread of the leave-one-stretch-out answers (see frame_jackknife).
             sig = np.sqrt(np.diag(cov_base))
             k = np.maximum(jackknife / np.maximum(sig, 1e-300), 1.0)
             cov_base = cov_base * np.outer(k, k)
+            k_all = k_all * k
+        if joint is not None and opt.propagate_to_odometry:
+            joint = odometry_given_calibration(joint, k_all, opt.td_model_sigma)
         Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
         cov = Ji @ cov_base @ Ji.T
         report = observability_report(cov_base, prior_info, converged=True, regularized=True,
@@ -1776,6 +1784,37 @@ def disagreement_with_seed(res_T: np.ndarray, res_td: float, cov_base: np.ndarra
     z = abs(res_td - seed_td) / float(np.sqrt(cov_base[6, 6] + opt.seed_sigma_td**2))
     if z > limit:
         out["td"] = round(z, 2)
+    return out
+
+
+def odometry_given_calibration(joint: np.ndarray, k: np.ndarray, td_floor: float) -> np.ndarray:
+    """The joint (9 x 9) covariance of (calibration in base axes, s_v, s_w) once the calibration's reported
+    uncertainty is larger than the marginal's: the second opinions (per-axis factors ``k`` >= 1) and the time
+    offset's model floor ``td_floor`` carried over to the odometry intrinsics through their regression on the
+    calibration.
+
+    The intrinsics were estimated together with the extrinsic: where the two are correlated (the lever arm along
+    the base's forward axis and the turn scale, through the camera's sideways motion in turns), an extrinsic that
+    is more uncertain than the marginal says makes the intrinsics more uncertain too. With B = S_sc S_cc^-1 (the
+    regression of the intrinsics on the calibration), S_ss gains B (S_cc' - S_cc) B^T, S_sc becomes B S_cc', where
+    S_cc' = K S_cc K + td_floor^2 on td, S_cc = ``joint[:7, :7]`` (the marginal the factors were measured against).
+    """
+    J = np.array(joint, dtype=float)
+    S_cc = 0.5 * (J[:7, :7] + J[:7, :7].T)
+    k = np.asarray(k, dtype=float)
+    S_new = S_cc * np.outer(k, k)
+    S_new[6, 6] += td_floor**2
+    delta = S_new - S_cc
+    if not np.any(delta) or not np.all(np.isfinite(delta)):
+        return J
+    # Solved in the calibration's own scale (the axes span metres, radians and seconds).
+    d = np.sqrt(np.maximum(np.diag(S_cc), 1e-300))
+    B = np.linalg.lstsq(S_cc / np.outer(d, d), J[7:, :7].T / d[:, None], rcond=1e-12)[0].T / d[None, :]
+    out = J.copy()
+    out[7:, 7:] = J[7:, 7:] + B @ delta @ B.T
+    out[7:, :7] = B @ S_new
+    out[:7, 7:] = out[7:, :7].T
+    out[:7, :7] = S_new
     return out
 
 
