@@ -102,12 +102,16 @@ def path_increments(t: np.ndarray, T_world_base: np.ndarray, knot_index: np.ndar
 
 
 def make_odometry_factors(
-    keys, T_knots: np.ndarray, distance: np.ndarray, angle: np.ndarray, noise: OdometryNoise | None = None
+    keys, T_knots: np.ndarray, distance: np.ndarray, angle: np.ndarray, noise: OdometryNoise | None = None,
+    extra_cov: np.ndarray | None = None,
 ) -> list[gtsam.BetweenFactorPose3]:
-    """Between-factors between consecutive knot keys, measured relative motion from the odometry poses."""
+    """Between-factors between consecutive knot keys, measured relative motion from the odometry poses.
+    ``extra_cov`` (edges, 6, 6) is added to each edge's covariance (e.g. an edge across a bridged gap)."""
     T_knots = np.asarray(T_knots, dtype=float)
     rel = np.linalg.inv(T_knots[:-1]) @ T_knots[1:]
     cov = odometry_covariance(distance, angle, noise)
+    if extra_cov is not None:
+        cov = cov + extra_cov
     out = []
     for i in range(len(rel)):
         nm = gtsam.noiseModel.Gaussian.Covariance(cov[i])
@@ -250,7 +254,7 @@ class EdgeMotions:
 
 def make_scaled_odometry_factors(
     keys, scale_key: int, steps: PlanarSteps, knot_index: np.ndarray, distance: np.ndarray, angle: np.ndarray,
-    noise: OdometryNoise | None = None, noise_scale: float | None = None,
+    noise: OdometryNoise | None = None, noise_scale: float | None = None, extra_cov: np.ndarray | None = None,
 ) -> list[gtsam.CustomFactor]:
     """Between-factors between consecutive knots whose measured motion is the odometry rescaled by the
     2-vector at ``scale_key`` = (s_v, s_w) (arc-length and heading-change factors, see :class:`PlanarSteps`).
@@ -260,8 +264,11 @@ def make_scaled_odometry_factors(
     s_v / s_v0: the noise is then that of the measured odometry, not of the rescaled motion, so a smaller scale
     cannot shrink the noise along with the motion (a least-squares scale fitted to a noisy regressor comes out
     low by about the regressor's relative variance). ``None`` (the default) gives the plain error.
+    ``extra_cov`` (edges, 6, 6) is added to each edge's covariance (e.g. an edge across a bridged gap).
     """
     cov = odometry_covariance(distance, angle, noise)
+    if extra_cov is not None:
+        cov = cov + extra_cov
     k = np.asarray(knot_index, dtype=int)
     edges = EdgeMotions(steps, k)  # shared: computed once per (s_v, s_w) for all the factors
     out = []

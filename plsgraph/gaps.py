@@ -1,10 +1,13 @@
 """Gaps in a recording: where the odometry or the events stop for a while (dropped messages, a damaged file).
 
 Odometry is never interpolated across a gap the robot moved across: its path there is unknown (a wheel-joint
-track integrates the whole gap as one arc). The calibration therefore uses the longest stretch of the recording
-without such a gap, if it is long enough, and says what it cut; a gap during which the robot stood still is
-harmless and kept. Event gaps leave holes in the camera track; the detections whose windows reach into one are
-dropped (a window that saw only part of its events places the board wrongly).
+track integrates the whole gap as one arc). A short gap in odometry whose net motion is known (cumulative wheel
+angles, odometry poses) is bridged: the whole recording is kept, no camera frame near the gap is used, and the
+refinement's odometry edge across it carries only a loose position (docs/odometry_and_time_offset.md, "Gaps in
+the wheel messages"). Otherwise the calibration uses the longest stretch of the recording without such a gap, if it
+is long enough, and says what it cut; a gap during which the robot stood still is harmless and kept. Event gaps
+leave holes in the camera track; the detections whose windows reach into one are dropped (a window that saw only
+part of its events places the board wrongly).
 """
 
 from __future__ import annotations
@@ -23,6 +26,10 @@ GAP_MOTION_DEG = 0.5
 #: No events for this long is a gap in the event stream (a live sensor in front of a board never pauses so long
 #: while the robot moves; dropped packets or a damaged chunk do).
 EVENT_GAP_S = 0.2
+#: Odometry gaps up to this long are bridged when the motion across them is known as a whole (see the module's
+#: text); a longer one is cut. Over a second of driving the path's shape is unknown enough that the edge would
+#: carry little but the heading.
+MAX_BRIDGE_S = 1.0
 #: The stretch kept after cutting at gaps must be at least this long (the closed form needs 3 s of velocity pairs
 #: for every td within +-0.5 s, i.e. 4 s, plus the detection holes;
 #: and the refinement turning in both directions) ...
@@ -47,6 +54,27 @@ def motion_gaps(track: BaseTrack) -> list[tuple[float, float]]:
         if moved > GAP_MOTION_M or turned > GAP_MOTION_DEG:
             out.append((float(a), float(b)))
     return out
+
+
+def bridgeable(track: BaseTrack, gaps: list[tuple[float, float]]) -> bool:
+    """Whether every one of ``gaps`` can be bridged: the track knows its net motion across gaps (cumulative wheel
+    angles or odometry poses), each is at most MAX_BRIDGE_S long, and no jump (a reset that adds no motion) lies in
+    one or on its closing step, where it would have taken the gap's motion with it."""
+    if not gaps or not track.info.get("net_motion_known", False):
+        return False
+    jumps = np.asarray(track.info.get("jumps", np.zeros(0)), dtype=float).ravel()
+    step = float(np.median(np.diff(track.t))) if len(track) > 1 else 0.0
+    for a, b in gaps:
+        if b - a > MAX_BRIDGE_S:
+            return False
+        if jumps.size and np.any((jumps >= a) & (jumps <= b + step)):
+            return False
+    return True
+
+
+def bridged_gaps(track: BaseTrack) -> np.ndarray:
+    """The track's bridged odometry gaps (k, 2) (empty when none were bridged)."""
+    return np.asarray(track.info.get("bridged_gaps", np.zeros((0, 2))), dtype=float).reshape(-1, 2)
 
 
 def event_gaps(t_ns: np.ndarray, prev_last_ns: int | None, gap_s: float = EVENT_GAP_S) -> list[tuple[int, int]]:
@@ -104,7 +132,16 @@ def cut_at_gaps(run: Any) -> None:
             run.discarded["frames_in_event_gaps"] = int(bad.sum())
             cam = _slice_camera(cam, ~bad)
     gaps = motion_gaps(base)
-    if gaps:
+    if gaps and bridgeable(base, gaps):
+        desc = ", ".join(f"{b - a:.2f} s at t={a:.2f} s" for a, b in gaps)
+        run.discarded["odometry_gaps_bridged"] = [[round(a, 4), round(b, 4)] for a, b in gaps]
+        run.warn(
+            f"the odometry has {len(gaps)} gap(s) the robot moved across ({desc}); bridged: the wheels' net motion "
+            "across each is known, its path is not, so no camera frame near one is used and the refinement takes "
+            "only the heading and a loose position across it"
+        )
+        base = replace(base, info=dict(base.info, bridged_gaps=np.array(gaps, dtype=float).reshape(-1, 2)))
+    elif gaps:
         # Segments between gaps, as index ranges [i0, i1) of the odometry; one sample on each side of a gap is
         # dropped too (its velocity was averaged over the gap step).
         cuts = [int(np.searchsorted(base.t, a)) for a, _ in gaps]
@@ -135,4 +172,5 @@ def cut_at_gaps(run: Any) -> None:
     run.base_track, run.camera_track = base, cam
 
 
-__all__ = ["EVENT_GAP_S", "MIN_SEGMENT_S", "cut_at_gaps", "event_gaps", "gap_indices", "motion_gaps"]
+__all__ = ["EVENT_GAP_S", "MAX_BRIDGE_S", "MIN_SEGMENT_S", "bridgeable", "bridged_gaps", "cut_at_gaps", "event_gaps",
+           "gap_indices", "motion_gaps"]

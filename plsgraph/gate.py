@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .gaps import motion_gaps
+from .gaps import bridged_gaps, motion_gaps
 
 # --- odometry scale (closed form: velocity regression of camera against wheels) ---------------------------------
 SPEED_SCALE_LIMIT = 0.10  # |closed-form speed scale - 1|: its estimate scatters by ~5 % on correct simulated runs
@@ -278,10 +278,12 @@ def _odometry_problems(s_v: float, s_w: float, radius: float | None = None, trac
 
 
 def gap_problems(base_track: Any, camera_track: Any) -> list[str]:
-    """Odometry gaps that the motion crossed inside the span the camera frames cover."""
+    """Odometry gaps that the motion crossed inside the span the camera frames cover (bridged ones aside: their net
+    motion is known and the calibration did not use their path, see plsgraph.gaps)."""
     if base_track is None or camera_track is None or len(camera_track) == 0:
         return []
-    gaps = motion_gaps(base_track)
+    bridged = {(float(a), float(b)) for a, b in bridged_gaps(base_track)}
+    gaps = [g for g in motion_gaps(base_track) if (float(g[0]), float(g[1])) not in bridged]
     lo, hi = camera_track.t[0] - 1.0, camera_track.t[-1] + 1.0  # td is within a second
     cut = [(a, b) for a, b in gaps if b > lo and a < hi]
     if not cut:

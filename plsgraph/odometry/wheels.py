@@ -232,6 +232,9 @@ def base_track_from_wheels(
         "gaps": gaps,
         "jumps": jumps,
         "warnings": warnings,
+        # Wheel angles are cumulative: the motion across a gap in the messages is known as a whole (its path is
+        # not). Integrated wheel rates say nothing about a gap.
+        "net_motion_known": kind == "position",
     }
     return BaseTrack(t, make_T(rot_z(theta), np.stack([x, y, np.zeros(n)], axis=1)), v, omega, info=info)
 
@@ -287,7 +290,8 @@ def base_track_from_odometry(
         warnings.append(f"{len(gaps)} gap(s) in odometry longer than {gap_factor}x the median step")
     for msg in warnings:
         log.warning(msg)
-    info = {"source": "odometry messages", "gaps": gaps, "jumps": jumps, "warnings": warnings}
+    info = {"source": "odometry messages", "gaps": gaps, "jumps": jumps, "warnings": warnings,
+            "net_motion_known": True}  # poses: the motion across a gap in the messages is their difference
     return BaseTrack(t, T, v, omega, info=info)
 
 

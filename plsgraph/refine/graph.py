@@ -501,7 +501,10 @@ def turn_angle_td_search(camera_track: CameraTrack, base_track: BaseTrack, td0: 
     return td, s_w, val, float(c[int(round(half / step))])
 
 
-def _select_knots(base_track: BaseTrack, t_lo: float, t_hi: float, rate: float | None) -> np.ndarray:
+def _select_knots(base_track: BaseTrack, t_lo: float, t_hi: float, rate: float | None,
+                  also: np.ndarray | None = None) -> np.ndarray:
+    """Odometry sample indices of the knots: every sample (``rate`` None) or about ``rate`` per second, plus the
+    samples ``also`` (the ends of bridged gaps, so that one edge spans exactly each gap) inside the span."""
     t = base_track.t
     i0 = int(max(0, np.searchsorted(t, t_lo, "right") - 1))
     i1 = int(min(t.size - 1, np.searchsorted(t, t_hi, "left")))
@@ -512,7 +515,69 @@ def _select_knots(base_track: BaseTrack, t_lo: float, t_hi: float, rate: float |
     idx = np.arange(i0, i1 + 1, step)
     if idx[-1] != i1:
         idx = np.r_[idx, i1]
+    if also is not None and np.size(also):
+        a = np.asarray(also, dtype=int).ravel()
+        idx = np.unique(np.r_[idx, a[(a >= i0) & (a <= i1)]])
     return idx
+
+
+#: Extra uncertainty of an odometry edge across a bridged gap (plsgraph.gaps): the net motion is known, the path
+#: is not, so the edge's position is loose (a floor plus a share of the distance driven in the gap); its heading
+#: (cumulative wheel angles) gets a small floor.
+BRIDGE_POSITION_FLOOR_M = 0.02
+BRIDGE_POSITION_PER_M = 0.2
+BRIDGE_HEADING_RAD = 0.005
+
+
+def _bridged(base_track: BaseTrack) -> np.ndarray:
+    from ..gaps import bridged_gaps
+
+    return bridged_gaps(base_track)
+
+
+def _bridged_gap_samples(base_track: BaseTrack) -> np.ndarray:
+    """Indices of the odometry samples that open and close each bridged gap."""
+    g = _bridged(base_track)
+    if not g.size:
+        return np.zeros(0, dtype=int)
+    t = base_track.t
+    i = np.clip(np.searchsorted(t, g[:, 0], "right") - 1, 0, t.size - 1)
+    j = np.clip(np.searchsorted(t, g[:, 1], "left"), 0, t.size - 1)
+    return np.unique(np.r_[i, j])
+
+
+def _near_bridged_gap(base_track: BaseTrack, tau: np.ndarray, opt: RefinementOptions) -> np.ndarray:
+    """Frames (odometry times ``tau``) whose pose would take the odometry's path across a bridged gap: inside one,
+    or near enough that the smoothed detail between knots or a td that moves in the solve reaches into it."""
+    g = _bridged(base_track)
+    out = np.zeros(np.shape(tau), dtype=bool)
+    margin = 0.1 + 0.5 * opt.odometry_smoothing_s
+    for a, b in g:
+        out |= (tau > a - margin) & (tau < b + margin)
+    return out
+
+
+def _bridge_covariance(prob: _Problem) -> np.ndarray | None:
+    """Extra covariance (edges, 6, 6) of the odometry edges across bridged gaps; None when there are none."""
+    g = _bridged(prob.base_track)
+    if not g.size:
+        return None
+    kt = prob.knot_t
+    t = prob.base_track.t
+    T = prob.base_track.T_world_base
+    extra = np.zeros((kt.size - 1, 6, 6))
+    for a, b in g:
+        i = int(np.searchsorted(kt, a, "right") - 1)
+        if i < 0 or i >= kt.size - 1 or kt[i + 1] < b - 1e-9:
+            continue  # outside the knots' span
+        ia = int(np.clip(np.searchsorted(t, a, "right") - 1, 0, t.size - 1))
+        ib = int(np.clip(np.searchsorted(t, b, "left"), 0, t.size - 1))
+        d = float(np.linalg.norm(T[ib, :2, 3] - T[ia, :2, 3]))
+        sp = BRIDGE_POSITION_FLOOR_M + BRIDGE_POSITION_PER_M * d
+        extra[i, 3, 3] += sp**2
+        extra[i, 4, 4] += sp**2
+        extra[i, 2, 2] += BRIDGE_HEADING_RAD**2
+    return extra
 
 
 def _rescaled(prob: _Problem, scale: tuple[float, float], opt: RefinementOptions) -> _Problem:
@@ -561,6 +626,10 @@ def _prepare(
         if np.any(gap & keep):
             warnings.append(f"{int(np.sum(gap & keep))} frame(s) fall into odometry gaps or jumps and were dropped")
         keep &= ~gap
+        near = _near_bridged_gap(base_track, tau, opt)
+        if np.any(near & keep):
+            log.info("refine: %d frame(s) near bridged odometry gaps dropped", int(np.sum(near & keep)))
+        keep &= ~near
     except ImportError:  # odometry helpers are optional for this module
         pass
     if np.sum(~inside):
@@ -582,7 +651,8 @@ def _prepare(
     else:  # knots independent of seed_td: over every frame with points, shifted by any td in the range
         t_all = det.t[n_valid >= opt.min_points]
         lo, hi = t_all[0] + knot_tds[0], t_all[-1] + knot_tds[1]
-    knot_idx = _select_knots(base_track, lo - opt.bracket_margin_s, hi + opt.bracket_margin_s, opt.knot_rate_hz)
+    knot_idx = _select_knots(base_track, lo - opt.bracket_margin_s, hi + opt.bracket_margin_s, opt.knot_rate_hz,
+                             _bridged_gap_samples(base_track))
     if knot_idx.size < 2:
         raise InsufficientDataError("refine: the detections span less than one odometry step")
     frames = ReprojectionFrames(t, np.zeros(t.size), np.ones(t.size), det.uv[keep], det.board_points, camera)
@@ -774,14 +844,16 @@ def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: Refin
     noise = opt.odometry_noise if np.all(np.asarray(odo_var) == 1.0) else \
         _scaled_noise(opt.odometry_noise, odo_var, keep_tilt=not opt.scale_odometry_tilt)
     d, a = path_increments(prob.base_track.t, prob.base_track.T_world_base, prob.knot_idx)
+    extra = _bridge_covariance(prob)  # not scaled by the adapted odometry variance: it is not the wheels' noise
     if prob.steps is not None:
         for f in make_scaled_odometry_factors(keys, KEY_SCALE, prob.steps, prob.knot_idx, d, a, noise,
-                                              noise_scale=1.0 if opt.odometry_noise_in_measurement else None):
+                                              noise_scale=1.0 if opt.odometry_noise_in_measurement else None,
+                                              extra_cov=extra):
             graph.add(f)
         sig = np.array([opt.speed_scale_prior_sigma, opt.turn_scale_prior_sigma])
         graph.add(gtsam.PriorFactorVector(KEY_SCALE, np.ones(2), gtsam.noiseModel.Diagonal.Sigmas(sig)))
     else:
-        for f in make_odometry_factors(keys, prob.T_knots_odo, d, a, noise):
+        for f in make_odometry_factors(keys, prob.T_knots_odo, d, a, noise, extra_cov=extra):
             graph.add(f)
     if opt.planar:
         sz, st = opt.planar_sigma_z * np.sqrt(planar_var[0]), opt.planar_sigma_tilt * np.sqrt(planar_var[1])
