@@ -17,6 +17,7 @@ from factors.odometry import (
     scaled_edge_motion,
 )
 from plsgraph.core.geometry import make_T, rot_z, rotation_error_deg, so3_exp, so3_log
+from plsgraph.errors import InputError
 from plsgraph.frontend.pose import camera_track_from_detections
 from plsgraph.odometry.wheels import base_track_from_wheels, integrate_planar
 from plsgraph.refine.graph import (
@@ -295,6 +296,22 @@ def test_the_odometry_intrinsics_sigmas_hold_the_calibrations_inflated_uncertain
         assert a[f"{name}_sigma_m"] >= b[f"{name}_sigma_m"] * (1 - 1e-9)
         assert abs(a[f"{name}_m"] - getattr(rec, name)) <= 3 * a[f"{name}_sigma_m"]
     assert np.allclose(on.cov_base_axes, off.cov_base_axes, rtol=1e-9, atol=0)
+
+
+def test_the_wheel_radius_sigma_holds_the_model_floor_in_quadrature():
+    """The effective radius's sigma is the graph's (with its second opinions) and the camera's unmodelled scale error
+    (``speed_scale_model_sigma``, relative) in quadrature; the estimate does not move; a negative floor is refused."""
+    rec, base, track, seed_T = _case("skid_steer")
+    on = refine(track, base, rec.camera, seed_T, rec.td + 0.005, seed_odometry_scale=(1.0, 1.0))
+    off = refine(track, base, rec.camera, seed_T, rec.td + 0.005, RefinementOptions(speed_scale_model_sigma=0.0),
+                 seed_odometry_scale=(1.0, 1.0))
+    a, b = on.odometry, off.odometry
+    assert a["wheel_radius_m"] == b["wheel_radius_m"]
+    floor = RefinementOptions().speed_scale_model_sigma * a["wheel_radius_m"]
+    assert a["wheel_radius_sigma_m"] == pytest.approx(np.hypot(b["wheel_radius_sigma_m"], floor), rel=1e-9)
+    assert a["track_width_sigma_m"] > b["track_width_sigma_m"]
+    with pytest.raises(InputError, match="speed_scale_model_sigma"):
+        RefinementOptions(speed_scale_model_sigma=-0.01)
 
 
 def test_jittered_odometry_stamps_are_put_back_on_their_clock():
