@@ -1572,6 +1572,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                 ks = np.ones(joint.shape[0])
                 ks[8] = turn_jk / sig_w if sig_w > 0 else 1.0
                 joint = joint * np.outer(ks, ks)
+    joint_data = joint  # what the data determined: the intrinsics' observability status is judged on it
     if joint is not None and prob.steps is not None and opt.speed_scale_model_sigma > 0:
         joint = joint.copy()
         joint[7, 7] += (opt.speed_scale_model_sigma * float(values.atVector(KEY_SCALE)[0])) ** 2
@@ -1637,7 +1638,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                 "total_s": time.perf_counter() - t_start},
         seed_T_base_cam=C_seed,
         seed_td=td_given,
-        odometry=odometry_report(values, joint, base_track.info, opt, scale0) if prob.steps is not None else None,
+        odometry=odometry_report(values, joint, base_track.info, opt, scale0, joint_data)
+        if prob.steps is not None else None,
         disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_ref, opt,
                                                                           rotation=compare_rotation),
         inflation={**inflation, "odometry_variance_factor": _slip(odo_var),
@@ -1914,9 +1916,10 @@ def _check_scale(scale) -> tuple[float, float]:
 
 
 def odometry_report(values: gtsam.Values, joint: np.ndarray | None, info: dict, opt: RefinementOptions,
-                    seed: tuple[float, float]) -> dict:
+                    seed: tuple[float, float], joint_data: np.ndarray | None = None) -> dict:
     """The odometry intrinsics the refinement estimated: scale factors, effective wheel radius and track width
-    (when the nominal ones are known), their sigmas and how much the data (not the prior) determined them.
+    (when the nominal ones are known), their sigmas and how much the data (not the prior) determined them
+    (judged on ``joint_data``, the covariance without the model floor, when given).
 
     ``wheel_radius = r0 s_v`` and ``track_width = b0 s_v / s_w`` (the closed form's definition). Status per
     intrinsic as for the calibration: posterior / prior sigma <= 0.1 observable, >= 0.5 unobservable.
@@ -1940,6 +1943,9 @@ def odometry_report(values: gtsam.Values, joint: np.ndarray | None, info: dict, 
             out["track_width_sigma_m"] = float(np.sqrt(jb @ S @ jb))
     if S is not None:
         from .observability import OBSERVABLE_RATIO, UNOBSERVABLE_RATIO
+
+        if joint_data is not None:
+            S = joint_data[7:, 7:]
 
         def status(ratio: float) -> str:
             return "observable" if ratio <= OBSERVABLE_RATIO else "unobservable" if ratio >= UNOBSERVABLE_RATIO \
