@@ -196,8 +196,8 @@ def _linear_gaussian_joint(S_cc, B, S_e):
 
 def test_odometry_intrinsics_inherit_the_calibrations_second_opinions_through_their_correlation():
     """The odometry intrinsics regressed on the calibration (s = B c + e): when the calibration's reported covariance
-    grows (second opinions, td's model floor), the intrinsics' covariance is that of the same regression on the
-    larger calibration covariance; nothing changes without inflation or without correlation."""
+    grows alike on every axis, the intrinsics' covariance is that of the same regression on the larger calibration
+    covariance; it never shrinks when axes grow unequally; nothing changes without inflation or correlation."""
     rng = np.random.default_rng(4)
     A = rng.normal(size=(7, 7))
     S_cc = A @ A.T * 1e-4 + np.diag(np.full(7, 1e-6))
@@ -205,15 +205,37 @@ def test_odometry_intrinsics_inherit_the_calibrations_second_opinions_through_th
     S_e = np.array([[4e-6, 1e-6], [1e-6, 9e-6]])
     joint = _linear_gaussian_joint(S_cc, B, S_e)
     assert np.allclose(odometry_given_calibration(joint, np.ones(7), 0.0), joint, rtol=0, atol=1e-15)
-    k = np.array([1.0, 1.0, 2.0, 5.0, 1.0, 1.0, 1.5])
-    out = odometry_given_calibration(joint, k, 0.008)
-    S_new = S_cc * np.outer(k, k)
-    S_new[6, 6] += 0.008**2
-    assert np.allclose(out, _linear_gaussian_joint(S_new, B, S_e), rtol=1e-8, atol=1e-14)
-    assert np.all(np.diag(out)[7:] >= np.diag(joint)[7:])
+    k = np.full(7, 1.7)
+    out = odometry_given_calibration(joint, k, 0.0)
+    assert np.allclose(out, _linear_gaussian_joint(S_cc * 1.7**2, B, S_e), rtol=1e-8, atol=1e-14)
+    # Unequal factors: K S K - S is indefinite; only its positive part adds uncertainty.
+    for k in (np.array([1.0, 1.0, 2.0, 5.0, 1.0, 1.0, 1.5]), rng.uniform(1.0, 4.0, 7)):
+        out = odometry_given_calibration(joint, k, 0.008)
+        d = np.linalg.eigvalsh(out[7:, 7:] - joint[7:, 7:])
+        assert d.min() >= -1e-15 and np.all(np.linalg.eigvalsh(out) >= -1e-12)
+    # x and y correlated 0.99, only x inflated, s_w regressed on x - 2y: the turn scale's sigma must not shrink.
+    S2 = np.diag(np.full(7, 1e-4))
+    S2[3, 4] = S2[4, 3] = 0.99e-4
+    B2 = np.zeros((2, 7))
+    B2[1, 3], B2[1, 4] = 1.0, -2.0
+    j2 = _linear_gaussian_joint(S2, B2, np.diag([1e-6, 1e-6]))
+    o2 = odometry_given_calibration(j2, np.r_[1, 1, 1, 2.0, 1, 1, 1], 0.0)
+    assert o2[8, 8] >= j2[8, 8]
     # Intrinsics uncorrelated with the calibration keep their covariance.
     apart = _linear_gaussian_joint(S_cc, np.zeros((2, 7)), S_e)
     assert np.allclose(odometry_given_calibration(apart, k, 0.008)[7:, 7:], S_e, rtol=0, atol=1e-15)
+
+
+def test_the_td_floor_is_carried_over_as_the_reported_td_variance():
+    """The reported td variance is k^2 (marginal + floor^2) (the floor is added before the second opinions' factor
+    is measured): the joint's calibration block says the same."""
+    S = np.diag(np.r_[np.full(6, 1e-4), (1e-3) ** 2])
+    B = np.zeros((2, 7))
+    B[0, 6] = 2.0
+    joint = _linear_gaussian_joint(S, B, np.diag([1e-6, 1e-6]))
+    k = np.r_[np.ones(6), 10e-3 / np.hypot(1e-3, 8e-3)]  # a jackknife of 10 ms against 1 ms and an 8 ms floor
+    out = odometry_given_calibration(joint, k, 8e-3)
+    assert np.sqrt(out[6, 6]) == pytest.approx(10e-3, rel=1e-9)
 
 
 def test_disagreement_only_beyond_the_combined_sigmas():

@@ -2,6 +2,7 @@
 sample recording through the command line). Here: simulated tracks, no events, so each case costs a second or two."""
 
 import contextlib
+import dataclasses
 import json
 import logging
 import os
@@ -303,6 +304,48 @@ def test_a_long_gap_or_a_jump_in_one_is_not_bridged():
     assert len(reset.info["jumps"]) and not bridgeable(reset, [(float(a), float(b)) for a, b in reset.info["gaps"]])
     rates = base_track_from_wheels(t2, np.full(t2.size, 5.0), np.full(t2.size, 5.0), kind="velocity")
     assert not bridgeable(rates, [(float(a), float(b)) for a, b in rates.info["gaps"]])
+
+
+@pytest.mark.parametrize("speed, bridged", [(0.3, True), (0.8, False)])
+def test_a_gap_in_wrapped_wheel_angles_is_bridged_only_below_half_a_turn(speed, bridged):
+    # Joint angles are unwrapped per joint: a wheel that turned more than pi while the messages were missing loses
+    # 2 pi, and the gap's net motion with it. At 0.8 m/s (r 0.1 m) a 0.62 s gap turns the wheels 5 rad: cut.
+    from plsgraph.gaps import bridgeable
+    from plsgraph.io.recording import JointStates
+    from plsgraph.odometry.joints import wheel_track_from_joints
+
+    t = np.r_[np.arange(0, 5, 0.02), np.arange(5.6, 10, 0.02)]
+    ang = speed / 0.1 * t
+    wrapped = (ang + np.pi) % (2 * np.pi) - np.pi
+    joints = JointStates((t * 1e9).astype(np.int64) + 10**18, ("left_wheel_joint", "right_wheel_joint"),
+                         np.stack([wrapped, wrapped], 1), np.full((t.size, 2), np.nan))
+    base, _ = wheel_track_from_joints(joints, 0.1, 0.5)
+    gaps = [(float(a), float(b)) for a, b in base.info["gaps"]]
+    assert len(gaps) == 1 and bridgeable(base, gaps) is bridged
+    if bridged:  # the net motion across the gap is the true one
+        i = int(np.searchsorted(base.t, gaps[0][1]))
+        assert base.T_world_base[i, 0, 3] - base.T_world_base[i - 1, 0, 3] == pytest.approx(
+            (gaps[0][1] - gaps[0][0]) * speed, rel=1e-6)
+
+
+def test_the_edge_across_a_bridged_gap_is_found_after_the_stamps_are_regularized():
+    # The refinement may put the odometry stamps on a regular clock, which moves the samples that open and close a
+    # gap by up to 0.45 of a step: the gap's samples are still found (the loose edge and its knots go with them).
+    from plsgraph.refine.graph import _gap_steps
+
+    rng = np.random.default_rng(0)
+    t = np.r_[np.arange(0, 5, 0.02), np.arange(5.5, 10, 0.02)]
+    ang = 3.0 * t
+    base = base_track_from_wheels(t, ang, ang)
+    g = np.array(base.info["gaps"], dtype=float).reshape(-1, 2)
+    i_open = int(np.searchsorted(t, g[0, 0]))
+    for shift in (4e-16, 0.009, -0.009, *rng.uniform(-0.009, 0.009, 10)):
+        moved = t + rng.uniform(-0.009, 0.009, t.size)
+        moved[i_open] = t[i_open] + shift
+        moved[i_open + 1] = t[i_open + 1] - shift
+        track = dataclasses.replace(base, t=moved, info=dict(base.info, bridged_gaps=g))
+        ia, ib = _gap_steps(track)
+        assert ia.tolist() == [i_open] and ib.tolist() == [i_open + 1]
 
 
 def test_too_little_left_between_gaps_is_a_diagnosis(sim):

@@ -146,6 +146,18 @@ def _unbunched(t: np.ndarray, left: np.ndarray, right: np.ndarray, wheel_radius:
     return keep
 
 
+def _gaps_under_half_turn(t: np.ndarray, left: np.ndarray, right: np.ndarray, gaps: np.ndarray) -> bool:
+    """Whether no wheel can have turned half a turn in any gap (at the wheel rates beside it): joint angles are
+    unwrapped per joint before they get here, which takes 2 pi off a wheel that turned more than pi in a gap."""
+    rate = np.abs(np.diff(np.stack([left, right]), axis=1)) / np.diff(t)  # (2, steps)
+    for a, b in np.asarray(gaps).reshape(-1, 2):
+        k = int(np.searchsorted(t, a))  # the gap's step
+        beside = np.r_[rate[:, max(k - 1, 0):k].ravel(), rate[:, k + 1:k + 2].ravel()]
+        if not beside.size or beside.max() * (b - a) >= np.pi:
+            return False
+    return True
+
+
 def base_track_from_wheels(
     t: np.ndarray,
     left: np.ndarray,
@@ -234,7 +246,7 @@ def base_track_from_wheels(
         "warnings": warnings,
         # Wheel angles are cumulative: the motion across a gap in the messages is known as a whole (its path is
         # not). Integrated wheel rates say nothing about a gap.
-        "net_motion_known": kind == "position",
+        "net_motion_known": kind == "position" and _gaps_under_half_turn(t, left, right, gaps),
     }
     return BaseTrack(t, make_T(rot_z(theta), np.stack([x, y, np.zeros(n)], axis=1)), v, omega, info=info)
 

@@ -546,15 +546,23 @@ def _bridged(base_track: BaseTrack) -> np.ndarray:
     return bridged_gaps(base_track)
 
 
+def _gap_steps(base_track: BaseTrack) -> tuple[np.ndarray, np.ndarray]:
+    """Samples (ia, ib) that open and close each bridged gap, found within half a step of its times (the refinement
+    may have put the stamps on a regular clock, which moves them by up to 0.45 of a step)."""
+    g = _bridged(base_track)
+    t = base_track.t
+    if not g.size or t.size < 2:
+        return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
+    h = 0.5 * float(np.median(np.diff(t)))
+    ia = np.clip(np.searchsorted(t, g[:, 0] + h, "right") - 1, 0, t.size - 1)
+    ib = np.clip(np.searchsorted(t, g[:, 1] - h, "left"), 0, t.size - 1)
+    return ia, ib
+
+
 def _bridged_gap_samples(base_track: BaseTrack) -> np.ndarray:
     """Indices of the odometry samples that open and close each bridged gap."""
-    g = _bridged(base_track)
-    if not g.size:
-        return np.zeros(0, dtype=int)
-    t = base_track.t
-    i = np.clip(np.searchsorted(t, g[:, 0], "right") - 1, 0, t.size - 1)
-    j = np.clip(np.searchsorted(t, g[:, 1], "left"), 0, t.size - 1)
-    return np.unique(np.r_[i, j])
+    ia, ib = _gap_steps(base_track)
+    return np.unique(np.r_[ia, ib]).astype(int)
 
 
 def _near_bridged_gap(base_track: BaseTrack, tau: np.ndarray, opt: RefinementOptions) -> np.ndarray:
@@ -574,15 +582,13 @@ def _bridge_covariance(prob: _Problem) -> np.ndarray | None:
     if not g.size:
         return None
     kt = prob.knot_t
-    t = prob.base_track.t
+    ki = np.asarray(prob.knot_idx)
     T = prob.base_track.T_world_base
     extra = np.zeros((kt.size - 1, 6, 6))
-    for a, b in g:
-        i = int(np.searchsorted(kt, a, "right") - 1)
-        if i < 0 or i >= kt.size - 1 or kt[i + 1] < b - 1e-9:
+    for ia, ib in zip(*_gap_steps(prob.base_track), strict=True):
+        i = int(np.searchsorted(ki, ia, "right") - 1)
+        if i < 0 or i >= ki.size - 1 or ki[i + 1] < ib:
             continue  # outside the knots' span
-        ia = int(np.clip(np.searchsorted(t, a, "right") - 1, 0, t.size - 1))
-        ib = int(np.clip(np.searchsorted(t, b, "left"), 0, t.size - 1))
         d = float(np.linalg.norm(T[ib, :2, 3] - T[ia, :2, 3]))
         sp = BRIDGE_POSITION_FLOOR_M + BRIDGE_POSITION_PER_M * d
         extra[i, 3, 3] += sp**2
@@ -1891,7 +1897,7 @@ def odometry_given_calibration(joint: np.ndarray, k: np.ndarray, td_floor: float
     S_cc = 0.5 * (J[:7, :7] + J[:7, :7].T)
     k = np.asarray(k, dtype=float)
     S_new = S_cc * np.outer(k, k)
-    S_new[6, 6] += td_floor**2
+    S_new[6, 6] += (k[6] * td_floor) ** 2  # the reported td variance: the floor is added before k is measured
     delta = S_new - S_cc
     if not np.any(delta) or not np.all(np.isfinite(delta)):
         return J
@@ -1899,7 +1905,10 @@ def odometry_given_calibration(joint: np.ndarray, k: np.ndarray, td_floor: float
     d = np.sqrt(np.maximum(np.diag(S_cc), 1e-300))
     B = np.linalg.lstsq(S_cc / np.outer(d, d), J[7:, :7].T / d[:, None], rcond=1e-12)[0].T / d[None, :]
     out = J.copy()
-    out[7:, 7:] = J[7:, 7:] + B @ delta @ B.T
+    # K S K - S is indefinite when correlated axes are inflated unequally; only its positive part adds uncertainty
+    lam, V = np.linalg.eigh(0.5 * (delta + delta.T) / np.outer(d, d))
+    delta_p = (V * np.maximum(lam, 0.0)) @ V.T * np.outer(d, d)
+    out[7:, 7:] = J[7:, 7:] + B @ delta_p @ B.T
     out[7:, :7] = B @ S_new
     out[:7, 7:] = out[7:, :7].T
     out[:7, :7] = S_new
