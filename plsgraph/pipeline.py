@@ -185,7 +185,7 @@ def build_base_track(run: Run, rec: Any) -> BaseTrack:
         run.warn(f"no wheel among the joints {', '.join(rec.joints.names)}; used nav_msgs/Odometry")
     if use_joints:
         track, cleaning = wheel_track_from_joints(rec.joints, odo.wheel_radius, odo.track_width,
-                                                  odo.left_joint, odo.right_joint)
+                                                  odo.left_joint, odo.right_joint, quiet=True)
         run.recording_info["wheel_joints"] = cleaning.wheel_joints
         run.recording_info["base_source"] = f"wheel joint states ({cleaning.kind})"
         run.discarded.update(cleaning.discarded)
@@ -365,7 +365,16 @@ def build_tracks(run: Run, progress: ProgressFactory = no_progress) -> Run:
 
     with _Timer(run, "pairing"):
         pair_tracks(run)  # wheel order, and the clocks when they differ
+    say_wheel_track_warnings(run)
     return run
+
+
+def say_wheel_track_warnings(run: Run) -> None:
+    """Log the wheel track's warnings (gaps, jumps), built quietly, once the wheel order is decided: a wrong order's
+    track has jumps of its own that are no fact about the recording (they stay out of the console and the report)."""
+    if run.wheels is not None and run.base_track is not None:
+        for msg in run.base_track.info.get("warnings", []):
+            log.warning(msg)
 
 
 def run_recording(

@@ -117,7 +117,11 @@ def _run(sim, wired, **opts):
 
 
 @pytest.mark.parametrize("wired", ["swapped", "left_reversed"])
-def test_wrong_wheels_are_corrected_and_said(sim, wired):
+def test_wrong_wheels_are_corrected_and_said(sim, wired, caplog):
+    import logging
+
+    from plsgraph.pipeline import say_wheel_track_warnings
+
     run = _run(sim, wired, odometry_file="odometry.mcap")  # another file: the coarse step runs
     # What the wheels as named said about their own track (as the pipeline passes it on) is not the corrected one's.
     named = "4 odometry step(s) imply more than 3.0 m/s or 6.0 rad/s (first at t=2.000 s); treated as resets"
@@ -126,6 +130,10 @@ def test_wrong_wheels_are_corrected_and_said(sim, wired):
     assert coarse_rule(run)[0]
     pair_tracks(run)
     assert named not in run.warnings
+    with caplog.at_level(logging.WARNING, logger="plsgraph"):  # nor in the console, where the pipeline says them
+        say_wheel_track_warnings(run)
+    assert named not in caplog.text
+    assert all(w in caplog.text for w in run.base_track.info.get("warnings", []))
     res = calibration_result(solve(run, refine=False))
     assert res.ok, res.problems
     assert rotation_error_deg(res.R_base_cam, sim.R_base_cam) < 2.0

@@ -46,10 +46,12 @@ def wheel_track_from_joints(
     track_width: float,
     left_joint: str | None = None,
     right_joint: str | None = None,
+    quiet: bool = False,
 ) -> tuple[BaseTrack, JointCleaning]:
     """BaseTrack from a ``JointStates`` container: the wheel joints picked by name (or given), angles unwrapped
     per joint, each joint filled onto every stamp, repeated stamps dropped, wheel rates integrated when the
-    driver publishes no angles."""
+    driver publishes no angles. ``quiet``: the track's warnings (gaps, jumps) are not logged, only returned in its
+    ``info["warnings"]`` (the pipeline logs them once it knows the wheel order is right)."""
     try:
         lc, rc = joints.wheel_columns(left_joint, right_joint)
     except InputError as exc:
@@ -90,7 +92,7 @@ def wheel_track_from_joints(
     if np.count_nonzero(keep & ~ok):
         discarded["joint_states_without_wheel_values"] = int(np.count_nonzero(keep & ~ok))
     track = base_track_from_wheels(t[ok], a[ok], b[ok], wheel_radius=wheel_radius, track_width=track_width,
-                                   kind=kind)
+                                   kind=kind, quiet=quiet)
     n_jumps = len(track.info.get("jumps", []))
     if kind == "position" and n_jumps > 0.5 * max(1, ok.sum() - 1):
         raise InputError(
