@@ -306,19 +306,20 @@ def test_a_long_gap_or_a_jump_in_one_is_not_bridged():
     assert not bridgeable(rates, [(float(a), float(b)) for a, b in rates.info["gaps"]])
 
 
-@pytest.mark.parametrize("speed, bridged", [(0.3, True), (0.8, False)])
-def test_a_gap_in_wrapped_wheel_angles_is_bridged_only_below_half_a_turn(speed, bridged):
-    # Joint angles are unwrapped per joint: a wheel that turned more than pi while the messages were missing loses
-    # 2 pi, and the gap's net motion with it. At 0.8 m/s (r 0.1 m) a 0.62 s gap turns the wheels 5 rad: cut.
+@pytest.mark.parametrize("speed, wrap, bridged", [(0.3, True, True), (0.8, True, False), (0.8, False, True)])
+def test_a_gap_in_wrapped_wheel_angles_is_bridged_only_below_half_a_turn(speed, wrap, bridged):
+    # Joint angles reported within one turn are unwrapped per joint: a wheel that turned more than pi while the
+    # messages were missing loses 2 pi, and the gap's net motion with it. At 0.8 m/s (r 0.1 m) a 0.62 s gap turns the
+    # wheels 5 rad: cut. Cumulative encoder angles (beyond one turn) are not unwrapped: that gap is bridged.
     from plsgraph.gaps import bridgeable
     from plsgraph.io.recording import JointStates
     from plsgraph.odometry.joints import wheel_track_from_joints
 
     t = np.r_[np.arange(0, 5, 0.02), np.arange(5.6, 10, 0.02)]
-    ang = speed / 0.1 * t
-    wrapped = (ang + np.pi) % (2 * np.pi) - np.pi
+    ang = speed / 0.1 * t + 7.0
+    angles = (ang + np.pi) % (2 * np.pi) - np.pi if wrap else ang
     joints = JointStates((t * 1e9).astype(np.int64) + 10**18, ("left_wheel_joint", "right_wheel_joint"),
-                         np.stack([wrapped, wrapped], 1), np.full((t.size, 2), np.nan))
+                         np.stack([angles, angles], 1), np.full((t.size, 2), np.nan))
     base, _ = wheel_track_from_joints(joints, 0.1, 0.5)
     gaps = [(float(a), float(b)) for a, b in base.info["gaps"]]
     assert len(gaps) == 1 and bridgeable(base, gaps) is bridged

@@ -40,6 +40,19 @@ def fill_unwrapped(t: np.ndarray, x: np.ndarray, unwrap: bool) -> np.ndarray:
     return out
 
 
+def looks_wrapped(x: np.ndarray) -> bool:
+    """Whether a joint's angles may be wrapped into one turn (every finite value within [-pi, pi], or [0, 2 pi]):
+    only then are they unwrapped. A cumulative encoder beyond that range is left as it is, so that a step longer
+    than half a turn (a gap in the messages while the wheel turned) keeps its size."""
+    v = np.asarray(x, dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return False
+    eps = 1e-6
+    lo, hi = float(v.min()), float(v.max())
+    return (lo >= -np.pi - eps and hi <= np.pi + eps) or (lo >= -eps and hi <= 2 * np.pi + eps)
+
+
 def wheel_track_from_joints(
     joints: Any,
     wheel_radius: float,
@@ -67,7 +80,9 @@ def wheel_track_from_joints(
     # Per joint, before the sides are averaged: unwrap angles that a driver reports in [-pi, pi) (a wrap of one
     # wheel of a pair would move the average by only ~pi, below what unwrapping catches), and fill each joint
     # onto every stamp, as drivers that publish each wheel in its own message leave the others NaN.
-    pos = np.column_stack([fill_unwrapped(t, joints.position[:, c], unwrap=True) for c in lc + rc])
+    wrapped = [looks_wrapped(joints.position[:, c]) for c in lc + rc]
+    pos = np.column_stack([fill_unwrapped(t, joints.position[:, c], unwrap=w) for c, w in zip(lc + rc, wrapped,
+                                                                                                strict=True)])
     vel = np.column_stack([fill_unwrapped(t, joints.velocity[:, c], unwrap=False) for c in lc + rc])
     nl = len(lc)
     left, right = pos[:, :nl].mean(axis=1), pos[:, nl:].mean(axis=1)
@@ -91,8 +106,9 @@ def wheel_track_from_joints(
     ok = keep & np.isfinite(a) & np.isfinite(b) & np.any(np.isfinite(raw), axis=1)
     if np.count_nonzero(keep & ~ok):
         discarded["joint_states_without_wheel_values"] = int(np.count_nonzero(keep & ~ok))
+    any_wrapped = kind == "position" and any(wrapped)
     track = base_track_from_wheels(t[ok], a[ok], b[ok], wheel_radius=wheel_radius, track_width=track_width,
-                                   kind=kind, quiet=quiet)
+                                   kind=kind, quiet=quiet, wrapped=any_wrapped)
     n_jumps = len(track.info.get("jumps", []))
     if kind == "position" and n_jumps > 0.5 * max(1, ok.sum() - 1):
         raise InputError(
@@ -102,5 +118,5 @@ def wheel_track_from_joints(
         )
     from .wheel_order import WheelSignals
 
-    signals = WheelSignals(t[ok], a[ok], b[ok], kind, wheel_radius, track_width)
+    signals = WheelSignals(t[ok], a[ok], b[ok], kind, wheel_radius, track_width, wrapped=any_wrapped)
     return track, JointCleaning(names, kind, discarded, warnings, signals)

@@ -64,6 +64,7 @@ class WheelSignals:
     kind: str
     wheel_radius: float
     track_width: float
+    wrapped: bool = True  # the angles may have been unwrapped from one turn (see base_track_from_wheels)
 
     def under(self, hypothesis: str) -> tuple[np.ndarray, np.ndarray]:
         """(left, right) as they would be under ``hypothesis``."""
@@ -80,7 +81,7 @@ class WheelSignals:
         # Quiet: a hypothesis's gaps and jumps are not the recording's (a reversed wheel turns driving into
         # turning, which can pass for a jump); the chosen track's warnings are told by whoever uses it.
         return base_track_from_wheels(self.t, lft, rgt, self.wheel_radius, self.track_width, kind=self.kind,
-                                      quiet=True)
+                                      quiet=True, wrapped=self.wrapped)
 
 
 @dataclass(frozen=True)

@@ -170,6 +170,7 @@ def base_track_from_wheels(
     max_speed: float = 3.0,
     max_yaw_rate: float = 6.0,
     quiet: bool = False,
+    wrapped: bool = True,
 ) -> BaseTrack:
     """BaseTrack from left/right wheel joint angles (``kind="position"``, rad) or rates (``"velocity"``, rad/s).
 
@@ -178,6 +179,9 @@ def base_track_from_wheels(
     Steps longer than ``gap_factor`` times the median are reported as gaps; steps faster than
     ``max_speed`` (m/s) or ``max_yaw_rate`` (rad/s) as jumps (they add no motion). Both go to
     ``info["gaps"]`` / ``info["jumps"]`` and ``info["warnings"]``, and are logged unless ``quiet``.
+    ``wrapped``: the angles may have been unwrapped from one turn, so a wheel that turned half a turn or more in a gap
+    lost whole turns there (the gap's net motion is then unknown, ``info["net_motion_known"]``); False for cumulative
+    encoder angles.
     """
     t, left, right = _check_stream("wheel odometry", t, left, right)
     if left.ndim != 1 or right.ndim != 1:
@@ -246,7 +250,7 @@ def base_track_from_wheels(
         "warnings": warnings,
         # Wheel angles are cumulative: the motion across a gap in the messages is known as a whole (its path is
         # not). Integrated wheel rates say nothing about a gap.
-        "net_motion_known": kind == "position" and _gaps_under_half_turn(t, left, right, gaps),
+        "net_motion_known": kind == "position" and (not wrapped or _gaps_under_half_turn(t, left, right, gaps)),
     }
     return BaseTrack(t, make_T(rot_z(theta), np.stack([x, y, np.zeros(n)], axis=1)), v, omega, info=info)
 
