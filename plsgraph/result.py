@@ -38,6 +38,7 @@ def odometry_section(run: Run) -> dict | None:
     o = None if ref is None or not ref.converged else getattr(ref, "odometry", None)
     if not o or "wheel_radius_m" not in o:
         return None
+    floor = o.get("wheel_radius_model_sigma_rel") or 0.0
     return {
         "wheel_radius_m": o["wheel_radius_m"],
         "track_width_m": o["track_width_m"],
@@ -48,7 +49,10 @@ def odometry_section(run: Run) -> dict | None:
         "status": dict(o.get("status", {})),
         "note": "effective values that explain the wheel odometry (a skid-steer robot's track is wider than its "
                 "geometric one); in the board's length unit and the camera's scale (a misprinted board, or camera "
-                "intrinsics whose focal length is off, scales the radius alike; their error is not in the sigmas)",
+                "intrinsics whose focal length is off, scales the radius alike; their error is not in the sigmas). "
+                "The sigmas hold the extrinsic's uncertainty they are correlated with"
+                + (f", and the radius's {100 * floor:.2g} % for the event detector's sense of the board's size"
+                   if floor else ""),
     }
 
 

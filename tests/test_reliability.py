@@ -73,6 +73,7 @@ def _right_or_flagged(r, s, what: str) -> None:
         odo = r.report["calibration"]["odometry"]
         assert odo["wheel_radius_m"] == pytest.approx(s.wheel_radius, rel=0.01)
         assert odo["track_width_m"] == pytest.approx(s.track_width, rel=0.02)
+        assert "0.75 % for the event detector" in odo["note"]  # the radius's model floor is said where it is used
     else:
         assert any(what in p for p in r.problems), r.problems
 

@@ -1935,7 +1935,8 @@ def odometry_report(values: gtsam.Values, joint: np.ndarray | None, info: dict, 
     """
     s = values.atVector(KEY_SCALE)
     s_v, s_w = float(s[0]), float(s[1])
-    out: dict = {"speed_scale": s_v, "turn_scale": s_w, "seed_speed_scale": seed[0], "seed_turn_scale": seed[1]}
+    out: dict = {"speed_scale": s_v, "turn_scale": s_w, "seed_speed_scale": seed[0], "seed_turn_scale": seed[1],
+                 "wheel_radius_model_sigma_rel": float(opt.speed_scale_model_sigma)}
     S = None if joint is None else joint[7:, 7:]
     if S is not None:
         out["speed_scale_sigma"] = float(np.sqrt(S[0, 0]))
