@@ -676,6 +676,8 @@ def test_a_fast_heading_wiggle_of_the_odometry_is_in_the_sigmas_through_the_knot
     assert np.all(np.abs(z) <= 3.0)
     ks = np.array([res.inflation["knot_spacing_sensitivity"][k] for k in ("roll", "pitch", "yaw", "x", "y", "z", "td")])
     assert ks[3] > 0.1  # decimetres of lever arm
+    assert any("with knots twice as dense" in w for w in res.warnings)
+    assert not any("with knots twice as dense" in w for w in bare.warnings)
     np.testing.assert_allclose(np.diag(res.cov_base_axes), np.maximum(np.diag(bare.cov_base_axes), ks**2), rtol=1e-9)
 
 
@@ -688,6 +690,6 @@ def test_the_knot_spacing_second_opinion_is_small_on_a_clean_recording():
     rec = case.rec
     res = refine(case.track, case.base, rec.camera, case.seed_T, case.seed_td)
     ks = res.inflation["knot_spacing_sensitivity"]
-    assert ks is not None
+    assert ks is not None and not any("with knots twice as dense" in w for w in res.warnings)
     assert ks["x"] < 0.01 and ks["y"] < 0.01 and ks["td"] < 0.002 and np.degrees(ks["yaw"]) < 0.1
     assert np.all(np.abs(_calibration_z(res, rec)) <= 3.0)

@@ -1366,8 +1366,9 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     any td in this range (the same knots for solves from different offsets). ``probe``: only the solution is wanted
     (a second opinion's solve): the result has no covariance and no second opinions of its own. ``warm``: start
     from another solve's answer (``C_seed`` its T_base_cam, ``td_start`` its td, ``scale0`` its scales; the dict's
-    ``B``, ``knot_t`` and ``T_world_base`` its board and trajectory) with its noise factors (``odo_var``,
-    ``planar_var``) and frozen directions (``frozen``), neither adapted nor looked for again."""
+    ``B``, ``knot_t`` and ``T_world_base`` its board and trajectory) and its frozen directions (``frozen``, not looked
+    for again); with ``adapt`` the noise model is adapted again as in any solve, else that solve's noise factors
+    (``odo_var``, ``planar_var``) are kept."""
     td_seed = td_start
     prob = _prepare(camera_track, base_track, camera, td_seed, opt, scale0, knot_tds)
     warnings = list(prob.warnings) + ([search_note] if search_note else [])
@@ -1402,7 +1403,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     td_bracket = td_seed
     frozen: list[np.ndarray] = []
     if warm is not None:
-        odo_var, planar_var, adapted = warm["odo_var"], warm["planar_var"], True
+        if not warm.get("adapt", False):
+            odo_var, planar_var, adapted = warm["odo_var"], warm["planar_var"], True
         frozen = list(warm["frozen"])
     t_opt = 0.0
     cov = cov_base = None
@@ -1570,7 +1572,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         scales = tuple(float(x) for x in values.atVector(KEY_SCALE)) if prob.steps is not None else scale0
         knot_sensitivity = knot_spacing_sensitivity(
             camera_track, base_track, camera, opt, td_given, td_search, knot_tds, C, td, scales,
-            dict(B=B, knot_t=prob.knot_t, T_world_base=T_knots, odo_var=odo_var, planar_var=planar_var, frozen=frozen))
+            dict(B=B, knot_t=prob.knot_t, T_world_base=T_knots, odo_var=odo_var, planar_var=planar_var, frozen=frozen,
+                 adapt=opt.adapt_odometry_noise))
     t_knots = time.perf_counter() - t_knots
     if cov_base is not None:
         cov_base = _honest_covariance(cov_base, opt, bool(frozen), cov_plain)
@@ -1595,6 +1598,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             k = np.maximum(knot_sensitivity / np.maximum(sig, 1e-300), 1.0)
             cov_base = cov_base * np.outer(k, k)
             k_all = k_all * k
+            if np.any(k[[2, 3, 4, 6]] > KNOT_WARN_FACTOR):
+                warnings.append(knot_warning(knot_sensitivity))
         if joint is not None and opt.propagate_to_odometry:
             joint = odometry_given_calibration(joint, k_all, opt.td_model_sigma)
         Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
@@ -1836,6 +1841,19 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
     return np.sqrt((g - 1) / g * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
 
 
+#: A warning says so when the knots' spacing moves yaw, x, y or td by more than this many times its other sigmas.
+KNOT_WARN_FACTOR = 2.0
+
+
+def knot_warning(change: np.ndarray) -> str:
+    """The warning for an answer that moves with the knots' spacing (``change`` as knot_spacing_sensitivity's)."""
+    return (f"the answer depends on how the base's path between knots is modelled: with knots twice as dense yaw moves "
+            f"by {np.degrees(change[2]):.2f} deg, the lever arm by {1e3 * change[3]:.0f} / {1e3 * change[4]:.0f} mm "
+            f"(x / y) and td by {1e3 * change[6]:.1f} ms; the sigmas hold this. The wheel odometry's heading likely "
+            "changes at a few hertz in ways the camera does not see (a vibrating or chattering base, stamps that "
+            "jitter); drive more smoothly or on a harder floor to narrow it")
+
+
 #: Convergence tolerance of the denser knots' solve: only the size of its change is wanted. Against 1e-6 it halves
 #: the solve's time (0.43 -> 0.19 s on the 20 s benchmark recording) and moves the change by 1 % (yaw, x) to 5 % (td).
 KNOT_PROBE_RELATIVE_TOL = 1e-4
@@ -1847,8 +1865,9 @@ def knot_spacing_sensitivity(camera_track: CameraTrack, base_track: BaseTrack, c
                              scales: tuple[float, float], warm: dict) -> np.ndarray | None:
     """|change| (7,) of the calibration (base axes, as :func:`noise_model_sensitivity`) when the refinement that
     ended at ``C``, ``td``, ``scales`` (its board, knots, noise factors and frozen directions in ``warm``, see
-    :func:`_refine_from`) is solved again from there with knots ``opt.knot_sensitivity_factor`` times denser and the
-    same noise model; None when that solve fails or does not converge (then nothing is added).
+    :func:`_refine_from`) is solved again from there with knots ``opt.knot_sensitivity_factor`` times denser, its
+    noise model adapted again at that spacing (``warm["adapt"]``) as the refinement adapts it; None when that solve
+    fails or does not converge (then nothing is added).
 
     The knots carry the base trajectory; between them it follows the odometry. Denser knots let it follow the camera
     more closely, and where the odometry and the camera disagree at short time scales (a base vibrating in roll and
