@@ -489,7 +489,8 @@ def test_the_floors_tilt_between_knots_is_not_wheel_slip():
     rec, base, track, seed_T = _floor_slip_case(6)
     old = refine(track, base, rec.camera, seed_T, rec.td,
                  RefinementOptions(scale_odometry_tilt=True, adapt_odometry_tilt=False,
-                                   odometry_noise=OdometryNoise(tilt=None)))
+                                   odometry_noise=OdometryNoise(tilt=None),
+                                   knot_sensitivity_factor=None))  # its answer only is compared
     res = refine(track, base, rec.camera, seed_T, rec.td)
     f = res.inflation["odometry_variance_factors"]
     assert f["heading"] > 10.0 and 2.0 < f["tilt"] < f["heading"]  # slip and an uneven floor, each measured
@@ -676,8 +677,10 @@ def test_a_fast_heading_wiggle_of_the_odometry_is_in_the_sigmas_through_the_knot
     assert np.all(np.abs(z) <= 3.0)
     ks = np.array([res.inflation["knot_spacing_sensitivity"][k] for k in ("roll", "pitch", "yaw", "x", "y", "z", "td")])
     assert ks[3] > 0.1  # decimetres of lever arm
-    assert any("with knots twice as dense" in w for w in res.warnings)
-    assert not any("with knots twice as dense" in w for w in bare.warnings)
+    assert any("with a knot every" in w for w in res.warnings)
+    assert not any("with a knot every" in w for w in bare.warnings)
+    main, dense = res.inflation["knot_spacing_s"]
+    assert dense < 0.75 * main
     np.testing.assert_allclose(np.diag(res.cov_base_axes), np.maximum(np.diag(bare.cov_base_axes), ks**2), rtol=1e-9)
 
 
@@ -689,7 +692,25 @@ def test_the_knot_spacing_second_opinion_is_small_on_a_clean_recording():
     case = sim_case("rich")
     rec = case.rec
     res = refine(case.track, case.base, rec.camera, case.seed_T, case.seed_td)
+    bare = refine(case.track, case.base, rec.camera, case.seed_T, case.seed_td,
+                  RefinementOptions(knot_sensitivity_factor=None))
     ks = res.inflation["knot_spacing_sensitivity"]
-    assert ks is not None and not any("with knots twice as dense" in w for w in res.warnings)
+    assert ks is not None and not any("with a knot every" in w for w in res.warnings)
     assert ks["x"] < 0.01 and ks["y"] < 0.01 and ks["td"] < 0.002 and np.degrees(ks["yaw"]) < 0.1
+    # below every axis's sigma: the reported sigmas are those without it
+    sig = np.sqrt(np.diag(bare.cov_base_axes))
+    assert np.all(np.array([ks[k] for k in ("roll", "pitch", "yaw", "x", "y", "z", "td")]) <= sig)
+    np.testing.assert_allclose(res.cov_base_axes, bare.cov_base_axes, rtol=1e-12)
     assert np.all(np.abs(_calibration_z(res, rec)) <= 3.0)
+
+
+def test_no_knot_spacing_second_opinion_when_the_knots_sit_on_every_odometry_sample():
+    """Knots on every odometry sample cannot be made denser: no second solve, nothing added, and the result says
+    so by leaving the second opinion out."""
+    from refine_cases import sim_case
+
+    case = sim_case("rich")
+    res = refine(case.track, case.base, case.rec.camera, case.seed_T, case.seed_td,
+                 RefinementOptions(knot_rate_hz=1000.0))
+    assert res.converged and res.inflation["knot_spacing_sensitivity"] is None
+    assert res.inflation["knot_spacing_s"] is None

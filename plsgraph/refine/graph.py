@@ -1205,6 +1205,14 @@ def _difference(a: RefinementResult, b: RefinementResult) -> np.ndarray:
     return np.r_[d, a.T_base_cam[:3, 3] - b.T_base_cam[:3, 3], a.td - b.td]
 
 
+def _sigma_before_knots(res: RefinementResult) -> np.ndarray:
+    """The result's per-axis sigma (AXES order) before the knot-spacing second opinion was added."""
+    before = (res.inflation or {}).get("sigma_before_knot_spacing")
+    if before is not None:
+        return np.array([before[a] for a in AXES])
+    return np.sqrt(np.diag(res.cov_base_axes))
+
+
 def _two_starts(first: tuple | None, second: tuple | None, td_search: float, td_given: float,
                 opt: RefinementOptions, failed: list[Exception] | None = None) -> RefinementResult:
     """Of two refinements of one recording, started from the search's time offset (``first``) and from the closed
@@ -1250,9 +1258,11 @@ def _two_starts(first: tuple | None, second: tuple | None, td_search: float, td_
     other = None if other is None else other[0]
     record["chosen"] = "closed_form" if pick_second else "search"
     if chosen.cov_base_axes is not None and other is not None and other.converged:
-        sig = np.sqrt(np.diag(chosen.cov_base_axes))
+        # The sigmas before the knots' second opinion: the losing start's denser solve may fall into the winner's
+        # basin, and that jump is no sensitivity of the model.
+        sig = _sigma_before_knots(chosen)
         if other.cov_base_axes is not None:
-            sig = np.maximum(sig, np.sqrt(np.diag(other.cov_base_axes)))
+            sig = np.maximum(sig, _sigma_before_knots(other))
         z = np.abs(_difference(chosen, other)) / np.maximum(sig, 1e-300)
         z[5] = 0.0  # the height is held or prior-given: not an answer of the motion
         record["z"] = dict(zip(AXES, np.round(z, 2).tolist(), strict=True))
@@ -1370,7 +1380,9 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     for again); with ``adapt`` the noise model is adapted again as in any solve, else that solve's noise factors
     (``odo_var``, ``planar_var``) are kept."""
     td_seed = td_start
-    prob = _prepare(camera_track, base_track, camera, td_seed, opt, scale0, knot_tds)
+    # A warm solve selects its frames and knot span, and anchors its priors, where the solve it continues did.
+    prob = _prepare(camera_track, base_track, camera, td_seed if warm is None else warm["anchor"][1], opt, scale0,
+                    knot_tds)
     warnings = list(prob.warnings) + ([search_note] if search_note else [])
     t_guess = C_seed[:3, 3].copy()
     if opt.camera_height is not None:
@@ -1388,7 +1400,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     values = seed_values
     rows = np.arange(len(prob.frames))
     prior_info = _prior_information(opt)
-    J0 = user_axes_jacobian(C0[:3, :3])
+    C_anc, td_anc, R_anc = (C0, td_seed, C_seed[:3, :3]) if warm is None else warm["anchor"]
+    J0 = user_axes_jacobian(C_anc[:3, :3])
     t_setup = time.perf_counter() - t_start
 
     total_it = 0
@@ -1406,10 +1419,12 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         if not warm.get("adapt", False):
             odo_var, planar_var, adapted = warm["odo_var"], warm["planar_var"], True
         frozen = list(warm["frozen"])
+        rejected = np.isin(prob.frame_t, warm["rejected_t"])  # the frames the continued solve dropped as outliers
+        rows = np.flatnonzero(~rejected)
     t_opt = 0.0
     cov = cov_base = None
     for pas in range(opt.max_passes):
-        graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3], odo_var=odo_var,
+        graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C_anc, td_anc, R_anc, odo_var=odo_var,
                                           planar_var=planar_var)
         if initial_error is None:
             initial_error = float(graph.error(values))
@@ -1424,7 +1439,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         if frozen:
             solve_graph = gtsam.NonlinearFactorGraph(graph)
             W = np.array(frozen) @ J0  # user-axes functionals -> GTSAM tangent at C0
-            solve_graph.add(make_subspace_prior(KEY_CAM, KEY_TD, C0, [td_seed], W, _FREEZE_SIGMA))
+            solve_graph.add(make_subspace_prior(KEY_CAM, KEY_TD, C_anc, [td_anc], W, _FREEZE_SIGMA))
         t0 = time.perf_counter()
         values, it, converged = _optimize(solve_graph, values, opt, progress, batch)
         t_opt += time.perf_counter() - t0
@@ -1493,7 +1508,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     if settled:
         final_graph = graph  # same frames and brackets as the last solve
     else:
-        final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
+        final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C_anc, td_anc, R_anc,
                                                 odo_var=odo_var, planar_var=planar_var)
     final_error = float(final_graph.error(values))
     per, rms, n_pts = _frame_rms(batch, values)
@@ -1566,14 +1581,14 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     sensitivity = None
     if held_solution is not None and (_largest(odo_var) > 1.0 or max(planar_var) > 1.0):
         sensitivity = noise_model_sensitivity(C, td, *held_solution)
-    knot_sensitivity = None
+    knot_sensitivity = knot_spacing = sigma_before_knots = None
     t_knots = time.perf_counter()
     if cov_base is not None and opt.knot_rate_hz and opt.knot_sensitivity_factor and opt.knot_sensitivity_factor > 1:
         scales = tuple(float(x) for x in values.atVector(KEY_SCALE)) if prob.steps is not None else scale0
-        knot_sensitivity = knot_spacing_sensitivity(
+        knot_sensitivity, knot_spacing = knot_spacing_sensitivity(
             camera_track, base_track, camera, opt, td_given, td_search, knot_tds, C, td, scales,
             dict(B=B, knot_t=prob.knot_t, T_world_base=T_knots, odo_var=odo_var, planar_var=planar_var, frozen=frozen,
-                 adapt=opt.adapt_odometry_noise))
+                 adapt=opt.adapt_odometry_noise, anchor=(C_anc, td_anc, R_anc), rejected_t=prob.frame_t[rejected]))
     t_knots = time.perf_counter() - t_knots
     if cov_base is not None:
         cov_base = _honest_covariance(cov_base, opt, bool(frozen), cov_plain)
@@ -1595,11 +1610,12 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         if knot_sensitivity is not None:
             # Second opinion: the change denser knots make (see knot_spacing_sensitivity).
             sig = np.sqrt(np.diag(cov_base))
+            sigma_before_knots = sig
             k = np.maximum(knot_sensitivity / np.maximum(sig, 1e-300), 1.0)
             cov_base = cov_base * np.outer(k, k)
             k_all = k_all * k
             if np.any(k[[2, 3, 4, 6]] > KNOT_WARN_FACTOR):
-                warnings.append(knot_warning(knot_sensitivity))
+                warnings.append(knot_warning(knot_sensitivity, knot_spacing))
         if joint is not None and opt.propagate_to_odometry:
             joint = odometry_given_calibration(joint, k_all, opt.td_model_sigma)
         Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
@@ -1631,7 +1647,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     if joint is not None and prob.steps is not None and opt.speed_scale_model_sigma > 0:
         joint = joint.copy()
         joint[7, 7] += (opt.speed_scale_model_sigma * float(values.atVector(KEY_SCALE)[0])) ** 2
-    t_marg = time.perf_counter() - t1
+    t_marg = time.perf_counter() - t1 - t_jk - t_knots  # the covariances alone
     priors = {
         "regularisation": {"sigma_rot_rad": opt.reg_sigma_rot, "sigma_trans_m": opt.reg_sigma_trans,
                            "sigma_td_s": opt.reg_sigma_td, "at": "seed"},
@@ -1709,7 +1725,10 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                    "frame_jackknife_sigma": None if jackknife is None else dict(zip(
                        ("roll", "pitch", "yaw", "x", "y", "z", "td"), jackknife.tolist(), strict=True)),
                    "knot_spacing_sensitivity": None if knot_sensitivity is None else dict(zip(
-                       ("roll", "pitch", "yaw", "x", "y", "z", "td"), knot_sensitivity.tolist(), strict=True))},
+                       ("roll", "pitch", "yaw", "x", "y", "z", "td"), knot_sensitivity.tolist(), strict=True)),
+                   "knot_spacing_s": knot_spacing,
+                   "sigma_before_knot_spacing": None if sigma_before_knots is None else dict(zip(
+                       ("roll", "pitch", "yaw", "x", "y", "z", "td"), sigma_before_knots.tolist(), strict=True))},
         td_searched=None if td_ref == td_given else float(td_search),
         held_solution=held_solution,
     ), score, values
@@ -1845,10 +1864,12 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
 KNOT_WARN_FACTOR = 2.0
 
 
-def knot_warning(change: np.ndarray) -> str:
-    """The warning for an answer that moves with the knots' spacing (``change`` as knot_spacing_sensitivity's)."""
-    return (f"the answer depends on how the base's path between knots is modelled: with knots twice as dense yaw moves "
-            f"by {np.degrees(change[2]):.2f} deg, the lever arm by {1e3 * change[3]:.0f} / {1e3 * change[4]:.0f} mm "
+def knot_warning(change: np.ndarray, spacing: tuple[float, float]) -> str:
+    """The warning for an answer that moves with the knots' spacing (``change`` and ``spacing`` (s, this solve's and
+    the denser one's) as knot_spacing_sensitivity gives them)."""
+    return (f"the answer depends on how the base's path between knots is modelled: with a knot every "
+            f"{1e3 * spacing[1]:.0f} ms instead of {1e3 * spacing[0]:.0f} ms yaw moves by "
+            f"{np.degrees(change[2]):.2f} deg, the lever arm by {1e3 * change[3]:.0f} / {1e3 * change[4]:.0f} mm "
             f"(x / y) and td by {1e3 * change[6]:.1f} ms; the sigmas hold this. The wheel odometry's heading likely "
             "changes at a few hertz in ways the camera does not see (a vibrating or chattering base, stamps that "
             "jitter); drive more smoothly or on a harder floor to narrow it")
@@ -1862,33 +1883,42 @@ KNOT_PROBE_RELATIVE_TOL = 1e-4
 def knot_spacing_sensitivity(camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel,
                              opt: RefinementOptions, td_given: float, td_search: float,
                              knot_tds: tuple[float, float] | None, C: np.ndarray, td: float,
-                             scales: tuple[float, float], warm: dict) -> np.ndarray | None:
+                             scales: tuple[float, float], warm: dict
+                             ) -> tuple[np.ndarray | None, tuple[float, float] | None]:
     """|change| (7,) of the calibration (base axes, as :func:`noise_model_sensitivity`) when the refinement that
-    ended at ``C``, ``td``, ``scales`` (its board, knots, noise factors and frozen directions in ``warm``, see
-    :func:`_refine_from`) is solved again from there with knots ``opt.knot_sensitivity_factor`` times denser, its
-    noise model adapted again at that spacing (``warm["adapt"]``) as the refinement adapts it; None when that solve
-    fails or does not converge (then nothing is added).
+    ended at ``C``, ``td``, ``scales`` (its board, knots, noise factors, frozen directions, priors' anchors and
+    outlier frames in ``warm``, see :func:`_refine_from`) is solved again from there with knots about
+    ``opt.knot_sensitivity_factor`` times denser, its noise model adapted again at that spacing (``warm["adapt"]``)
+    as the refinement adapts it; and the two knot spacings (s, median). (None, None) when the odometry's samples
+    allow no denser knots, or when that solve fails or does not converge (then nothing is added).
 
     The knots carry the base trajectory; between them it follows the odometry. Denser knots let it follow the camera
     more closely, and where the odometry and the camera disagree at short time scales (a base vibrating in roll and
     pitch, slip, stamps that jitter) the extrinsic and td the data favour move with the spacing, by more than the
-    marginals allow. How far they move is an uncertainty of the model itself."""
+    marginals allow. How far they move is an uncertainty of the model itself. Knots sit on odometry samples, so the
+    denser spacing is a whole number of samples: with 50 Hz wheels 0.04 s against 0.1 s."""
+    dt = float(np.median(np.diff(base_track.t)))
+    step = max(1, int(round(1.0 / (float(opt.knot_rate_hz) * dt))))
     denser = replace(opt, knot_rate_hz=float(opt.knot_rate_hz) * float(opt.knot_sensitivity_factor),
                      knot_sensitivity_factor=None, relative_tol=max(opt.relative_tol, KNOT_PROBE_RELATIVE_TOL))
+    if max(1, int(round(1.0 / (denser.knot_rate_hz * dt)))) >= step:
+        log.info("refine: the knots are as dense as the odometry's samples allow; no knot-spacing second opinion")
+        return None, None
     try:
         alt = _refine_from(camera_track, base_track, camera, denser, None, C, td, td_given, td_search, scales, None,
                            knot_tds, time.perf_counter(), probe=True, warm=warm)[0]
-    except (PlsgraphError, RuntimeError, np.linalg.LinAlgError) as exc:
+    except Exception as exc:  # noqa: BLE001 - a second opinion never costs the answer
         log.info("refine: the solve with denser knots failed (%s); no knot-spacing second opinion", exc)
-        return None
+        return None, None
     if not alt.converged:
         log.info("refine: the solve with denser knots did not converge; no knot-spacing second opinion")
-        return None
+        return None, None
     change = noise_model_sensitivity(alt.T_base_cam, alt.td, C, td)
-    log.info("refine: with %g Hz knots (%d iterations, %.2f s) the calibration moves by %.3f deg, %.1f mm, %.2f ms",
-             denser.knot_rate_hz, alt.iterations, alt.timing["total_s"], np.degrees(np.linalg.norm(change[:3])),
-             1e3 * np.linalg.norm(change[3:6]), 1e3 * change[6])
-    return change
+    spacing = (float(np.median(np.diff(warm["knot_t"]))), float(np.median(np.diff(alt.knot_t))))
+    log.info("refine: with a knot every %.0f ms (%d iterations, %.2f s) the calibration moves by %.3f deg, %.1f mm, "
+             "%.2f ms", 1e3 * spacing[1], alt.iterations, alt.timing["total_s"],
+             np.degrees(np.linalg.norm(change[:3])), 1e3 * np.linalg.norm(change[3:6]), 1e3 * change[6])
+    return change, spacing
 
 
 def noise_model_sensitivity(C: np.ndarray, td: float, C_held: np.ndarray, td_held: float) -> np.ndarray:
