@@ -1899,8 +1899,10 @@ def knot_spacing_sensitivity(camera_track: CameraTrack, base_track: BaseTrack, c
     denser spacing is a whole number of samples: with 50 Hz wheels 0.04 s against 0.1 s."""
     dt = float(np.median(np.diff(base_track.t)))
     step = max(1, int(round(1.0 / (float(opt.knot_rate_hz) * dt))))
+    # Twice the passes: with denser knots a smaller move of td re-brackets the frames, which takes a pass each.
     denser = replace(opt, knot_rate_hz=float(opt.knot_rate_hz) * float(opt.knot_sensitivity_factor),
-                     knot_sensitivity_factor=None, relative_tol=max(opt.relative_tol, KNOT_PROBE_RELATIVE_TOL))
+                     knot_sensitivity_factor=None, relative_tol=max(opt.relative_tol, KNOT_PROBE_RELATIVE_TOL),
+                     max_passes=2 * opt.max_passes)
     if max(1, int(round(1.0 / (denser.knot_rate_hz * dt)))) >= step:
         log.info("refine: the knots are as dense as the odometry's samples allow; no knot-spacing second opinion")
         return None, None
@@ -1910,10 +1912,14 @@ def knot_spacing_sensitivity(camera_track: CameraTrack, base_track: BaseTrack, c
     except Exception as exc:  # noqa: BLE001 - a second opinion never costs the answer
         log.info("refine: the solve with denser knots failed (%s); no knot-spacing second opinion", exc)
         return None, None
-    if not alt.converged:
-        log.info("refine: the solve with denser knots did not converge; no knot-spacing second opinion")
-        return None, None
     change = noise_model_sensitivity(alt.T_base_cam, alt.td, C, td)
+    if not np.all(np.isfinite(change)):
+        log.info("refine: the solve with denser knots ended at a non-finite answer; no knot-spacing second opinion")
+        return None, None
+    if not alt.converged:
+        # Where the denser model does not settle, the answer depends on the knots at least as far as it wandered:
+        # its last answer is used (leaving the second opinion out here would drop it where it matters most).
+        log.info("refine: the solve with denser knots did not converge; its last answer is used")
     spacing = (float(np.median(np.diff(warm["knot_t"]))), float(np.median(np.diff(alt.knot_t))))
     log.info("refine: with a knot every %.0f ms (%d iterations, %.2f s) the calibration moves by %.3f deg, %.1f mm, "
              "%.2f ms", 1e3 * spacing[1], alt.iterations, alt.timing["total_s"],
