@@ -714,3 +714,25 @@ def test_no_knot_spacing_second_opinion_when_the_knots_sit_on_every_odometry_sam
                  RefinementOptions(knot_rate_hz=1000.0))
     assert res.converged and res.inflation["knot_spacing_sensitivity"] is None
     assert res.inflation["knot_spacing_s"] is None
+
+
+def test_an_unconverged_denser_knots_solve_still_gives_its_change(monkeypatch):
+    """Where the denser model does not settle, its last answer is the second opinion (not dropped): a probe that
+    ends 20 ms away without converging widens td's sigma to at least that."""
+    from refine_cases import sim_case
+
+    import plsgraph.refine.graph as graph_module
+
+    plain = graph_module._refine_from
+
+    def unsettled(*args, **kw):
+        out = plain(*args, **kw)
+        if kw.get("probe"):
+            return (dataclasses.replace(out[0], converged=False, td=out[0].td + 0.02),) + tuple(out[1:])
+        return out
+
+    monkeypatch.setattr(graph_module, "_refine_from", unsettled)
+    case = sim_case("rich")
+    res = refine(case.track, case.base, case.rec.camera, case.seed_T, case.seed_td)
+    assert res.inflation["knot_spacing_sensitivity"]["td"] == pytest.approx(0.02, abs=0.005)
+    assert np.sqrt(res.cov_base_axes[6, 6]) >= 0.015
