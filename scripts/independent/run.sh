@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Make (if missing), calibrate and score independent recordings; prints the table of docs/validation.md.
-#   scripts/independent/run.sh                 # the sixteen recordings of docs/validation.md
+#   scripts/independent/run.sh                 # the twenty-two recordings of docs/validation.md
 #   scripts/independent/run.sh 11 h101         # some of them (a tag: the seed, or h + the seed at --harsh 1/2)
 # Files go to $BASE (default out/independent). Run from the repository's root after scripts/setup.sh.
 set -euo pipefail
@@ -11,7 +11,7 @@ base="${BASE:-out/independent}"
 mkdir -p "$base"
 export BASE="$base"
 tags=("$@")
-[ ${#tags[@]} -eq 0 ] && tags=(11 22 33 44 h101 h102 h103 h201 h202 h203 66 h104 h204 67 h105 h205)
+[ ${#tags[@]} -eq 0 ] && tags=(11 22 33 44 h101 h102 h103 h201 h202 h203 66 h104 h204 67 h105 h205 68 h106 h206 69 h107 h207)
 for tag in "${tags[@]}"; do
   rec="$base/rec_$tag.mcap"
   if [ ! -f "$rec" ]; then
