@@ -187,6 +187,29 @@ def test_odometry_smoothing_keeps_uniform_motion_exact_up_to_the_ends():
     assert np.std(smooth_poses(J, 2)[5:-5, :3, 3] - T[5:-5, :3, 3]) < 0.6 * np.std(J[5:-5, :3, 3] - T[5:-5, :3, 3])
 
 
+def test_odometry_smoothing_in_time_keeps_motion_exact_on_uneven_stamps():
+    """Stamps 5-40 ms apart (jitter, dropped messages): a line fitted in time through each window reproduces motion at
+    constant linear and angular velocity exactly, where a plain average of the window shifts each pose along the path
+    by the speed times the window's mean time offset (tenths of a degree of heading at 1 rad/s)."""
+    from plsgraph.core.geometry import so3_exp
+    from plsgraph.refine.graph import smooth_poses
+
+    rng = np.random.default_rng(4)
+    t = np.cumsum(rng.uniform(0.005, 0.04, 60))
+    w, v = np.array([0.05, -0.02, 1.0]), np.array([0.5, 0.1, 0.0])
+    T = np.stack([make_T(so3_exp(w * ti), v * ti) for ti in t])
+    S = smooth_poses(T, 2, t)
+    assert np.allclose(S[:, :3, 3], T[:, :3, 3], atol=1e-12)
+    assert np.max(rotation_error_deg(S[:, :3, :3], T[:, :3, :3])) < 1e-4
+    plain = smooth_poses(T, 2)
+    assert np.max(rotation_error_deg(plain[:, :3, :3], T[:, :3, :3])) > 0.2
+    assert np.max(np.linalg.norm(plain[:, :3, 3] - T[:, :3, 3], axis=1)) > 1e-3
+    # On even stamps the line and the average are the same.
+    te = np.arange(30) * 0.02
+    Te = T[:30] @ make_T(np.eye(3), np.array([0.0, 1e-3, 0.0]))
+    np.testing.assert_allclose(smooth_poses(Te, 2, te), smooth_poses(Te, 2), atol=1e-12)
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_frames_near_the_odometry_ends_do_not_bias_td(seed):
     """Exact odometry (no slip, no quantization) and noise-free detections whose first and last frames lie within

@@ -163,7 +163,7 @@ class RefinementOptions:
     lm_lambda_min: float = 1.0  # initial and smallest Levenberg-Marquardt damping (see _optimize)
     relative_tol: float = 1e-6
     absolute_tol: float = 1e-9
-    max_passes: int = 8
+    max_passes: int = 16
     # The odometry noise model describes good wheels on a hard floor, with independent errors per edge. Skid-steer
     # robots slip far more, and the slip is correlated over tenths of a second (many edges): a model that trusts
     # such odometry bends the camera's yaw and lever arm to fit it (docs/refinement.md, "Correlated wheel slip").
@@ -233,6 +233,14 @@ class RefinementOptions:
     # Moving-average window (s) of the odometry used for the detail between knots. Encoder quantization makes
     # the full-rate odometry jagged; unsmoothed, that texture holds td near its seed (docs/refinement.md).
     odometry_smoothing_s: float = 0.1
+    # The smoothing fits a line in time through each window (True) instead of averaging it: where messages were lost,
+    # an average moves each pose next to the gap along the path by the speed times its window's mean time offset. The
+    # times are the samples' places on the odometry's clock where its stamps only jitter (smoothing_times).
+    smooth_in_time: bool = True
+    # The base's roll and pitch at a few hertz that the wheels do not report (a vibrating chassis, a bumpy floor):
+    # measured once from the frames' residuals at the solution (chassis_tilt_jitter) and, where the camera sees it,
+    # given to the odometry edges' roll and pitch (docs/refinement.md, "A vibrating base").
+    adapt_chassis_vibration: bool = True
     marginals: bool = True
     scale_covariance: bool = True  # inflate the covariance by chi2/dof when the fit is worse than sigma_px says
     # Second opinion on the covariance: the factors are independent in the model, but detection errors of
@@ -417,6 +425,69 @@ def _check_seed(seed_T_base_cam: np.ndarray, seed_td: float) -> tuple[np.ndarray
     if not np.isfinite(td):
         raise InputError(f"seed_td must be finite, got {seed_td}")
     return T, td
+
+
+def _clock_slots(t: np.ndarray, step: float) -> np.ndarray | None:
+    """Each stamp's place on the regular clock the stamps follow (integers from 0; a dropped message leaves a place
+    out), or None where two stamps fall on one place.
+
+    The clock's period is the one near ``step`` at which the stamps' phases agree best (the peak of
+    ``|sum exp(2 pi i t / P)|``, found coarse to fine): dropped messages do not move it and the jitter only blurs it.
+    Each stamp then takes the nearest tick of that clock."""
+    t = np.asarray(t, dtype=float) - float(t[0])
+    span = float(t[-1])
+    if not span > 0:
+        return None
+    centre, width = float(step), 0.02 * float(step)
+    for _ in range(4):
+        P = centre + np.linspace(-width, width, 81)
+        coherence = np.abs(np.exp(2j * np.pi * t[None, :] / P[:, None]).sum(axis=1))
+        centre = float(P[int(np.argmax(coherence))])
+        width /= 20.0
+    phase = np.angle(np.exp(2j * np.pi * t / centre).sum()) / (2 * np.pi) * centre
+    slot = np.round((t - phase) / centre)
+    # Two stamps on one tick: one of them was bunched up against the other (a late stamp holds the next one back, or
+    # comes in just before it); it takes the free tick beside it.
+    for i in np.flatnonzero(np.diff(slot) <= 0):
+        if slot[i + 1] != slot[i]:
+            continue
+        if i == 0 or slot[i - 1] < slot[i] - 1:
+            slot[i] -= 1
+        elif i + 2 >= slot.size or slot[i + 2] > slot[i + 1] + 1:
+            slot[i + 1] += 1
+    slot -= slot[0]
+    return slot if np.all(np.diff(slot) > 0) else None
+
+
+def smoothing_times(t: np.ndarray, quantile: float = 0.95, max_dev: float = 0.45) -> np.ndarray:
+    """The times the odometry's smoothing fits its lines over: where the stamps follow a regular clock within jitter,
+    each sample's place on that clock (a dropped message leaves its place empty), else the stamps themselves.
+
+    Stamps taken on arrival are late by a varying delay while the wheels were sampled on a steady clock: a line
+    fitted over such stamps would carry their jitter into the poses, an average over the samples would treat a
+    dropped message's double step as one. Per stretch between gaps (as regular_stamps), the clock's places are read
+    off the stamps (_clock_slots) and taken when ``quantile`` of the stamps lie within ``max_dev`` of a step of them."""
+    t = np.asarray(t, dtype=float)
+    if t.size < 10:
+        return t
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    if not med > 0:
+        return t
+    cuts = np.r_[0, np.flatnonzero(dt > 2.5 * med) + 1, t.size]
+    out = t.copy()
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        if b - a < 10:
+            continue
+        slot = _clock_slots(t[a:b], med)
+        if slot is None:
+            continue
+        A = np.stack([slot, np.ones_like(slot)], axis=1)
+        c = np.linalg.lstsq(A, t[a:b], rcond=None)[0]
+        fit = A @ c
+        if c[0] > 0 and np.quantile(np.abs(t[a:b] - fit), quantile) < max_dev * c[0]:
+            out[a:b] = fit
+    return out if np.all(np.diff(out) > 0) else t
 
 
 def regular_stamps(t: np.ndarray, gap_factor: float = 2.5, max_dev: float = 0.45) -> tuple[np.ndarray, float]:
@@ -614,7 +685,9 @@ def _rescaled(prob: _Problem, scale: tuple[float, float], opt: RefinementOptions
     dt = float(np.median(np.diff(prob.odo_t)))
     half = int(round(0.5 * opt.odometry_smoothing_s / dt)) if opt.odometry_smoothing_s > 0 else 0
     return dataclasses.replace(prob, T_knots_odo=track.T_world_base[prob.knot_idx],
-                               odo_T=smooth_poses(track.T_world_base, half), scale=(float(scale[0]), float(scale[1])))
+                               odo_T=smooth_poses(track.T_world_base, half,
+                                                  smoothing_times(track.t) if opt.smooth_in_time else None),
+                               scale=(float(scale[0]), float(scale[1])))
 
 
 def _prepare(
@@ -691,7 +764,7 @@ def _prepare(
         T_knots_odo=base_track.T_world_base[knot_idx],
         base_track=base_track,
         odo_t=t_odo,
-        odo_T=smooth_poses(base_track.T_world_base, half),
+        odo_T=smooth_poses(base_track.T_world_base, half, smoothing_times(t_odo) if opt.smooth_in_time else None),
         n_dropped=int((~keep).sum()),
         warnings=tuple(warnings),
         steps=PlanarSteps.from_poses(base_track.T_world_base) if opt.estimate_odometry_scale else None,
@@ -702,9 +775,15 @@ def _prepare(
     return prob
 
 
-def smooth_poses(T: np.ndarray, half: int) -> np.ndarray:
-    """Moving average of poses over 2 * half + 1 samples: positions averaged, rotations averaged in the
-    tangent space of each sample (R_i Exp(mean_j Log(R_i^T R_j))).
+def smooth_poses(T: np.ndarray, half: int, t: np.ndarray | None = None) -> np.ndarray:
+    """Poses smoothed over 2 * half + 1 samples: positions, and rotations in the tangent space of each sample
+    (R_i Exp(c_i) with c_i from Log(R_i^T R_j)).
+
+    Without ``t`` a moving average. With the sample times ``t``, a straight line fitted in time through the
+    window and taken at the sample's own time: where the stamps are uneven (jitter, a dropped message) a plain
+    average stands for the window's mean time, not the sample's, and moves the pose along the path by the speed
+    times that difference (a heading error of the turn rate times a few milliseconds); the line does not. On
+    even stamps both are the same.
 
     The window stays centred: within ``half`` samples of an end it shrinks to the samples available on both
     sides (the end samples are kept as they are). Repeating the end sample instead would weight the past (or
@@ -719,8 +798,17 @@ def smooth_poses(T: np.ndarray, half: int) -> np.ndarray:
     off = np.arange(-half, half + 1)
     reach = np.minimum(half, np.minimum(i, n - 1 - i))  # (n,) half-width of each sample's centred window
     w = (np.abs(off)[None, :] <= reach[:, None]).astype(float)
-    w /= w.sum(axis=1, keepdims=True)  # (n, w)
     idx = np.clip(i[:, None] + off[None, :], 0, n - 1)  # clipped entries have weight 0
+    if t is not None:
+        # weights of the value at t_i of a least-squares line through the window: w_j (S2 - S1 dt_j) / (S0 S2 - S1^2)
+        dt = np.asarray(t, dtype=float)[idx] - np.asarray(t, dtype=float)[:, None]
+        s0, s1, s2 = w.sum(1), (w * dt).sum(1), (w * dt * dt).sum(1)
+        det = s0 * s2 - s1 * s1
+        ok = det > 1e-12 * np.maximum(s0 * s2, 1e-300)
+        lin = w * (s2[:, None] - s1[:, None] * dt) / np.where(ok, det, 1.0)[:, None]
+        w = np.where(ok[:, None], lin, w / s0[:, None])
+    else:
+        w /= w.sum(axis=1, keepdims=True)  # (n, w)
     R = T[:, :3, :3]
     rel = np.einsum("nji,nwjk->nwik", R, R[idx])  # R_i^T R_j
     w_mean = np.einsum("nwk,nw->nk", so3_log(rel.reshape(-1, 3, 3)).reshape(n, -1, 3), w)
@@ -805,6 +893,13 @@ def _add_priors(graph: gtsam.NonlinearFactorGraph, C0: np.ndarray, td0: float, o
         graph.add(make_vertical_board_prior(KEY_BOARD, opt.board_vertical_sigma))
 
 
+# The base's roll and pitch between knots (chassis_tilt_jitter) are taken into the odometry edges when their excess
+# over the pixel noise is this many of its standard errors and at least this large (rad, about 0.03 deg).
+VIBRATION_Z = 5.0
+VIBRATION_MIN_RAD = 5e-4
+VIBRATION_ROUNDS = 3
+VIBRATION_MAX_RAD = np.radians(1.0)
+
 _HEADING_NOISE = ("yaw_per_radian", "yaw_per_metre", "floor_rad")
 
 
@@ -826,6 +921,61 @@ def _scaled_noise(noise: OdometryNoise, var_factor: float | tuple[float, ...], k
         if ft:  # the floor's tilt measured on its own
             tilt = tuple(v * float(np.sqrt(ft[0])) for v in tilt)
     return dataclasses.replace(noise, **scaled, tilt=tilt)
+
+
+def _with_vibration(noise: OdometryNoise, vib_var: float) -> OdometryNoise:
+    """``noise`` with the roll and pitch of each edge widened by the difference of two knots' chassis tilts."""
+    import dataclasses
+
+    tilt = noise.tilt if noise.tilt is not None else (noise.yaw_per_radian, noise.yaw_per_metre, noise.floor_rad)
+    return dataclasses.replace(noise, tilt=(tilt[0], tilt[1], float(np.sqrt(tilt[2] ** 2 + 2.0 * vib_var))))
+
+
+def chassis_tilt_jitter(batch: FrameBatch, values: gtsam.Values, eps: float = 1e-4) -> dict:
+    """How much the camera sees the base roll and pitch between what the knots follow: per frame, the small tilt of
+    the base (about its x and y axes, at its origin) that best explains that frame's residuals, against what the
+    pixel noise alone would give it.
+
+    Returns ``{"var": (roll, pitch) excess variances (rad^2, >= 0), "z": (roll, pitch) their significance,
+    "sigma_px": the pixel noise measured with the tilt taken out}``. Without vibration the per-frame tilts are as
+    scattered as the pixel noise makes them and the excess is zero within its spread."""
+    from factors.reprojection import evaluate_frames
+
+    knots, C, B, td = batch._read_all(values)
+    ki = batch.knot_index
+
+    def residual(kn: np.ndarray) -> np.ndarray:
+        return evaluate_frames(batch.frames, kn[ki[:, 0]], kn[ki[:, 1]], C, B, td, False).residual
+
+    r0 = residual(knots)
+    ok = np.isfinite(r0[..., 0]) & np.isfinite(r0[..., 1])
+    J = np.zeros(r0.shape + (2,))
+    for axis in (0, 1):
+        E = np.eye(4)
+        E[:3, :3] = so3_exp(eps * np.eye(3)[axis])
+        J[..., axis] = (residual(knots @ E) - r0) / eps
+    r = np.where(ok[..., None], r0, 0.0).reshape(len(r0), -1)
+    A = np.where(ok[..., None, None], J, 0.0).reshape(len(r0), -1, 2)
+    AtA = np.einsum("mki,mkj->mij", A, A)
+    n_pts = ok.sum(axis=1)
+    use = (n_pts >= 6) & (np.linalg.det(AtA) > 0)
+    out = {"var": (0.0, 0.0), "z": (0.0, 0.0), "sigma_px": float("nan"), "frames": int(use.sum())}
+    if use.sum() < 20:
+        return out
+    A, r, AtA, n_pts = A[use], r[use], AtA[use], n_pts[use]
+    inv = np.linalg.inv(AtA)
+    delta = -np.einsum("mij,mkj,mk->mi", inv, A, r)  # per-frame tilt (rad) that best explains the residuals
+    left = r + np.einsum("mki,mi->mk", A, delta)
+    dof = float(np.sum(2 * n_pts) - 2 * len(r))
+    s2 = float(np.sum(left**2)) / max(dof, 1.0)  # pixel noise with the tilts taken out
+    expected = s2 * np.stack([inv[:, 0, 0], inv[:, 1, 1]], axis=1)
+    d2 = delta**2
+    excess = d2.mean(axis=0) - expected.mean(axis=0)
+    spread = np.sqrt(np.var(d2 - expected, axis=0) / len(d2))
+    z = excess / np.maximum(spread, 1e-300)
+    out.update(var=tuple(float(v) for v in np.maximum(excess, 0.0)), z=tuple(float(v) for v in z),
+               sigma_px=float(np.sqrt(s2)))
+    return out
 
 
 def _largest(var_factor: float | tuple[float, ...]) -> float:
@@ -856,9 +1006,11 @@ def _pixel_sigma(prob: _Problem, rows: np.ndarray, opt: RefinementOptions) -> fl
 
 def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: RefinementOptions,
                  C_prior: np.ndarray, td_prior: float, R_prior: np.ndarray, rep_var: float = 1.0,
-                 odo_var: float | tuple[float, float] = 1.0, planar_var: tuple[float, float] = (1.0, 1.0)):
+                 odo_var: float | tuple[float, float] = 1.0, planar_var: tuple[float, float] = (1.0, 1.0),
+                 vib_var: float = 0.0):
     """The factor graph; ``rep_var`` / ``odo_var`` multiply the variances of the reprojection / odometry factors
-    (used for the covariance under correlated errors, see correlation_inflation)."""
+    (used for the covariance under correlated errors, see correlation_inflation); ``vib_var`` (rad^2) is the variance
+    of each knot's roll and pitch about the floor's (a vibrating chassis): an edge's roll and pitch get twice it."""
     frames, kidx = _brackets(prob, td_bracket, rows)
     keys = np.array([knot_key(k) for k in range(prob.knot_t.size)], dtype=np.int64)
     batch = FrameBatch(frames, keys, kidx, KEY_CAM, KEY_BOARD, KEY_TD)
@@ -868,6 +1020,8 @@ def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: Refin
         graph.add(f)
     noise = opt.odometry_noise if np.all(np.asarray(odo_var) == 1.0) else \
         _scaled_noise(opt.odometry_noise, odo_var, keep_tilt=not opt.scale_odometry_tilt)
+    if vib_var > 0:
+        noise = _with_vibration(noise, vib_var)
     d, a = path_increments(prob.base_track.t, prob.base_track.T_world_base, prob.knot_idx)
     extra = _bridge_covariance(prob)  # not scaled by the adapted odometry variance: it is not the wheels' noise
     if prob.steps is not None:
@@ -1408,6 +1562,9 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     odo_var = 1.0  # odometry variance factor (adapt_odometry_noise)
     held_solution = None  # (T_base_cam, td) solved under the model's own noise, before the adaptation
     planar_var = (1.0, 1.0)  # planar prior variance factors, height and tilt (adapt_planar_prior)
+    vib_var = 0.0  # variance of the base's roll and pitch the camera sees between knots (adapt_chassis_vibration)
+    vib_rounds = 0
+    vibration: dict | None = None
     adapted = False
     rejected = np.zeros(len(prob.frames), dtype=bool)
     initial_error = rms0 = None
@@ -1418,6 +1575,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     if warm is not None:
         if not warm.get("adapt", False):
             odo_var, planar_var, adapted = warm["odo_var"], warm["planar_var"], True
+            vib_var = warm.get("vib_var", 0.0)
         frozen = list(warm["frozen"])
         rejected = np.isin(prob.frame_t, warm["rejected_t"])  # the frames the continued solve dropped as outliers
         rows = np.flatnonzero(~rejected)
@@ -1425,7 +1583,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     cov = cov_base = None
     for pas in range(opt.max_passes):
         graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C_anc, td_anc, R_anc, odo_var=odo_var,
-                                          planar_var=planar_var)
+                                          planar_var=planar_var, vib_var=vib_var)
         if initial_error is None:
             initial_error = float(graph.error(values))
             rms0 = _frame_rms(batch, values)[1]
@@ -1491,6 +1649,23 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                 log.info("refine: odometry errors %sx the model's variance (magnitude x correlation); solving "
                          "again with the odometry and planar variances scaled", np.round(odo_var, 1))
                 continue
+        if converged and opt.adapt_chassis_vibration and vib_rounds < VIBRATION_ROUNDS and \
+                (adapted or not opt.adapt_odometry_noise):
+            # The base's roll and pitch the knots do not follow, measured at the adapted solution; where it is above
+            # the pixel noise it is added to the edges' roll and pitch and the solve continues, until what is left is
+            # noise (or VIBRATION_ROUNDS rounds).
+            vib_rounds += 1
+            jit = chassis_tilt_jitter(batch, values)
+            if max(jit["z"]) > VIBRATION_Z and np.mean(jit["var"]) > VIBRATION_MIN_RAD**2 \
+                    and vib_var < VIBRATION_MAX_RAD**2:
+                vib_var = min(vib_var + float(np.mean(jit["var"])), VIBRATION_MAX_RAD**2)
+                vibration = dict(jit, total=vib_var, rounds=vib_rounds)
+                log.info("refine: the camera sees the base roll / pitch by %s deg beyond what the knots follow; the "
+                         "odometry edges' roll and pitch widened (%.3f deg per knot)",
+                         np.round(np.degrees(np.sqrt(jit["var"])), 3), np.degrees(np.sqrt(vib_var)))
+                continue
+            if vibration is None:
+                vibration = dict(jit, total=vib_var, rounds=vib_rounds)
         if not (converged and opt.freeze_unobservable and opt.marginals) or warm is not None:
             settled = True
             break
@@ -1504,12 +1679,17 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         log.info("refine: %d direction(s) not observable; holding them at the seed and solving again", len(new))
     if not settled:
         warnings.append("outlier rejection / re-bracketing / freezing did not settle within max_passes")
+    if vib_var > 0:
+        warnings.append(
+            f"the camera sees the base rock in roll and pitch by about {np.degrees(np.sqrt(vib_var)):.2f} deg at a few "
+            "hertz, which the wheels do not report (a vibrating chassis or a bumpy floor); the base's roll and pitch "
+            "between knots were loosened to follow it")
 
     if settled:
         final_graph = graph  # same frames and brackets as the last solve
     else:
         final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C_anc, td_anc, R_anc,
-                                                odo_var=odo_var, planar_var=planar_var)
+                                                odo_var=odo_var, planar_var=planar_var, vib_var=vib_var)
     final_error = float(final_graph.error(values))
     per, rms, n_pts = _frame_rms(batch, values)
     C = values.atPose3(KEY_CAM).matrix()
@@ -1555,7 +1735,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                                          # an adapted odometry variance already holds the correlation
                                          _covariance_odometry_factor(odo_var,
                                                                      inflation["odometry_autocorrelation_time"]),
-                                         planar_var)[0]
+                                         planar_var, vib_var)[0]
                 cov_plain = _calibration_covariance(final_graph, values, C, chi2, opt)[1]
             cov, cov_base, joint = _calibration_covariance(cov_graph, values, C, chi2, opt, with_scale=True)
         except (RuntimeError, np.linalg.LinAlgError) as exc:
@@ -1588,6 +1768,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         knot_sensitivity, knot_spacing = knot_spacing_sensitivity(
             camera_track, base_track, camera, opt, td_given, td_search, knot_tds, C, td, scales,
             dict(B=B, knot_t=prob.knot_t, T_world_base=T_knots, odo_var=odo_var, planar_var=planar_var, frozen=frozen,
+                 vib_var=vib_var,
                  adapt=opt.adapt_odometry_noise, anchor=(C_anc, td_anc, R_anc), rejected_t=prob.frame_t[rejected]))
     t_knots = time.perf_counter() - t_knots
     if cov_base is not None:
@@ -1664,7 +1845,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         regularising priors sit at the caller's seed (``C_seed``, ``td_given``), the same for every start: at each
         start's own seed they would favour the answer that stayed nearer its start."""
         return float(_build_graph(prob, rows, float(v.atVector(KEY_TD)[0]), opt, C_seed, td_given, C_seed[:3, :3],
-                                  odo_var=odo_var, planar_var=planar_var)[0].error(v))
+                                  odo_var=odo_var, planar_var=planar_var, vib_var=vib_var)[0].error(v))
 
     td_ref, compare_rotation = td_search, td_search == td_given
     if td_search != td_given and abs(td - td_given) < abs(td - td_search):
@@ -1720,6 +1901,11 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                    "noise_model_sensitivity": None if sensitivity is None else dict(zip(
                        ("roll", "pitch", "yaw", "x", "y", "z", "td"), sensitivity.tolist(), strict=True)),
                    "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])},
+                   "chassis_vibration_deg": None if vibration is None else {
+                       "per_knot": float(np.degrees(np.sqrt(vib_var))), "rounds": int(vibration["rounds"]),
+                       "last_roll": float(np.degrees(np.sqrt(vibration["var"][0]))),
+                       "last_pitch": float(np.degrees(np.sqrt(vibration["var"][1]))),
+                       "last_z": [float(z) for z in vibration["z"]], "applied": bool(vib_var > 0)},
                    "speed_scale_jackknife_sigma": scale_jk,
                    "turn_scale_jackknife_sigma": turn_jk,
                    "frame_jackknife_sigma": None if jackknife is None else dict(zip(
