@@ -1575,7 +1575,9 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     if warm is not None:
         if not warm.get("adapt", False):
             odo_var, planar_var, adapted = warm["odo_var"], warm["planar_var"], True
-            vib_var = warm.get("vib_var", 0.0)
+        # The rocking is the base's, not the knots': a continued solve keeps the one measured (its rounds cost passes).
+        vib_var = float(warm.get("vib_var", 0.0))
+        vib_rounds = VIBRATION_ROUNDS
         frozen = list(warm["frozen"])
         rejected = np.isin(prob.frame_t, warm["rejected_t"])  # the frames the continued solve dropped as outliers
         rows = np.flatnonzero(~rejected)
