@@ -335,6 +335,9 @@ def test_the_wheel_radius_sigma_holds_the_model_floor_in_quadrature():
     assert a["track_width_sigma_m"] > b["track_width_sigma_m"]
     with pytest.raises(InputError, match="speed_scale_model_sigma"):
         RefinementOptions(speed_scale_model_sigma=-0.01)
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(InputError, match="pixel_variance_floor"):
+            RefinementOptions(pixel_variance_floor=bad)
 
 
 def test_jittered_odometry_stamps_are_put_back_on_their_clock():
@@ -520,6 +523,36 @@ def test_edge_tilt_is_scaled_only_by_its_own_factor():
     # None: the heading's terms, as before the tilt was modelled apart.
     c_old = odometry_covariance(0.05, 0.1, OdometryNoise(tilt=None))
     np.testing.assert_allclose(np.diag(c_old)[:3], c_old[2, 2])
+
+
+@pytest.mark.parametrize("px", [0.15, 0.5])
+def test_detections_less_noisy_than_assumed_get_the_variance_the_fit_measures(px):
+    """The reprojection factors assume sigma_px = 0.5 px. Detections at 0.15 px leave chi2/dof at (0.15/0.5)^2: the
+    covariance takes that variance (the solve does not change), so the sigmas the pixels decide (yaw, x) about halve
+    and the truth stays within them. At 0.5 px the fit agrees with the assumption and nothing changes."""
+    from plsgraph.sim.realism import resolve
+
+    rec = simulate_robot("rich", duration=12.0, seed=3, realism=resolve("ideal"))
+    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius_nominal,
+                                  rec.track_width_nominal)
+    track = camera_track_from_detections(rec.detections(px, seed=13), rec.camera)
+    seed_T = make_T(so3_exp(np.radians([0.5, -0.5, 1.0])) @ rec.T_base_cam[:3, :3], np.zeros(3))
+    res = refine(track, base, rec.camera, seed_T, rec.td)
+    off = refine(track, base, rec.camera, seed_T, rec.td, RefinementOptions(pixel_variance_from_fit=False))
+    np.testing.assert_allclose(res.T_base_cam, off.T_base_cam)
+    assert res.td == off.td
+    assert abs(res.chi2_per_dof / (px / 0.5) ** 2 - 1) < 0.2
+    if px < 0.5:
+        assert res.inflation["pixel_variance_factor"] == pytest.approx(max(res.chi2_per_dof, 0.1))
+        assert res.sigma_rot_deg[2] < 0.6 * off.sigma_rot_deg[2] and res.sigma_trans_m[0] < 0.6 * off.sigma_trans_m[0]
+        assert np.all(res.sigma_rot_deg <= off.sigma_rot_deg * (1 + 1e-9))
+    else:
+        assert "pixel_variance_factor" not in res.inflation
+        np.testing.assert_allclose(res.cov_base_axes, off.cov_base_axes)
+    err = np.degrees(so3_log(res.R_base_cam @ rec.T_base_cam[:3, :3].T))
+    assert np.all(np.abs(err) <= 3 * res.sigma_rot_deg)
+    assert np.all(np.abs(res.T_base_cam[:2, 3] - rec.T_base_cam[:2, 3]) <= 3 * res.sigma_trans_m[:2])
+    assert abs(res.td - rec.td) <= 3 * np.sqrt(res.cov_base_axes[6, 6])
 
 
 def test_what_the_noise_model_adaptation_moved_is_added_to_the_variance():
