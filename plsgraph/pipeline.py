@@ -306,7 +306,8 @@ def run_refinement(run: Run, progress: ProgressFactory) -> Any:
     seed = make_T(cf.R_base_cam, t)
     user = run.options.refine
     with _Timer(run, "refinement"), progress("refining (GTSAM)") as bar:
-        opts = RefinementOptions(camera_height=user.camera_height, board_height=user.board_height)
+        opts = RefinementOptions(camera_height=user.camera_height, board_height=user.board_height,
+                                 workers=run.options.frontend.frontend_workers or min(2, os.cpu_count() or 1))
         scale = cf.odometry_scale or {}
         s0 = (scale.get("speed", 1.0), scale.get("turn_rate", 1.0))  # the closed form's odometry scales: the seed
         res = refine(run.camera_track, run.base_track, run.camera, seed, cf.td, opts, progress=bar,

@@ -1,6 +1,8 @@
 """The causes of a refinement worse than its seed, each on a case built to show it (docs/refinement.md)."""
 
 import dataclasses
+import os
+import time
 from functools import lru_cache
 
 import gtsam
@@ -848,3 +850,62 @@ def test_a_vibrating_base_is_measured_and_given_to_the_knots_roll_and_pitch():
     assert not calm.inflation["chassis_vibration_deg"]["applied"]
     np.testing.assert_allclose(calm.T_base_cam, still.T_base_cam)
     assert calm.td == still.td
+
+
+# ------------------------------------------------------------------------------------------------ second process
+def _fails_in_a_child(parent: int, how: str):
+    if os.getpid() != parent:
+        if how == "raise":
+            raise RuntimeError("failed in the child")
+        os._exit(3)  # dies without a word
+    return "solved here"
+
+
+@pytest.mark.parametrize("how", ["raise", "die"])
+def test_a_second_opinion_whose_process_fails_is_solved_here(how):
+    from plsgraph.refine.graph import _Beside
+
+    assert _Beside(_fails_in_a_child, (os.getpid(), how), True).result() == "solved here"
+
+
+def test_a_second_opinion_beside_comes_from_the_second_process_and_can_be_dropped():
+    from plsgraph.refine.graph import _Beside
+
+    assert _Beside(os.getpid, (), True).result() != os.getpid()
+    assert _Beside(os.getpid, (), False).result() == os.getpid()
+    job = _Beside(time.sleep, (30.0,), True)
+    job.discard()  # a covariance that failed: the child is stopped, not waited for
+    assert not job.proc.is_alive()
+    with pytest.raises(InputError, match="workers"):
+        RefinementOptions(workers=0)
+
+
+def test_the_knots_second_opinion_in_a_second_process_gives_the_same_calibration():
+    """With two workers the solve with denser knots runs in a forked process beside the marginals and the
+    jackknife: the result is the same to the last bit."""
+    rec, base, track, seed_T = _case("skid_steer")
+    one = refine(track, base, rec.camera, seed_T, rec.td + 0.005, seed_odometry_scale=(1.0, 1.0))
+    two = refine(track, base, rec.camera, seed_T, rec.td + 0.005, RefinementOptions(workers=2),
+                 seed_odometry_scale=(1.0, 1.0))
+    assert one.inflation["knot_spacing_sensitivity"] is not None
+    assert one.inflation["knot_spacing_sensitivity"] == two.inflation["knot_spacing_sensitivity"]
+    np.testing.assert_array_equal(one.cov_base_axes, two.cov_base_axes)
+    np.testing.assert_array_equal(one.T_base_cam, two.T_base_cam)
+    assert one.warnings == two.warnings
+
+
+def _second_opinion_in_a_daemon(q):
+    from plsgraph.refine.graph import _Beside
+
+    q.put(_Beside(os.getpid, (), True).result() == os.getpid())
+
+
+def test_a_daemonic_process_that_may_not_fork_solves_the_second_opinion_itself():
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")
+    q = ctx.Queue()
+    p = ctx.Process(target=_second_opinion_in_a_daemon, args=(q,), daemon=True)
+    p.start()
+    assert q.get(timeout=30) is True
+    p.join(10)

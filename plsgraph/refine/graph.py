@@ -164,6 +164,9 @@ class RefinementOptions:
     relative_tol: float = 1e-6
     absolute_tol: float = 1e-9
     max_passes: int = 16
+    # Processes the refinement may use: with 2, the second opinion on the knots' spacing is solved in a forked process
+    # beside the marginals and the jackknife (the same answer; the pipeline passes the front end's worker count).
+    workers: int = 1
     # The odometry noise model describes good wheels on a hard floor, with independent errors per edge. Skid-steer
     # robots slip far more, and the slip is correlated over tenths of a second (many edges): a model that trusts
     # such odometry bends the camera's yaw and lever arm to fit it (docs/refinement.md, "Correlated wheel slip").
@@ -275,6 +278,8 @@ class RefinementOptions:
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise InputError(f"refinement option {name} must be a number >= 0, got {v}")
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
+            raise InputError(f"refinement option workers must be a whole number >= 1, got {self.workers!r}")
         if not (np.isfinite(self.pixel_variance_floor) and 0 < self.pixel_variance_floor <= 1):
             raise InputError("refinement option pixel_variance_floor must be in (0, 1], got "
                              f"{self.pixel_variance_floor}")
@@ -1738,6 +1743,17 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                                 n_frames_dropped=prob.n_dropped, n_points=n_pts, cov=None, cov_base_axes=None,
                                 chi2_per_dof=chi2, observability=None, warnings=tuple(warnings), priors={},
                                 timing={"total_s": time.perf_counter() - t_start}), None, values
+    knots_job = None
+    if converged and opt.marginals and opt.knot_rate_hz and opt.knot_sensitivity_factor \
+            and opt.knot_sensitivity_factor > 1:
+        # Started here so that, with a second process, it is solved beside the marginals and the jackknife.
+        scales = tuple(float(x) for x in values.atVector(KEY_SCALE)) if prob.steps is not None else scale0
+        knots_job = _Beside(knot_spacing_sensitivity, (
+            camera_track, base_track, camera, opt, td_given, td_search, knot_tds, C, td, scales,
+            dict(B=B, knot_t=prob.knot_t, T_world_base=T_knots, odo_var=odo_var, planar_var=planar_var, frozen=frozen,
+                 vib_var=vib_var,
+                 adapt=opt.adapt_odometry_noise, anchor=(C_anc, td_anc, R_anc), rejected_t=prob.frame_t[rejected])),
+            opt.workers > 1)
     if converged and opt.marginals:
         try:
             cov_graph = final_graph
@@ -1781,13 +1797,11 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         sensitivity = noise_model_sensitivity(C, td, *held_solution)
     knot_sensitivity = knot_spacing = sigma_before_knots = None
     t_knots = time.perf_counter()
-    if cov_base is not None and opt.knot_rate_hz and opt.knot_sensitivity_factor and opt.knot_sensitivity_factor > 1:
-        scales = tuple(float(x) for x in values.atVector(KEY_SCALE)) if prob.steps is not None else scale0
-        knot_sensitivity, knot_spacing = knot_spacing_sensitivity(
-            camera_track, base_track, camera, opt, td_given, td_search, knot_tds, C, td, scales,
-            dict(B=B, knot_t=prob.knot_t, T_world_base=T_knots, odo_var=odo_var, planar_var=planar_var, frozen=frozen,
-                 vib_var=vib_var,
-                 adapt=opt.adapt_odometry_noise, anchor=(C_anc, td_anc, R_anc), rejected_t=prob.frame_t[rejected]))
+    if knots_job is not None:
+        if cov_base is not None:
+            knot_sensitivity, knot_spacing = knots_job.result()
+        else:
+            knots_job.discard()
     t_knots = time.perf_counter() - t_knots
     if cov_base is not None:
         cov_base = _honest_covariance(cov_base, opt, bool(frozen), cov_plain)
@@ -2082,6 +2096,62 @@ def knot_warning(change: np.ndarray, spacing: tuple[float, float]) -> str:
 #: Convergence tolerance of the denser knots' solve: only the size of its change is wanted. Against 1e-6 it halves
 #: the solve's time (0.43 -> 0.19 s on the 20 s benchmark recording) and moves the change by 1 % (yaw, x) to 5 % (td).
 KNOT_PROBE_RELATIVE_TOL = 1e-4
+
+
+class _Beside:
+    """``fn(*args)`` solved in a forked process while this one goes on (``beside``), else here when its result is
+    asked for. The result is the same either way; a child that fails or dies is replaced by solving it here."""
+
+    def __init__(self, fn: Callable, args: tuple, beside: bool):
+        self.fn, self.args, self.proc, self.conn = fn, args, None, None
+        if not beside:
+            return
+        import multiprocessing as mp
+
+        try:
+            ctx = mp.get_context("fork")
+            self.conn, send = ctx.Pipe(duplex=False)
+            self.proc = ctx.Process(target=_beside_main, args=(send, fn, args), daemon=True)
+            self.proc.start()
+            send.close()
+        except (OSError, ValueError, RuntimeError, AssertionError) as exc:  # AssertionError: a daemonic process
+            log.info("refine: no second process (%s); the second opinion is solved here", exc)
+            self.proc = None
+
+    def result(self):
+        if self.proc is None:
+            return self.fn(*self.args)
+        try:
+            while not self.conn.poll(0.2):
+                if not self.proc.is_alive() and not self.conn.poll(0):
+                    raise EOFError("the process ended without a result")
+            ok, value = self.conn.recv()
+        except (EOFError, OSError) as exc:
+            ok, value = False, str(exc)
+        finally:
+            self.discard()
+        if ok:
+            return value
+        log.info("refine: the second opinion's process failed (%s); solved here", value)
+        return self.fn(*self.args)
+
+    def discard(self) -> None:
+        if self.proc is not None:
+            if self.proc.is_alive():
+                self.proc.terminate()
+            self.proc.join(5.0)
+            self.conn.close()
+
+
+def _beside_main(conn, fn: Callable, args: tuple) -> None:
+    try:
+        out = (True, fn(*args))
+    except BaseException as exc:  # noqa: BLE001 - reported to the parent, which solves it itself
+        out = (False, f"{type(exc).__name__}: {exc}")
+    try:
+        conn.send(out)
+    finally:
+        conn.close()
 
 
 def knot_spacing_sensitivity(camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel,
