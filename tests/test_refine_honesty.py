@@ -909,3 +909,22 @@ def test_a_daemonic_process_that_may_not_fork_solves_the_second_opinion_itself()
     p.start()
     assert q.get(timeout=30) is True
     p.join(10)
+
+
+def test_a_start_solved_without_the_knots_second_opinion_gets_the_same_result_once_finished():
+    """Of two starts only the reported one needs the solve with denser knots (refine's defer_knots): finished
+    afterwards, its result is the one solved in one go, to the last bit; unfinished, it has no knots' opinion."""
+    from plsgraph.refine.graph import _refine_from
+
+    rec, base, track, seed_T = _case("skid_steer")
+    args = (track, base, rec.camera, RefinementOptions(), None, seed_T, rec.td + 0.005, rec.td + 0.005,
+            rec.td + 0.005, (1.0, 1.0), None, None, time.perf_counter())
+    whole = _refine_from(*args)[0]
+    early, _, _, deferred = _refine_from(*args, defer_knots=True)
+    assert early.inflation["knot_spacing_sensitivity"] is None and whole.inflation["knot_spacing_sensitivity"]
+    late = deferred.result()
+    for name in ("T_base_cam", "cov_base_axes", "cov"):
+        np.testing.assert_array_equal(getattr(late, name), getattr(whole, name))
+    assert late.td == whole.td and late.warnings == whole.warnings and late.odometry == whole.odometry
+    assert late.inflation["knot_spacing_sensitivity"] == whole.inflation["knot_spacing_sensitivity"]
+    assert late.disagreement == whole.disagreement

@@ -1387,7 +1387,8 @@ def _two_starts(first: tuple | None, second: tuple | None, td_search: float, td_
                 opt: RefinementOptions, failed: list[Exception] | None = None) -> RefinementResult:
     """Of two refinements of one recording, started from the search's time offset (``first``) and from the closed
     form's (``second``), each a (result, scorer, values) or None if that start failed: the one the data prefer,
-    with a record of both.
+    with a record of both. A fourth element (a :class:`_Deferred`, see ``defer_knots``) gives the chosen result
+    with its knots' second opinion; the other's is dropped.
 
     Each solve's final model scores both solutions (the solves share their knots, so either's values fit either
     model; each solution's frames are bracketed at its own td; the regularising priors are common). The models
@@ -1406,7 +1407,7 @@ def _two_starts(first: tuple | None, second: tuple | None, td_search: float, td_
     ok = record["converged"]
     pick_second = None
     if ok[0] and ok[1]:
-        (_, ga, va), (_, gb, vb) = first, second
+        (_, ga, va, *_), (_, gb, vb, *_) = first, second
         try:
             e = [[score(v) for v in (va, vb)] for score in (ga, gb)]
             delta = (e[0][1] - e[0][0]) + (e[1][1] - e[1][0])
@@ -1424,7 +1425,10 @@ def _two_starts(first: tuple | None, second: tuple | None, td_search: float, td_
     else:
         pick_second = first is None
     chosen, other = (second, first) if pick_second else (first, second)
-    chosen = chosen[0]
+    # A start solved without the knots' second opinion (defer_knots) gets it now that it is the one reported.
+    chosen = chosen[3].result() if len(chosen) > 3 and chosen[3] is not None else chosen[0]
+    if other is not None and len(other) > 3 and other[3] is not None:
+        other[3].discard()
     other = None if other is None else other[0]
     record["chosen"] = "closed_form" if pick_second else "search"
     if chosen.cov_base_axes is not None and other is not None and other.converged:
@@ -1518,8 +1522,10 @@ def refine(
     for td0, s0, note in starts:
         t0 = time.perf_counter()
         try:
+            # The knots' second opinion is wanted of the reported start only (with two workers the first start's
+            # runs beside the second start's solve).
             solved.append(_refine_from(camera_track, base_track, camera, opt, progress, C_seed, td0, td_given,
-                                       td_seed, s0, note, knot_tds, t0))
+                                       td_seed, s0, note, knot_tds, t0, defer_knots=True))
         except (PlsgraphError, RuntimeError, np.linalg.LinAlgError) as exc:
             # One start failing (too many outliers from a bad offset) must not cost the other's answer.
             log.info("refine: the start from td %.4f s failed (%s)", td0, exc)
@@ -1537,8 +1543,8 @@ def refine(
 def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, opt: RefinementOptions,
                  progress, C_seed: np.ndarray, td_start: float, td_given: float, td_search: float,
                  scale0: tuple[float, float], search_note: str | None, knot_tds: tuple[float, float] | None,
-                 t_start: float, probe: bool = False, warm: dict | None = None
-                 ) -> tuple[RefinementResult, Callable[[gtsam.Values], float], gtsam.Values]:
+                 t_start: float, probe: bool = False, warm: dict | None = None, defer_knots: bool = False
+                 ) -> tuple:
     """One refinement started at ``td_start`` (and odometry scales ``scale0``): the result, a scorer (the final
     graph's error of any values of the same knots, their frames bracketed at their own td) and the final values.
     ``td_given`` is the closed form's offset, ``td_search`` the search's (equal to it when the search kept it);
@@ -1548,7 +1554,9 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     from another solve's answer (``C_seed`` its T_base_cam, ``td_start`` its td, ``scale0`` its scales; the dict's
     ``B``, ``knot_t`` and ``T_world_base`` its board and trajectory) and its frozen directions (``frozen``, not looked
     for again); with ``adapt`` the noise model is adapted again as in any solve, else that solve's noise factors
-    (``odo_var``, ``planar_var``) are kept."""
+    (``odo_var``, ``planar_var``) are kept. ``defer_knots``: the result is returned without the knots' second opinion,
+    with a fourth element that gives the result with it (``None`` where there is none): of two starts only the one
+    reported needs it (see refine)."""
     td_seed = td_start
     # A warm solve selects its frames and knot span, and anchors its priors, where the solve it continues did.
     prob = _prepare(camera_track, base_track, camera, td_seed if warm is None else warm["anchor"][1], opt, scale0,
@@ -1795,161 +1803,169 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     sensitivity = None
     if held_solution is not None and (_largest(odo_var) > 1.0 or max(planar_var) > 1.0):
         sensitivity = noise_model_sensitivity(C, td, *held_solution)
-    knot_sensitivity = knot_spacing = sigma_before_knots = None
-    t_knots = time.perf_counter()
-    if knots_job is not None:
+    def finish(job: _Beside | None, cov_base, cov, joint, report, warnings: list[str]) -> tuple:
+        """The covariance with the second opinions (the knots' from ``job``, if any) and the result."""
+        warnings = list(warnings)
+        knot_sensitivity = knot_spacing = sigma_before_knots = None
+        t_knots = time.perf_counter()
+        if job is not None:
+            if cov_base is not None:
+                knot_sensitivity, knot_spacing = job.result()
+            else:
+                job.discard()
+        t_knots = time.perf_counter() - t_knots
         if cov_base is not None:
-            knot_sensitivity, knot_spacing = knots_job.result()
-        else:
-            knots_job.discard()
-    t_knots = time.perf_counter() - t_knots
-    if cov_base is not None:
-        cov_base = _honest_covariance(cov_base, opt, bool(frozen), cov_plain)
-        k_all = np.ones(7)
-        if sensitivity is not None and opt.add_noise_model_sensitivity:
-            # Second opinion: what the solution moved by when the noise model was adapted is an uncertainty of
-            # the model itself, which the marginals (of either model) do not hold. Per axis, the larger of the two
-            # variances is reported (correlations scaled along).
-            sig = np.sqrt(np.diag(cov_base))
-            k = np.maximum(sensitivity / np.maximum(sig, 1e-300), 1.0)
-            cov_base = cov_base * np.outer(k, k)
-            k_all = k_all * k
-        if jackknife is not None and opt.add_frame_jackknife:
-            # Second opinion: the spread of the leave-one-stretch-out answers (see frame_jackknife).
-            sig = np.sqrt(np.diag(cov_base))
-            k = np.maximum(jackknife / np.maximum(sig, 1e-300), 1.0)
-            cov_base = cov_base * np.outer(k, k)
-            k_all = k_all * k
-        if knot_sensitivity is not None:
-            # Second opinion: the change denser knots make (see knot_spacing_sensitivity).
-            sig = np.sqrt(np.diag(cov_base))
-            sigma_before_knots = sig
-            k = np.maximum(knot_sensitivity / np.maximum(sig, 1e-300), 1.0)
-            cov_base = cov_base * np.outer(k, k)
-            k_all = k_all * k
-            if np.any(k[[2, 3, 4, 6]] > KNOT_WARN_FACTOR):
-                warnings.append(knot_warning(knot_sensitivity, knot_spacing))
-        if joint is not None and opt.propagate_to_odometry:
-            joint = odometry_given_calibration(joint, k_all, opt.td_model_sigma)
-        Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
-        cov = Ji @ cov_base @ Ji.T
-        report = observability_report(cov_base, prior_info, converged=True, regularized=True,
-                                      planar_motion=opt.planar, prior_notes=_prior_notes(opt, frozen))
-    elif opt.marginals:
-        report = not_converged_report("the optimisation did not converge" if not converged else "marginals failed")
-    scale_jk = turn_jk = None
-    if joint is not None and prob.steps is not None and opt.scale_jackknife_segments >= 2:
-        # Second opinion on the arc-length scale (see speed_scale_jackknife): the larger sigma is reported.
-        s_now = values.atVector(KEY_SCALE)
-        scale_jk = speed_scale_jackknife(T_knots, prob.steps, prob.knot_idx, float(s_now[1]),
-                                         opt.scale_jackknife_segments)
-        sig_v = float(np.sqrt(max(float(joint[7, 7]), 0.0)))
-        if scale_jk is not None and np.isfinite(sig_v) and scale_jk > sig_v:
-            ks = np.ones(joint.shape[0])
-            ks[7] = scale_jk / sig_v if sig_v > 0 else 1.0
-            joint = joint * np.outer(ks, ks)
-        if opt.turn_scale_jackknife:
-            # The same second opinion on the turn scale (the effective track width, with the radius).
-            turn_jk = turn_scale_jackknife(T_knots, prob.steps, prob.knot_idx, opt.scale_jackknife_segments)
-            sig_w = float(np.sqrt(max(float(joint[8, 8]), 0.0)))
-            if turn_jk is not None and np.isfinite(sig_w) and turn_jk > sig_w:
+            cov_base = _honest_covariance(cov_base, opt, bool(frozen), cov_plain)
+            k_all = np.ones(7)
+            if sensitivity is not None and opt.add_noise_model_sensitivity:
+                # Second opinion: what the solution moved by when the noise model was adapted is an uncertainty of
+                # the model itself, which the marginals (of either model) do not hold. Per axis, the larger of the two
+                # variances is reported (correlations scaled along).
+                sig = np.sqrt(np.diag(cov_base))
+                k = np.maximum(sensitivity / np.maximum(sig, 1e-300), 1.0)
+                cov_base = cov_base * np.outer(k, k)
+                k_all = k_all * k
+            if jackknife is not None and opt.add_frame_jackknife:
+                # Second opinion: the spread of the leave-one-stretch-out answers (see frame_jackknife).
+                sig = np.sqrt(np.diag(cov_base))
+                k = np.maximum(jackknife / np.maximum(sig, 1e-300), 1.0)
+                cov_base = cov_base * np.outer(k, k)
+                k_all = k_all * k
+            if knot_sensitivity is not None:
+                # Second opinion: the change denser knots make (see knot_spacing_sensitivity).
+                sig = np.sqrt(np.diag(cov_base))
+                sigma_before_knots = sig
+                k = np.maximum(knot_sensitivity / np.maximum(sig, 1e-300), 1.0)
+                cov_base = cov_base * np.outer(k, k)
+                k_all = k_all * k
+                if np.any(k[[2, 3, 4, 6]] > KNOT_WARN_FACTOR):
+                    warnings.append(knot_warning(knot_sensitivity, knot_spacing))
+            if joint is not None and opt.propagate_to_odometry:
+                joint = odometry_given_calibration(joint, k_all, opt.td_model_sigma)
+            Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
+            cov = Ji @ cov_base @ Ji.T
+            report = observability_report(cov_base, prior_info, converged=True, regularized=True,
+                                          planar_motion=opt.planar, prior_notes=_prior_notes(opt, frozen))
+        elif opt.marginals:
+            report = not_converged_report("the optimisation did not converge" if not converged else "marginals failed")
+        scale_jk = turn_jk = None
+        if joint is not None and prob.steps is not None and opt.scale_jackknife_segments >= 2:
+            # Second opinion on the arc-length scale (see speed_scale_jackknife): the larger sigma is reported.
+            s_now = values.atVector(KEY_SCALE)
+            scale_jk = speed_scale_jackknife(T_knots, prob.steps, prob.knot_idx, float(s_now[1]),
+                                             opt.scale_jackknife_segments)
+            sig_v = float(np.sqrt(max(float(joint[7, 7]), 0.0)))
+            if scale_jk is not None and np.isfinite(sig_v) and scale_jk > sig_v:
                 ks = np.ones(joint.shape[0])
-                ks[8] = turn_jk / sig_w if sig_w > 0 else 1.0
+                ks[7] = scale_jk / sig_v if sig_v > 0 else 1.0
                 joint = joint * np.outer(ks, ks)
-    joint_data = joint  # what the data determined: the intrinsics' observability status is judged on it
-    if joint is not None and prob.steps is not None and opt.speed_scale_model_sigma > 0:
-        joint = joint.copy()
-        joint[7, 7] += (opt.speed_scale_model_sigma * float(values.atVector(KEY_SCALE)[0])) ** 2
-    t_marg = time.perf_counter() - t1 - t_jk - t_knots  # the covariances alone
-    priors = {
-        "regularisation": {"sigma_rot_rad": opt.reg_sigma_rot, "sigma_trans_m": opt.reg_sigma_trans,
-                           "sigma_td_s": opt.reg_sigma_td, "at": "seed"},
-        "rotation_prior_sigma": opt.rotation_prior_sigma,
-        "camera_height": opt.camera_height,
-        "board_height": opt.board_height,
-        "board_vertical": opt.board_vertical,
-        "planar": opt.planar,
-        "frozen_directions": [dict(zip(AXES, np.round(f / np.linalg.norm(f), 4).tolist(), strict=True))
-                              for f in frozen],
-    }
-    def score(v: gtsam.Values) -> float:
-        """This solve's final model (frames, noise) on the values ``v``, bracketed at their own td. The weak
-        regularising priors sit at the caller's seed (``C_seed``, ``td_given``), the same for every start: at each
-        start's own seed they would favour the answer that stayed nearer its start."""
-        return float(_build_graph(prob, rows, float(v.atVector(KEY_TD)[0]), opt, C_seed, td_given, C_seed[:3, :3],
-                                  odo_var=odo_var, planar_var=planar_var, vib_var=vib_var)[0].error(v))
+            if opt.turn_scale_jackknife:
+                # The same second opinion on the turn scale (the effective track width, with the radius).
+                turn_jk = turn_scale_jackknife(T_knots, prob.steps, prob.knot_idx, opt.scale_jackknife_segments)
+                sig_w = float(np.sqrt(max(float(joint[8, 8]), 0.0)))
+                if turn_jk is not None and np.isfinite(sig_w) and turn_jk > sig_w:
+                    ks = np.ones(joint.shape[0])
+                    ks[8] = turn_jk / sig_w if sig_w > 0 else 1.0
+                    joint = joint * np.outer(ks, ks)
+        joint_data = joint  # what the data determined: the intrinsics' observability status is judged on it
+        if joint is not None and prob.steps is not None and opt.speed_scale_model_sigma > 0:
+            joint = joint.copy()
+            joint[7, 7] += (opt.speed_scale_model_sigma * float(values.atVector(KEY_SCALE)[0])) ** 2
+        t_marg = time.perf_counter() - t1 - t_jk - t_knots  # the covariances alone
+        priors = {
+            "regularisation": {"sigma_rot_rad": opt.reg_sigma_rot, "sigma_trans_m": opt.reg_sigma_trans,
+                               "sigma_td_s": opt.reg_sigma_td, "at": "seed"},
+            "rotation_prior_sigma": opt.rotation_prior_sigma,
+            "camera_height": opt.camera_height,
+            "board_height": opt.board_height,
+            "board_vertical": opt.board_vertical,
+            "planar": opt.planar,
+            "frozen_directions": [dict(zip(AXES, np.round(f / np.linalg.norm(f), 4).tolist(), strict=True))
+                                  for f in frozen],
+        }
+        def score(v: gtsam.Values) -> float:
+            """This solve's final model (frames, noise) on the values ``v``, bracketed at their own td. The weak
+            regularising priors sit at the caller's seed (``C_seed``, ``td_given``), the same for every start: at each
+            start's own seed they would favour the answer that stayed nearer its start."""
+            return float(_build_graph(prob, rows, float(v.atVector(KEY_TD)[0]), opt, C_seed, td_given, C_seed[:3, :3],
+                                      odo_var=odo_var, planar_var=planar_var, vib_var=vib_var)[0].error(v))
 
-    td_ref, compare_rotation = td_search, td_search == td_given
-    if td_search != td_given and abs(td - td_given) < abs(td - td_search):
-        # The refinement, started at the search's offset, ended nearer the closed form's. Within what their sigmas
-        # allow of it, the search's peak was the wrong one and the closed form (its rotation too) is the reference
-        # the result is checked against again; farther, it agrees with neither, and the nearer one (the closed
-        # form's) is the reference for td only: a rotation solved at a td that far off is none.
-        td_ref = td_given
-        sig_td = float(np.sqrt(cov_base[6, 6])) if cov_base is not None else 0.0
-        back = abs(td - td_given) <= 3.0 * float(np.hypot(sig_td, opt.seed_sigma_td))
-        compare_rotation = back
-        warnings = [w for w in warnings if w != search_note]
-        where = ("nearer the closed form's: the search's peak was the wrong one" if back else
-                 f"{1e3 * abs(td - td_given):.0f} ms from the closed form's and farther from the search's: it agrees "
-                 "with neither")
-        warnings.append(f"the turn-angle search put the time offset at {1e3 * td_search:+.1f} ms, "
-                        f"{1e3 * abs(td_search - td_given):.0f} ms from the closed form's {1e3 * td_given:+.1f} ms; "
-                        f"the refinement ended at {1e3 * td:+.1f} ms, {where}")
-    return RefinementResult(
-        T_base_cam=C,
-        td=td,
-        T_world_board=B,
-        knot_t=prob.knot_t.copy(),
-        T_world_base=T_knots,
-        converged=bool(converged),
-        iterations=total_it,
-        initial_error=float(initial_error),
-        final_error=final_error,
-        rms_px_initial=float(rms0),
-        rms_px_final=rms,
-        n_frames=int(rows.size),
-        n_frames_rejected=int(rejected.sum()),
-        n_frames_dropped=prob.n_dropped,
-        n_points=n_pts,
-        cov=cov,
-        cov_base_axes=cov_base,
-        chi2_per_dof=chi2,
-        observability=report,
-        warnings=tuple(warnings),
-        priors=priors,
-        timing={"setup_s": t_setup, "optimize_s": t_opt, "marginals_s": t_marg, "jackknife_s": t_jk,
-                "knot_sensitivity_s": t_knots, "total_s": time.perf_counter() - t_start},
-        seed_T_base_cam=C_seed,
-        seed_td=td_given,
-        odometry=odometry_report(values, joint, base_track.info, opt, scale0, joint_data)
-        if prob.steps is not None else None,
-        disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_ref, opt,
-                                                                          rotation=compare_rotation),
-        inflation={**inflation, "odometry_variance_factor": _slip(odo_var),
-                   **({"odometry_variance_factors": dict(zip(("heading", "distance", "tilt")[:len(odo_var)], odo_var,
-                                                             strict=True))}
-                      if isinstance(odo_var, tuple) else {}),
-                   "noise_model_sensitivity": None if sensitivity is None else dict(zip(
-                       ("roll", "pitch", "yaw", "x", "y", "z", "td"), sensitivity.tolist(), strict=True)),
-                   "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])},
-                   "chassis_vibration_deg": None if vibration is None else {
-                       "per_knot": float(np.degrees(np.sqrt(vib_var))), "rounds": int(vibration["rounds"]),
-                       "last_roll": float(np.degrees(np.sqrt(vibration["var"][0]))),
-                       "last_pitch": float(np.degrees(np.sqrt(vibration["var"][1]))),
-                       "last_z": [float(z) for z in vibration["z"]], "applied": bool(vib_var > 0)},
-                   "speed_scale_jackknife_sigma": scale_jk,
-                   "turn_scale_jackknife_sigma": turn_jk,
-                   "frame_jackknife_sigma": None if jackknife is None else dict(zip(
-                       ("roll", "pitch", "yaw", "x", "y", "z", "td"), jackknife.tolist(), strict=True)),
-                   "knot_spacing_sensitivity": None if knot_sensitivity is None else dict(zip(
-                       ("roll", "pitch", "yaw", "x", "y", "z", "td"), knot_sensitivity.tolist(), strict=True)),
-                   "knot_spacing_s": knot_spacing,
-                   "sigma_before_knot_spacing": None if sigma_before_knots is None else dict(zip(
-                       ("roll", "pitch", "yaw", "x", "y", "z", "td"), sigma_before_knots.tolist(), strict=True))},
-        td_searched=None if td_ref == td_given else float(td_search),
-        held_solution=held_solution,
-    ), score, values
+        td_ref, compare_rotation = td_search, td_search == td_given
+        if td_search != td_given and abs(td - td_given) < abs(td - td_search):
+            # The refinement, started at the search's offset, ended nearer the closed form's. Within what their sigmas
+            # allow of it, the search's peak was the wrong one and the closed form (its rotation too) is the reference
+            # the result is checked against again; farther, it agrees with neither, and the nearer one (the closed
+            # form's) is the reference for td only: a rotation solved at a td that far off is none.
+            td_ref = td_given
+            sig_td = float(np.sqrt(cov_base[6, 6])) if cov_base is not None else 0.0
+            back = abs(td - td_given) <= 3.0 * float(np.hypot(sig_td, opt.seed_sigma_td))
+            compare_rotation = back
+            warnings = [w for w in warnings if w != search_note]
+            where = ("nearer the closed form's: the search's peak was the wrong one" if back else
+                     f"{1e3 * abs(td - td_given):.0f} ms from the closed form's and farther from the search's: it "
+                     "agrees with neither")
+            warnings.append(f"the turn-angle search put the time offset at {1e3 * td_search:+.1f} ms, "
+                            f"{1e3 * abs(td_search - td_given):.0f} ms from the closed form's "
+                            f"{1e3 * td_given:+.1f} ms; the refinement ended at {1e3 * td:+.1f} ms, {where}")
+        return RefinementResult(
+            T_base_cam=C,
+            td=td,
+            T_world_board=B,
+            knot_t=prob.knot_t.copy(),
+            T_world_base=T_knots,
+            converged=bool(converged),
+            iterations=total_it,
+            initial_error=float(initial_error),
+            final_error=final_error,
+            rms_px_initial=float(rms0),
+            rms_px_final=rms,
+            n_frames=int(rows.size),
+            n_frames_rejected=int(rejected.sum()),
+            n_frames_dropped=prob.n_dropped,
+            n_points=n_pts,
+            cov=cov,
+            cov_base_axes=cov_base,
+            chi2_per_dof=chi2,
+            observability=report,
+            warnings=tuple(warnings),
+            priors=priors,
+            timing={"setup_s": t_setup, "optimize_s": t_opt, "marginals_s": t_marg, "jackknife_s": t_jk,
+                    "knot_sensitivity_s": t_knots, "total_s": time.perf_counter() - t_start},
+            seed_T_base_cam=C_seed,
+            seed_td=td_given,
+            odometry=odometry_report(values, joint, base_track.info, opt, scale0, joint_data)
+            if prob.steps is not None else None,
+            disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_ref, opt,
+                                                                              rotation=compare_rotation),
+            inflation={**inflation, "odometry_variance_factor": _slip(odo_var),
+                       **({"odometry_variance_factors": dict(zip(("heading", "distance", "tilt")[:len(odo_var)],
+                                                                 odo_var, strict=True))}
+                          if isinstance(odo_var, tuple) else {}),
+                       "noise_model_sensitivity": None if sensitivity is None else dict(zip(
+                           ("roll", "pitch", "yaw", "x", "y", "z", "td"), sensitivity.tolist(), strict=True)),
+                       "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])},
+                       "chassis_vibration_deg": None if vibration is None else {
+                           "per_knot": float(np.degrees(np.sqrt(vib_var))), "rounds": int(vibration["rounds"]),
+                           "last_roll": float(np.degrees(np.sqrt(vibration["var"][0]))),
+                           "last_pitch": float(np.degrees(np.sqrt(vibration["var"][1]))),
+                           "last_z": [float(z) for z in vibration["z"]], "applied": bool(vib_var > 0)},
+                       "speed_scale_jackknife_sigma": scale_jk,
+                       "turn_scale_jackknife_sigma": turn_jk,
+                       "frame_jackknife_sigma": None if jackknife is None else dict(zip(
+                           ("roll", "pitch", "yaw", "x", "y", "z", "td"), jackknife.tolist(), strict=True)),
+                       "knot_spacing_sensitivity": None if knot_sensitivity is None else dict(zip(
+                           ("roll", "pitch", "yaw", "x", "y", "z", "td"), knot_sensitivity.tolist(), strict=True)),
+                       "knot_spacing_s": knot_spacing,
+                       "sigma_before_knot_spacing": None if sigma_before_knots is None else dict(zip(
+                           ("roll", "pitch", "yaw", "x", "y", "z", "td"), sigma_before_knots.tolist(), strict=True))},
+            td_searched=None if td_ref == td_given else float(td_search),
+            held_solution=held_solution,
+        ), score, values
+
+    if defer_knots:
+        args = (cov_base, cov, joint, report, warnings)
+        return (*finish(None, *args), None if knots_job is None else _Deferred(finish, knots_job, args))
+    return finish(knots_job, cov_base, cov, joint, report, warnings)
 
 
 def autocorrelation_time(x: np.ndarray, max_lag: int = 60) -> float:
@@ -2141,6 +2157,19 @@ class _Beside:
                 self.proc.terminate()
             self.proc.join(5.0)
             self.conn.close()
+
+
+class _Deferred:
+    """A refinement's result with its knots' second opinion, to be finished if it is the one reported."""
+
+    def __init__(self, finish: Callable, job: _Beside, args: tuple):
+        self.finish, self.job, self.args = finish, job, args
+
+    def result(self) -> RefinementResult:
+        return self.finish(self.job, *self.args)[0]
+
+    def discard(self) -> None:
+        self.job.discard()
 
 
 def _beside_main(conn, fn: Callable, args: tuple) -> None:
