@@ -639,6 +639,24 @@ def test_two_starts_keep_the_answer_both_graphs_prefer():
     assert kept.two_starts["chosen"] == "search" and kept.two_starts["failed"] == ["boom"]
     assert "the one from the closed form's failed" in kept.warnings[-1]
 
+    # Starts solved without their knots' second opinion (refine's defer_knots): the chosen one is finished, the
+    # other's is dropped (its child stopped, its answer never asked for).
+    class Deferred:
+        def __init__(self, res):
+            self.res, self.calls = res, []
+
+        def result(self):
+            self.calls.append("result")
+            return replace(self.res, warnings=("finished",))
+
+        def discard(self):
+            self.calls.append("discard")
+
+    dn, df = Deferred(near[0]), Deferred(far[0])
+    kept = graph._two_starts((*far, df), (*near, dn), -0.05, 0.0, opt)
+    assert kept.two_starts["chosen"] == "closed_form" and kept.warnings[0] == "finished"
+    assert dn.calls == ["result"] and df.calls == ["discard"]
+
 
 def test_a_start_that_fails_does_not_cost_the_other_answer(skid_sim, monkeypatch):
     import plsgraph.refine.graph as graph

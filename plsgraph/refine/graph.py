@@ -1426,9 +1426,9 @@ def _two_starts(first: tuple | None, second: tuple | None, td_search: float, td_
         pick_second = first is None
     chosen, other = (second, first) if pick_second else (first, second)
     # A start solved without the knots' second opinion (defer_knots) gets it now that it is the one reported.
-    chosen = chosen[3].result() if len(chosen) > 3 and chosen[3] is not None else chosen[0]
     if other is not None and len(other) > 3 and other[3] is not None:
         other[3].discard()
+    chosen = chosen[3].result() if len(chosen) > 3 and chosen[3] is not None else chosen[0]
     other = None if other is None else other[0]
     record["chosen"] = "closed_form" if pick_second else "search"
     if chosen.cov_base_axes is not None and other is not None and other.converged:
@@ -1519,21 +1519,27 @@ def refine(
     starts = ((td_seed, scale0, search_note), (td_given, scale0_given, None))
     solved: list = []
     failed: list[Exception] = []
-    for td0, s0, note in starts:
-        t0 = time.perf_counter()
-        try:
-            # The knots' second opinion is wanted of the reported start only (with two workers the first start's
-            # runs beside the second start's solve).
-            solved.append(_refine_from(camera_track, base_track, camera, opt, progress, C_seed, td0, td_given,
-                                       td_seed, s0, note, knot_tds, t0, defer_knots=True))
-        except (PlsgraphError, RuntimeError, np.linalg.LinAlgError) as exc:
-            # One start failing (too many outliers from a bad offset) must not cost the other's answer.
-            log.info("refine: the start from td %.4f s failed (%s)", td0, exc)
-            solved.append(None)
-            failed.append(exc)
-    if solved[0] is None and solved[1] is None:
-        raise failed[0]
-    res = _two_starts(solved[0], solved[1], td_seed, td_given, opt, failed)
+    try:
+        for td0, s0, note in starts:
+            t0 = time.perf_counter()
+            try:
+                # The knots' second opinion is wanted of the reported start only (with two workers the first start's
+                # runs beside the second start's solve).
+                solved.append(_refine_from(camera_track, base_track, camera, opt, progress, C_seed, td0, td_given,
+                                           td_seed, s0, note, knot_tds, t0, defer_knots=True))
+            except (PlsgraphError, RuntimeError, np.linalg.LinAlgError) as exc:
+                # One start failing (too many outliers from a bad offset) must not cost the other's answer.
+                log.info("refine: the start from td %.4f s failed (%s)", td0, exc)
+                solved.append(None)
+                failed.append(exc)
+        if solved[0] is None and solved[1] is None:
+            raise failed[0]
+        res = _two_starts(solved[0], solved[1], td_seed, td_given, opt, failed)
+    except BaseException:
+        for x in solved:  # a start's second opinion started beside and not asked for: stopped
+            if x is not None and len(x) > 3 and x[3] is not None:
+                x[3].discard()
+        raise
     res = replace(res, timing=dict(res.timing, total_s=time.perf_counter() - t_start))
     for w in res.warnings:
         log.warning(w)
@@ -1761,50 +1767,59 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             dict(B=B, knot_t=prob.knot_t, T_world_base=T_knots, odo_var=odo_var, planar_var=planar_var, frozen=frozen,
                  vib_var=vib_var,
                  adapt=opt.adapt_odometry_noise, anchor=(C_anc, td_anc, R_anc), rejected_t=prob.frame_t[rejected])),
-            opt.workers > 1)
-    if converged and opt.marginals:
-        try:
-            cov_graph = final_graph
-            if opt.inflate_correlated:
-                inflation = correlation_inflation(final_graph, batch, values, opt, _pixel_sigma(prob, rows, opt))
-                rep_factor = inflation["reprojection_autocorrelation_time"]
-                if opt.pixel_variance_from_fit and chi2 < 1.0:
-                    # The detections are less noisy than sigma_px says: the covariance takes their measured variance.
-                    inflation["pixel_variance_factor"] = max(chi2, opt.pixel_variance_floor)
-                    rep_factor *= inflation["pixel_variance_factor"]
-                cov_graph = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
-                                         rep_factor,
-                                         # an adapted odometry variance already holds the correlation
-                                         _covariance_odometry_factor(odo_var,
-                                                                     inflation["odometry_autocorrelation_time"]),
-                                         planar_var, vib_var)[0]
-                cov_plain = _calibration_covariance(final_graph, values, C, chi2, opt)[1]
-            cov, cov_base, joint = _calibration_covariance(cov_graph, values, C, chi2, opt, with_scale=True)
-        except (RuntimeError, np.linalg.LinAlgError) as exc:
-            warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
-    jackknife = None
-    t_jk = time.perf_counter()
-    if converged and opt.marginals and opt.frame_jackknife_segments >= 2:
-        jk_graph = final_graph
-        if frozen:
-            jk_graph = gtsam.NonlinearFactorGraph(final_graph)
-            jk_graph.add(make_subspace_prior(KEY_CAM, KEY_TD, C0, [td_seed], np.array(frozen) @ J0, _FREEZE_SIGMA))
-        try:
-            # The graph's first factors are the frames' reprojection factors, one per frame with points.
-            n_rep = sum(1 for i in range(len(batch.frames)) if batch.n_valid(i) > 0)
-            jackknife = frame_jackknife(jk_graph, values, n_rep, opt.frame_jackknife_segments)
-        except (RuntimeError, np.linalg.LinAlgError) as exc:
-            log.info("refine: frame jackknife failed (%s)", exc)
-            if opt.add_frame_jackknife:
-                warnings.append(f"the jackknife over stretches of frames could not be solved ({exc}); the sigmas hold "
-                                "only the marginal covariance and the noise model's sensitivity, not errors shared "
-                                "by stretches of frames")
-    t_jk = time.perf_counter() - t_jk
-    sensitivity = None
-    if held_solution is not None and (_largest(odo_var) > 1.0 or max(planar_var) > 1.0):
-        sensitivity = noise_model_sensitivity(C, td, *held_solution)
+            opt.workers > 1, deadline_s=max(300.0, 20.0 * t_opt))
+    try:  # until the end: a job started beside is not left running when something below raises
+        if converged and opt.marginals:
+            try:
+                cov_graph = final_graph
+                if opt.inflate_correlated:
+                    inflation = correlation_inflation(final_graph, batch, values, opt, _pixel_sigma(prob, rows, opt))
+                    rep_factor = inflation["reprojection_autocorrelation_time"]
+                    if opt.pixel_variance_from_fit and chi2 < 1.0:
+                        # The detections are less noisy than sigma_px says: the covariance takes their measured
+                        # variance.
+                        inflation["pixel_variance_factor"] = max(chi2, opt.pixel_variance_floor)
+                        rep_factor *= inflation["pixel_variance_factor"]
+                    cov_graph = _build_graph(prob, rows, td_bracket, opt, C0, td_seed, C_seed[:3, :3],
+                                             rep_factor,
+                                             # an adapted odometry variance already holds the correlation
+                                             _covariance_odometry_factor(odo_var,
+                                                                         inflation["odometry_autocorrelation_time"]),
+                                             planar_var, vib_var)[0]
+                    cov_plain = _calibration_covariance(final_graph, values, C, chi2, opt)[1]
+                cov, cov_base, joint = _calibration_covariance(cov_graph, values, C, chi2, opt, with_scale=True)
+            except (RuntimeError, np.linalg.LinAlgError) as exc:
+                warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
+        jackknife = None
+        t_jk = time.perf_counter()
+        if converged and opt.marginals and opt.frame_jackknife_segments >= 2:
+            jk_graph = final_graph
+            if frozen:
+                jk_graph = gtsam.NonlinearFactorGraph(final_graph)
+                jk_graph.add(make_subspace_prior(KEY_CAM, KEY_TD, C0, [td_seed], np.array(frozen) @ J0, _FREEZE_SIGMA))
+            try:
+                # The graph's first factors are the frames' reprojection factors, one per frame with points.
+                n_rep = sum(1 for i in range(len(batch.frames)) if batch.n_valid(i) > 0)
+                jackknife = frame_jackknife(jk_graph, values, n_rep, opt.frame_jackknife_segments)
+            except (RuntimeError, np.linalg.LinAlgError) as exc:
+                log.info("refine: frame jackknife failed (%s)", exc)
+                if opt.add_frame_jackknife:
+                    warnings.append(f"the jackknife over stretches of frames could not be solved ({exc}); the "
+                                    "sigmas hold only the marginal covariance and the noise model's sensitivity, not "
+                                    "errors shared by stretches of frames")
+        t_jk = time.perf_counter() - t_jk
+        sensitivity = None
+        if held_solution is not None and (_largest(odo_var) > 1.0 or max(planar_var) > 1.0):
+            sensitivity = noise_model_sensitivity(C, td, *held_solution)
+    except BaseException:
+        if knots_job is not None:
+            knots_job.discard()  # nobody will ask for its answer
+        raise
+    t_ready = time.perf_counter()
+
     def finish(job: _Beside | None, cov_base, cov, joint, report, warnings: list[str]) -> tuple:
         """The covariance with the second opinions (the knots' from ``job``, if any) and the result."""
+        t_in = time.perf_counter()
         warnings = list(warnings)
         knot_sensitivity = knot_spacing = sigma_before_knots = None
         t_knots = time.perf_counter()
@@ -1871,7 +1886,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         if joint is not None and prob.steps is not None and opt.speed_scale_model_sigma > 0:
             joint = joint.copy()
             joint[7, 7] += (opt.speed_scale_model_sigma * float(values.atVector(KEY_SCALE)[0])) ** 2
-        t_marg = time.perf_counter() - t1 - t_jk - t_knots  # the covariances alone
+        # The covariances alone (a deferred finish: not the time between the two calls).
+        t_marg = (t_ready - t1 - t_jk) + (time.perf_counter() - t_in - t_knots)
         priors = {
             "regularisation": {"sigma_rot_rad": opt.reg_sigma_rot, "sigma_trans_m": opt.reg_sigma_trans,
                                "sigma_td_s": opt.reg_sigma_td, "at": "seed"},
@@ -1964,7 +1980,13 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
 
     if defer_knots:
         args = (cov_base, cov, joint, report, warnings)
-        return (*finish(None, *args), None if knots_job is None else _Deferred(finish, knots_job, args))
+        try:
+            first = finish(None, *args)
+        except BaseException:
+            if knots_job is not None:
+                knots_job.discard()
+            raise
+        return (*first, None if knots_job is None else _Deferred(finish, knots_job, args))
     return finish(knots_job, cov_base, cov, joint, report, warnings)
 
 
@@ -2116,37 +2138,49 @@ KNOT_PROBE_RELATIVE_TOL = 1e-4
 
 class _Beside:
     """``fn(*args)`` solved in a forked process while this one goes on (``beside``), else here when its result is
-    asked for. The result is the same either way; a child that fails or dies is replaced by solving it here."""
+    asked for. The result is the same either way; a child that fails, dies or gives no answer within ``deadline_s``
+    (a fork can leave a lock held by another thread locked in the child) is replaced by solving it here.
+    ``solved_here`` says whether the result came from this process."""
 
-    def __init__(self, fn: Callable, args: tuple, beside: bool):
+    def __init__(self, fn: Callable, args: tuple, beside: bool, deadline_s: float = 300.0):
         self.fn, self.args, self.proc, self.conn = fn, args, None, None
+        self.deadline_s, self.solved_here = float(deadline_s), True
         if not beside:
             return
         import multiprocessing as mp
 
+        send = None
         try:
             ctx = mp.get_context("fork")
             self.conn, send = ctx.Pipe(duplex=False)
             self.proc = ctx.Process(target=_beside_main, args=(send, fn, args), daemon=True)
             self.proc.start()
-            send.close()
         except (OSError, ValueError, RuntimeError, AssertionError) as exc:  # AssertionError: a daemonic process
             log.info("refine: no second process (%s); the second opinion is solved here", exc)
             self.proc = None
+            if self.conn is not None:
+                self.conn.close()
+        finally:
+            if send is not None:
+                send.close()
 
     def result(self):
         if self.proc is None:
             return self.fn(*self.args)
+        end = time.monotonic() + self.deadline_s
         try:
             while not self.conn.poll(0.2):
                 if not self.proc.is_alive() and not self.conn.poll(0):
                     raise EOFError("the process ended without a result")
+                if time.monotonic() > end:
+                    raise TimeoutError(f"no result within {self.deadline_s:.0f} s")
             ok, value = self.conn.recv()
-        except (EOFError, OSError) as exc:
-            ok, value = False, str(exc)
+        except Exception as exc:  # noqa: BLE001 - any trouble with the child: solved here
+            ok, value = False, f"{type(exc).__name__}: {exc}"
         finally:
             self.discard()
         if ok:
+            self.solved_here = False
             return value
         log.info("refine: the second opinion's process failed (%s); solved here", value)
         return self.fn(*self.args)
@@ -2157,6 +2191,7 @@ class _Beside:
                 self.proc.terminate()
             self.proc.join(5.0)
             self.conn.close()
+            self.proc = None
 
 
 class _Deferred:
@@ -2179,6 +2214,8 @@ def _beside_main(conn, fn: Callable, args: tuple) -> None:
         out = (False, f"{type(exc).__name__}: {exc}")
     try:
         conn.send(out)
+    except OSError:  # the parent stopped listening (it discarded the job): nothing to say
+        pass
     finally:
         conn.close()
 
