@@ -467,6 +467,82 @@ def test_uneven_floor_loosens_the_planar_prior():
     assert txy < 0.01 and abs(err[2]) < 0.25 * abs(err_held[2])
 
 
+def _linear_series_graph(c: np.ndarray, y: np.ndarray):
+    """One unknown m seen through y_k = c_k m + e_k (unit sigma, independent in the model), solved: the graph, its
+    solution and the factors' indices in order."""
+    key = gtsam.symbol("m", 0)
+    graph = gtsam.NonlinearFactorGraph()
+    unit = gtsam.noiseModel.Unit.Create(1)
+
+    def factor(ck, yk):
+        def error(this, v, H):
+            if H is not None:
+                H[0] = np.array([[ck]])
+            return np.array([ck * v.atVector(key)[0] - yk])
+        return gtsam.CustomFactor(unit, [key], error)
+
+    for ck, yk in zip(c, y, strict=True):
+        graph.add(factor(float(ck), float(yk)))
+    values = gtsam.Values()
+    values.insert(key, np.array([float(np.dot(c, y) / np.dot(c, c))]))
+    return graph, values, key
+
+
+@pytest.mark.parametrize("period", [None, 8])
+def test_influence_variance_counts_correlation_only_as_far_as_the_estimate_follows_it(period):
+    """An estimate from N samples whose errors are correlated over ~19 samples (AR(1), a = 0.9): a mean (constant
+    gain, as a level floor's tilt in roll and pitch) has about 19x the variance the independent model counts; a gain
+    that turns over 8 samples (as the heading turns the floor's tilt about the camera) about a third of it. The
+    residuals' own autocorrelation time says 19x in both; influence_variance, from one recording's residuals, finds
+    each within a factor 2 of the exact variance."""
+    from plsgraph.refine.graph import autocorrelation_time, influence_variance
+
+    n, a = 400, 0.9
+    k = np.arange(n)
+    c = np.ones(n) if period is None else np.sqrt(2.0) * np.cos(2.0 * np.pi * k / period)
+    cov_e = a ** np.abs(k[:, None] - k[None, :])  # unit variance
+    exact = float(c @ cov_e @ c) / float(c @ c) ** 2
+    counted_model = 1.0 / float(c @ c)
+    rng = np.random.default_rng(7)
+    ratios, tau_res = [], []
+    for _ in range(8):
+        e = np.linalg.cholesky(cov_e) @ rng.standard_normal(n)
+        graph, values, key = _linear_series_graph(c, c * 1.5 + e)
+        (measured, counted), = influence_variance(graph, values, [(list(range(n)), [0])], keys=(key,))
+        assert counted[0] == pytest.approx(counted_model, rel=1e-9)
+        ratios.append(measured[0] / counted[0])
+        r = c * values.atVector(key)[0] - (c * 1.5 + e)
+        tau_res.append(np.mean(r**2) * autocorrelation_time(r))
+    truth = exact / counted_model
+    assert truth > 10.0 if period is None else truth < 0.5  # the two regimes
+    assert 0.5 * truth < np.median(ratios) < 2.0 * truth, (np.median(ratios), truth)
+    assert np.median(tau_res) > 10.0  # the residuals alone say "correlated" either way
+
+
+def test_the_floors_tilt_through_its_influence_changes_roll_and_pitch_sigmas_only():
+    """tilt_variance_from_influence (off by default): the floor's tilt counted in the covariance through each knot's
+    gain on roll and pitch, as an AR(1) process in time, instead of as a mean over the knots. The answer and the
+    other axes' sigmas stay; the edges' tilt is found to push roll and pitch far less than the graph counts, and
+    roll's and pitch's sigmas shrink. On this 0.6 deg floor that is too far: pitch's error (0.91 deg, the floor's
+    tilt under the turns) goes from inside 3 sigma to beyond it, which is why the option is off (a floor is
+    correlated in space, and the path turns over the same patches again)."""
+    rec, base, track, seed_T = _floor_case(0.6)
+    kw = dict(knot_sensitivity_factor=None)  # the marginals and the jackknife are compared
+    res = refine(track, base, rec.camera, seed_T, rec.td, RefinementOptions(tilt_variance_from_influence=True, **kw))
+    old = refine(track, base, rec.camera, seed_T, rec.td, RefinementOptions(**kw))
+    np.testing.assert_array_equal(res.T_base_cam, old.T_base_cam)
+    ratio = res.inflation["tilt_influence_ratio"]
+    assert set(ratio) == {"planar", "edges"} and "tilt_influence_ratio" not in old.inflation
+    assert ratio["edges"] < 0.5
+    assert res.sigma_rot_deg[1] < 0.95 * old.sigma_rot_deg[1], (res.sigma_rot_deg, old.sigma_rot_deg)
+    np.testing.assert_allclose(res.sigma_rot_deg[2], old.sigma_rot_deg[2], rtol=1e-6)
+    np.testing.assert_allclose(res.sigma_trans_m[:2], old.sigma_trans_m[:2], rtol=1e-6)
+    np.testing.assert_allclose(res.sigma_td, old.sigma_td, rtol=1e-6)
+    err = so3_log(res.R_base_cam @ rec.T_base_cam[:3, :3].T)
+    assert abs(err[1]) <= 3 * np.radians(old.sigma_rot_deg[1])  # inside (2.8 sigma)
+    assert abs(err[1]) > 3 * np.radians(res.sigma_rot_deg[1])  # the finding that keeps it off
+
+
 def test_flat_floor_keeps_roll_and_pitch_tight():
     """On a flat floor the edges' tilt keeps its model (its measured factor near 1, where the 0.6 deg floor gives more
     than 5) and roll and pitch keep sigmas below a quarter degree. (The planar prior's own factor may grow: with the
