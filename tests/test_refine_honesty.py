@@ -459,6 +459,7 @@ def test_uneven_floor_loosens_the_planar_prior():
     held = refine(track, base, rec.camera, seed_T, rec.td, RefinementOptions(adapt_planar_prior=False))
     assert res.inflation["planar_variance_factors"]["tilt"] > 5.0
     assert res.inflation["odometry_variance_factors"]["tilt"] > 5.0  # the floor's shape between knots, measured
+    assert res.inflation["floor_tilt_rms_deg"] > 0.25  # the base rocks with the floor's 0.6 deg slope
     err = so3_log(res.R_base_cam @ rec.T_base_cam[:3, :3].T)
     err_held = so3_log(held.R_base_cam @ rec.T_base_cam[:3, :3].T)
     assert abs(err_held[1]) > 5 * np.radians(held.sigma_rot_deg[1])  # the cause shows
@@ -550,6 +551,7 @@ def test_flat_floor_keeps_roll_and_pitch_tight():
     rec, base, track, seed_T = _floor_case(0.0)
     res = refine(track, base, rec.camera, seed_T, rec.td)
     assert res.inflation["odometry_variance_factors"]["tilt"] < 3.0
+    assert res.inflation["floor_tilt_rms_deg"] < 0.08  # level knots, to what the camera resolves
     assert np.all(res.sigma_rot_deg[:2] < 0.25)
 
 

@@ -2003,6 +2003,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                        "noise_model_sensitivity": None if sensitivity is None else dict(zip(
                            ("roll", "pitch", "yaw", "x", "y", "z", "td"), sensitivity.tolist(), strict=True)),
                        "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])},
+                       "floor_tilt_rms_deg": floor_tilt_rms_deg(values, prob.knot_t.size),
                        "chassis_vibration_deg": None if vibration is None else {
                            "per_knot": float(np.degrees(np.sqrt(vib_var))), "rounds": int(vibration["rounds"]),
                            "last_roll": float(np.degrees(np.sqrt(vibration["var"][0]))),
@@ -2437,6 +2438,18 @@ def tilt_influence_correction(graph, values: gtsam.Values, keys: tuple[int, ...]
 def _is_planar(f) -> bool:
     """A planar factor (height, roll, pitch of one knot)."""
     return isinstance(f, gtsam.CustomFactor) and f.dim() == 3 and len(f.keys()) == 1
+
+
+def floor_tilt_rms_deg(values: gtsam.Values, n_knots: int) -> float | None:
+    """How far the base tilts from the floor's plane along the drive: the RMS over the knots of their roll and pitch
+    (deg) at the solution, about their mean. Near 0.03 deg on a flat floor (what the camera resolves); an undulating
+    floor shows its slope (0.2-0.6 deg on the built 0.3-0.6 deg floors)."""
+    T = [values.atPose3(knot_key(k)).matrix() for k in range(n_knots) if values.exists(knot_key(k))]
+    if len(T) < 3:
+        return None
+    T = np.array(T)
+    t = np.stack([T[:, 2, 1], -T[:, 2, 0]], axis=1)
+    return float(np.degrees(np.sqrt(np.mean(np.sum((t - t.mean(axis=0)) ** 2, axis=1)))))
 
 
 def planar_noise_factors(graph, values: gtsam.Values) -> np.ndarray:
