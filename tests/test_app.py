@@ -76,7 +76,10 @@ def test_report_files_are_complete_and_parse(sim_run, tmp_path):
     page = (out / "report.html").read_text()
     for png in ("trajectories.png", "residuals.png", "time_offset.png", "observability.png", "methods.png"):
         assert (out / png).stat().st_size > 1000 and png in page
-    assert "refined" in calibration_text(report)
+    text = calibration_text(report)
+    assert "refined" in text
+    tilt = rep["refinement"]["inflation"]["floor_tilt_rms_deg"]
+    assert tilt < 0.1 and f"the base tilted {tilt:.2f} deg RMS" in text  # a level simulated floor
 
 
 FIGURE_FILES = ("trajectories.png", "residuals.png", "time_offset.png", "observability.png", "methods.png")

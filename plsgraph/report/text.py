@@ -63,6 +63,10 @@ def calibration_text(report: dict) -> str:
             f"refinement     converged={ref['converged']} iterations={ref['iterations']} "
             f"reprojection RMS {ref['rms_px_initial']:.3f} -> {ref['rms_px_final']:.3f} px"
         )
+        tilt = (ref.get("inflation") or {}).get("floor_tilt_rms_deg")
+        if tilt is not None:
+            lines.append(f"floor          the base tilted {tilt:.2f} deg RMS along the drive (about 0.03 on a level "
+                         "floor); roll and pitch are measured against the floor's mean plane")
     if c["observability"]:
         lines.append("observability:")
         for o in c["observability"]:
