@@ -60,6 +60,14 @@ def _peak_rss_mib() -> float:
 def _worker(log: Path, truth: Path, out: Path) -> None:
     """One calibration in this (fresh) process; prints one JSON line with the figures."""
     t_start = time.perf_counter()
+    from plsgraph.cli import main as cli
+
+    if hasattr(cli, "single_threaded_blas"):  # as the command sets up its process (older trees do not)
+        cli.single_threaded_blas()
+    from plsgraph.report import figure_worker
+
+    if hasattr(figure_worker, "look_ahead"):
+        figure_worker.look_ahead()
     from plsgraph.api import calibrate_to_dir
     from plsgraph.options import CalibrationOptions
 

@@ -197,6 +197,10 @@ def test_the_worker_is_used_only_when_a_processor_is_free(monkeypatch):
     for load, free in ((0.3, True), (0.9, True), (1.2, False), (3.0, False)):
         monkeypatch.setattr(figure_worker.os, "getloadavg", lambda load=load: (load, load, load))
         assert figure_worker.processor_free() is free
+    # The processor time of this process (its numerical libraries' threads, which spin on after a call) is the
+    # calibration's, not another's: it counts as idle.
+    monkeypatch.setattr(figure_worker, "idle_processors", lambda cpus, own=False, **kw: 2.0 if own else 1.6)
+    assert figure_worker.processor_free() is True
     monkeypatch.setattr(figure_worker.os, "sched_getaffinity", lambda pid: {0})
     monkeypatch.setattr(figure_worker.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
     assert not figure_worker.processor_free()  # one processor: the calibration has it
@@ -244,7 +248,8 @@ def test_a_look_ahead_is_taken_by_the_next_question_and_counts_this_process_as_i
     import threading
     import time
 
-    monkeypatch.setattr(figure_worker, "_processor_free", lambda own: own)  # True: the look ahead's answer
+    answers = iter([True, False, False])  # the look ahead's, then each look of processor_free's own
+    monkeypatch.setattr(figure_worker, "_processor_free", lambda: next(answers))
     figure_worker.look_ahead()
     assert figure_worker.processor_free() is True
     assert figure_worker.processor_free() is False  # taken once; then a look of its own

@@ -84,7 +84,8 @@ def _env() -> dict[str, str]:
     return env
 
 
-# How long processor_free watches the processors (the calling process sleeps meanwhile, so what is busy is others').
+# How long processor_free watches the processors (what this process does meanwhile counts as idle: what is busy is
+# others').
 # 100 ms: the kernel counts in jiffies of 10 ms, so two processors give 20 of them and one stray jiffy moves the
 # reading by 0.1 processor (at 50 ms it moved it by 0.2, the whole margin of the 1.8 threshold).
 IDLE_SAMPLE_S = 0.1
@@ -152,7 +153,7 @@ def look_ahead() -> None:
     look: dict = {"started": time.monotonic()}
 
     def run() -> None:
-        look["result"] = _processor_free(own=True)
+        look["result"] = _processor_free()
 
     look["thread"] = threading.Thread(target=run, name="plsgraph-processor-look", daemon=True)
     _LOOK.clear()
@@ -166,10 +167,10 @@ def processor_free() -> bool:
     That pays when a processor would otherwise idle beside the calibration, and costs time when every processor is
     already busy. One processor runs the calibration, and most of another must be left unused by everything else.
 
-    Judged from what the processors this process may use do now (:func:`idle_processors`, a 100 ms look while this
-    process sleeps, or the look :func:`look_ahead` started), not from the load average, which still counts a minute
-    of work that has ended (a simulation just before, the previous recording of a batch); the load average where
-    /proc/stat cannot be read."""
+    Judged from what the processors this process may use do now (:func:`idle_processors`, a 100 ms look in which
+    this process's own processor time counts as idle, or the look :func:`look_ahead` started), not from the load
+    average, which still counts a minute of work that has ended (a simulation just before, the previous recording of
+    a batch); the load average where /proc/stat cannot be read."""
     import time
 
     look = _LOOK.pop("look", None)
@@ -177,10 +178,10 @@ def processor_free() -> bool:
         look["thread"].join(2.0)
         if "result" in look:
             return look["result"]
-    return _processor_free(own=False)
+    return _processor_free()
 
 
-def _processor_free(own: bool) -> bool:
+def _processor_free() -> bool:
     try:
         cpus = set(os.sched_getaffinity(0))
     except (AttributeError, OSError):
@@ -188,7 +189,10 @@ def _processor_free(own: bool) -> bool:
     n = len(cpus)
     if n < 2:
         return False
-    idle = idle_processors(cpus, own=own)
+    # This process's own processor time counts as idle: it is the calibration's, and numerical libraries' threads
+    # keep spinning for a while after a call (OpenBLAS's did, 40 ms of every 100 right after the imports), which
+    # read as a busy processor and sent the figures into the calibrating process.
+    idle = idle_processors(cpus, own=True)
     if idle is not None:
         return idle >= 1.8
     try:
