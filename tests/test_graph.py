@@ -277,3 +277,32 @@ def test_the_comparison_scores_every_solution_under_the_refined_odometry_and_no_
         T[2, 3] = rec.T_base_cam[2, 3]
     want = solution_rms_px(case.track, scaled_base_track(case.base, s_v, s_w), rec.camera, T, res.td)
     assert rows["refined"]["rms_px"] == pytest.approx(want)
+
+
+def test_levenberg_marquardt_ends_where_a_failed_step_was_expected_to_gain_less_than_the_tolerance(monkeypatch):
+    """A failed step whose gain the linear model puts below the tolerance ends the solve at once; one it expects to
+    gain more is retried with more damping, as before."""
+    from plsgraph.refine import graph as graph_mod
+
+    x = gtsam.symbol("x", 0)
+
+    def residual(this, v, H=None):  # x - 1, with a bump just above the minimum that the linear model does not see
+        xv = float(v.atVector(x)[0])
+        if H is not None:
+            H[0] = np.ones((1, 1))
+        return np.array([xv - 1.0 + (0.01 if xv < 1.0007 else 0.0)])
+
+    g = gtsam.NonlinearFactorGraph()
+    g.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(1), [x], residual))
+    start = gtsam.Values()
+    start.insert(x, np.array([1.001]))
+    solves = []
+    real = graph_mod._damped_solve
+    monkeypatch.setattr(graph_mod, "_damped_solve", lambda *a: solves.append(a[-1]) or real(*a))
+    # The first step (damping 1) lands on the bump; the model expected 3.75e-7 from it.
+    values, it, converged = graph_mod._levenberg_marquardt(g, start, RefinementOptions(absolute_tol=1e-6))
+    assert converged and solves == [1.0] and values.atVector(x)[0] == 1.001
+    solves.clear()
+    values, it, converged = graph_mod._levenberg_marquardt(g, start, RefinementOptions(absolute_tol=1e-12,
+                                                                                      relative_tol=1e-12))
+    assert solves[:2] == [1.0, 10.0] and 1.0007 <= values.atVector(x)[0] < 1.001
