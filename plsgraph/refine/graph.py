@@ -1701,6 +1701,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                 prob = _rescaled(prob, (float(s_now[0]), float(s_now[1])), opt)
                 rescaled = True
         if bad.any() or moved or rescaled:
+            log.debug("refine: solving again (%s)", ", ".join(w for w, c in (("outliers", bad.any()), (
+                "td moved by a quarter knot", moved), ("odometry scale rebuilt", rescaled)) if c))
             continue
         if converged and opt.adapt_odometry_noise and not adapted:
             # Once: the factor is measured at the solution under the model's own noise (measured again under the
