@@ -520,8 +520,11 @@ def regular_stamps(t: np.ndarray, gap_factor: float = 2.5, max_dev: float = 0.45
 
     Per stretch between gaps (steps longer than ``gap_factor`` median steps) the stamps are fitted by a straight
     line over the sample index (a regular clock, its rate free); the stretch keeps its stamps unless every
-    deviation from the line is below ``max_dev`` of a step (jitter, not irregular sampling). The result stays
-    strictly increasing. Returns the original stamps when nothing qualifies.
+    deviation from the line is below ``max_dev`` of a step (jitter, not irregular sampling). Where the index does not
+    fit, the line is fitted over the samples' places on the clock (:func:`_clock_slots`): a message that was dropped,
+    or merged into the next (wheel messages stamped in bursts), leaves its place empty, and counted by the index it
+    put every later stamp a step off the line, so that a whole stretch kept its jitter. The result stays strictly
+    increasing. Returns the original stamps when nothing qualifies.
     """
     t = np.asarray(t, dtype=float)
     if t.size < 10:
@@ -539,6 +542,14 @@ def regular_stamps(t: np.ndarray, gap_factor: float = 2.5, max_dev: float = 0.45
         c = np.linalg.lstsq(A, t[a:b], rcond=None)[0]
         fit = A @ c
         r = t[a:b] - fit
+        if not (np.max(np.abs(r)) < max_dev * c[0] and c[0] > 0):
+            slot = _clock_slots(t[a:b], med)
+            if slot is None or slot[-1] == b - a - 1:  # no place left empty: the index was the clock's places
+                continue
+            A = np.stack([slot, np.ones_like(slot)], axis=1)
+            c = np.linalg.lstsq(A, t[a:b], rcond=None)[0]
+            fit = A @ c
+            r = t[a:b] - fit
         if np.max(np.abs(r)) < max_dev * c[0] and c[0] > 0:
             out[a:b] = fit
             dev.append(r)
