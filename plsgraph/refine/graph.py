@@ -466,7 +466,8 @@ def _clock_slots(t: np.ndarray, step: float) -> np.ndarray | None:
     centre, width = float(step), 0.02 * float(step)
     for _ in range(4):
         P = centre + np.linspace(-width, width, 81)
-        coherence = np.abs(np.exp(2j * np.pi * t[None, :] / P[:, None]).sum(axis=1))
+        coherence = np.abs(sum(np.exp(2j * np.pi * t[None, i:i + 8192] / P[:, None]).sum(axis=1)
+                               for i in range(0, t.size, 8192)))  # in chunks: 81 x 8192 at a time, not 81 x n
         centre = float(P[int(np.argmax(coherence))])
         width /= 20.0
     phase = np.angle(np.exp(2j * np.pi * t / centre).sum()) / (2 * np.pi) * centre
