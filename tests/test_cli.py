@@ -53,6 +53,19 @@ def test_the_command_ends_at_once_with_all_its_output(tmp_path):
     assert r.returncode == 0 and "calibrate" in r.stdout
 
 
+def test_the_command_gives_blas_one_thread_unless_the_user_chose(monkeypatch):
+    """numpy's BLAS gets one thread in the command's processes (its threads spin on after each call and the processors
+    are already busy); a user's own OPENBLAS_NUM_THREADS is kept."""
+    from plsgraph.cli.main import single_threaded_blas
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    single_threaded_blas()
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "4")
+    single_threaded_blas()
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "4"
+
+
 def test_missing_recording_is_a_user_error(tmp_path, capsys):
     code = main(["calibrate", str(tmp_path / "nope.mcap"), "--board", "acircles_4x11", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
