@@ -58,7 +58,8 @@ def test_the_command_gives_blas_one_thread_unless_the_user_chose(monkeypatch):
     are already busy); a user's own OPENBLAS_NUM_THREADS is kept."""
     from plsgraph.cli.main import single_threaded_blas
 
-    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "")  # records the variable as it was: undone after the test
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS")
     single_threaded_blas()
     assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "4")
