@@ -214,7 +214,7 @@ def calibrate_to_dir(
                 advice = (DAMAGED_ADVICE if getattr(exc, "damaged", False) else
                           FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else DIAGNOSIS_ADVICE)
                 return write_diagnosis_only(stage, recording, str(exc), advice, getattr(exc, "coverage", None),
-                                            getattr(exc, "warnings", None))
+                                            getattr(exc, "warnings", None), earlier=out)
             written = write_calibration(stage, result, figures)
         text = calibration_text(result.report) + "\n\nwritten: " + ", ".join(str(out / p.name) for p in written)
         return {"ok": result.ok, "text": text, "report": result.report, "result": result}
@@ -230,7 +230,8 @@ def failure_to_dir(recording: str | Path, out_dir: str | Path, error: str) -> No
     must not pass for this recording's)."""
     from .report.output import write_diagnosis_only, write_result_folder
 
-    write_result_folder(Path(out_dir), lambda stage: write_diagnosis_only(stage, recording, error, advice=""))
+    write_result_folder(Path(out_dir), lambda stage: write_diagnosis_only(stage, recording, error, advice="",
+                                                                          earlier=Path(out_dir)))
 
 
 MAX_SIM_DURATION_S = 3600.0  # an hour of simulated events already takes hours and tens of GB

@@ -33,7 +33,10 @@ def find_recordings(inputs: list[Path]) -> list[Path]:
         raise InputError(f"no recordings ({', '.join(RECORDING_SUFFIXES)}) in {', '.join(map(str, inputs))}")
     names = [p.stem for p in found]
     if len(set(names)) != len(names):
-        raise InputError("two recordings share a name; their output folders would collide")
+        same = sorted({n for n in names if names.count(n) > 1})
+        paths = [str(p) for p in found if p.stem in same]
+        raise InputError(f"recordings share a name ({', '.join(same)}: {', '.join(paths)}); their output folders "
+                         "would collide: rename or move one of them")
     return found
 
 
@@ -96,6 +99,17 @@ def _as_row(result: Any, item: tuple) -> dict:
             "seconds": round(result.seconds, 2)}
 
 
+def _check_shared_inputs(options: CalibrationOptions) -> None:
+    """What every recording of the batch uses (the board, an intrinsics file) checked once, before any work: a wrong
+    one is the user's error, not a failure of each recording."""
+    from .core.board import load_board
+    from .io.camera_files import read_camera_file
+
+    load_board(options.board)
+    if options.inputs.camera_info is not None:
+        read_camera_file(options.inputs.camera_info)
+
+
 def run_batch(
     inputs: list[Path],
     out_dir: str | Path,
@@ -114,6 +128,7 @@ def run_batch(
     if jobs is not None and jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {jobs}")
     logs = find_recordings(inputs)
+    _check_shared_inputs(options)
     out = prepare_output_dir(out_dir, force=force, whole=False)  # written into; each recording's folder replaced
     items = []
     for p in logs:
@@ -152,11 +167,12 @@ def _remove_stale_results(out: Path, current: set[str]) -> list[str]:
     (nothing but what plsgraph writes) of recordings not in it; anything else stays."""
     import shutil
 
-    from .report.files import RESULT_FILES, foreign_entries
+    from .report.files import CALIBRATION_SUBFOLDERS, RESULT_FILES, foreign_entries
 
     stale = []
     for d in sorted(p for p in out.iterdir() if p.is_dir() and not p.is_symlink() and p.name not in current):
-        if not foreign_entries(d, depth=0) and any(f.name in RESULT_FILES for f in d.iterdir()):
+        ours = not foreign_entries(d, subfolders=CALIBRATION_SUBFOLDERS)
+        if ours and any(f.name in RESULT_FILES for f in d.iterdir()):
             shutil.rmtree(d)
             stale.append(d.name)
     return stale

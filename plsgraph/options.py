@@ -18,6 +18,8 @@ from .errors import InputError
 SURFACES = ("count", "polarity", "classic", "leaky")
 CLOSED_FORM_METHODS = ("pls", "cca", "procrustes")
 CLOCK_ALIGN = ("auto", "always", "never")
+#: Widest fine time-offset search (--td-range, seconds); larger clock differences go through the clock alignment.
+MAX_TD_RANGE_S = 10.0
 WHEEL_ORDER = ("fix", "flag", "off")
 
 
@@ -136,6 +138,11 @@ class ClosedFormSettings:
         if self.method not in CLOSED_FORM_METHODS:
             raise InputError(f"method must be one of {', '.join(CLOSED_FORM_METHODS)}, got {self.method!r}")
         _positive("--td-range", "td_range", self.td_range)
+        if self.td_range > MAX_TD_RANGE_S:
+            raise InputError(f"td_range (--td-range) {self.td_range:g} s is above {MAX_TD_RANGE_S:g} s: the fine "
+                             "search is for offsets of a fraction of a second; for clocks seconds to hours apart "
+                             "give the odometry's file with --odometry (its clock is aligned first) or "
+                             "--clock-offset SECONDS")
 
 
 @dataclass(frozen=True)
@@ -169,6 +176,9 @@ class MountOptions:
                 raise InputError(f"{name} (--{name.replace('_', '-')}) must be a frame name of letters, digits and "
                                  "_ . - with / between parts (not first or last: tf2 refuses a leading /), got "
                                  f"{v!r}")
+        if self.parent_frame == self.child_frame:
+            raise InputError(f"--parent-frame and --child-frame are the same frame ({self.parent_frame!r}): the robot "
+                             "files would join a frame to itself, which tf2 refuses; name the camera's own frame")
 
 
 @dataclass(frozen=True)

@@ -121,9 +121,15 @@ def read_inputs(run: Run) -> Any:
     elif rec.camera is not None:
         run.camera = rec.camera
     else:
+        from .io.messages import CAMERA_INFO_TYPE
+
+        info_topics = [t for t, i in rec.topics.items() if i.msgtype == CAMERA_INFO_TYPE]
+        said = [w for w in rec.warnings if any(t in w for t in info_topics)]
+        why = ("no sensor_msgs/CameraInfo topic" if not info_topics else
+               f"no usable sensor_msgs/CameraInfo ({', '.join(info_topics)}: "
+               + ("; ".join(said) if said else "none of its messages makes a camera") + ")")
         raise InputError(
-            f"{run.log_path} has no usable sensor_msgs/CameraInfo (no such topic, or none of its messages makes a "
-            "camera: see the warnings); pass the intrinsics with --camera-info FILE "
+            f"{run.log_path} has {why}; pass the intrinsics with --camera-info FILE "
             "(a plsgraph, ROS camera_calibration or OpenCV YAML, or a Kalibr camchain as FILE[:camN])"
         )
     return rec

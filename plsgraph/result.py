@@ -205,8 +205,9 @@ def robot_sections(run: Run) -> dict[str, Any]:
         "effective_track_width_m": scale.get("track_width_m"),
         "speed_scale": scale.get("speed"),
         "turn_rate_scale": scale.get("turn_rate"),
-        "source": ("closed form (odometry speed and turn-rate scales against the camera); the refinement keeps the "
-                   "nominal geometry, without uncertainty") if scale else "nominal (not estimated)",
+        "source": ("closed form (odometry speed and turn-rate scales against the camera), without uncertainty"
+                   + ("" if run.refinement is None else "; the refinement kept the nominal geometry"))
+        if scale else "nominal (not estimated)",
         "base_source": run.recording_info.get("base_source"),
     }
     if refined is not None:  # estimated jointly with the extrinsic, with uncertainty: what the driver should take

@@ -1,7 +1,12 @@
 import numpy as np
 import pytest
 
-from plsgraph.calib.time_offset import camera_velocities_on_grid, estimate_time_offset, pair_samples
+from plsgraph.calib.time_offset import (
+    camera_velocities_on_grid,
+    estimate_time_offset,
+    pair_samples,
+    seconds_short_of,
+)
 from plsgraph.core.geometry import make_T
 from plsgraph.core.tracks import BaseTrack, CameraTrack
 from plsgraph.errors import DegenerateMotionError, InputError, InsufficientDataError
@@ -60,6 +65,16 @@ def test_streams_without_overlap_raise():
         estimate_time_offset(late, base)
     with pytest.raises(InsufficientDataError):
         pair_samples(late, base, 0.0)
+
+
+def test_a_shortfall_is_never_written_as_the_need():
+    # Before: "only 3.00 s of camera velocity samples ... need 3.0 s" for 2.996 s.
+    assert seconds_short_of(2.996, 3.0) == "2.996"
+    assert seconds_short_of(1.5, 3.0) == "1.50"
+    assert seconds_short_of(2.99999, 3.0) == "2.999990"
+    rec, base, cam = setup("rich", duration=8.0)
+    with pytest.raises(InsufficientDataError, match=r"only \d+\.\d\d s .* need 100 s"):
+        estimate_time_offset(cam, base, min_overlap_s=100.0)
 
 
 def test_no_motion_is_degenerate():

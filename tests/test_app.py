@@ -1,5 +1,6 @@
 """The library API's calibration tail (closed form -> refinement -> result files) on simulated tracks, no events."""
 
+import html
 import json
 import os
 import time
@@ -76,6 +77,12 @@ def test_report_files_are_complete_and_parse(sim_run, tmp_path):
     page = (out / "report.html").read_text()
     for png in ("trajectories.png", "residuals.png", "time_offset.png", "observability.png", "methods.png"):
         assert (out / png).stat().st_size > 1000 and png in page
+    # One unit per row (before: "time offset (s) 0.011223 ± 8.42 ms"); a solver that warned is not listed "ok".
+    assert f"time offset (ms)</td><td>{1e3 * calib['time_offset_s']:.3f}</td>" in page
+    for name, m in rep["closed_form"].items():
+        want = "error" if m["error"] else "warned" if m["warnings"] else "ok"
+        assert f"<td>{name}</td><td><span class='st' style='background:" in page
+        assert f">{want}</span></td><td>{html.escape(m['error'] or '')}" in page.split(f"<td>{name}</td>", 1)[1]
     text = calibration_text(report)
     assert "refined" in text
     tilt = rep["refinement"]["inflation"]["floor_tilt_rms_deg"]

@@ -212,3 +212,43 @@ def test_batch_force_leaves_no_result_of_a_recording_no_longer_given(tmp_path, c
                  "--jobs", "1"]) == 1
     assert "removed the earlier results of recordings not in this batch: gone" in capsys.readouterr().out
     assert not (out / "gone").exists() and (out / "mine" / "notes.txt").read_text() == "kept"
+
+
+def test_flags_that_cannot_make_sense_are_refused_before_any_work(tmp_path, capsys):
+    # Before: reproduce-paper --seed -1 ended in an internal error (exit 3); --td-range 1e9 ran the whole front end
+    # to a diagnosis; --trials 1e8 filled the memory; a camera frame equal to the base frame wrote robot files tf2
+    # refuses; batch with an unknown board failed every recording one by one (exit 1).
+    def refused(argv, words):
+        code = main(argv)
+        err = capsys.readouterr().err
+        assert code == 2, err
+        assert all(w in err for w in words), err
+
+    refused(["reproduce-paper", "--quick", "--seed", "-1", "--out", str(tmp_path / "t")], ["--seed", ">= 0"])
+    refused(["reproduce-paper", "--trials", "100000000", "--out", str(tmp_path / "t")], ["--trials", "10000"])
+    assert not (tmp_path / "t").exists()
+    cal = ["calibrate", str(SAMPLE), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "o")]
+    refused([*cal, "--td-range", "1e9"], ["--td-range", "--clock-offset"])
+    refused([*cal, "--child-frame", "base_link"], ["same frame", "base_link"])
+    refused([*cal, "--parent-frame", "cam", "--child-frame", "cam"], ["same frame"])
+    assert not (tmp_path / "o").exists()
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "a.mcap").write_bytes(b"not a recording")
+    refused(["batch", str(tmp_path / "in"), "--board", "nosuch", "--out", str(tmp_path / "b")], ["nosuch"])
+    refused(["batch", str(tmp_path / "in"), "--board", "acircles_4x11", "--camera-info", str(tmp_path / "no.yaml"),
+             "--out", str(tmp_path / "b")], ["no.yaml", "does not exist"])
+    assert not (tmp_path / "b").exists()
+    (tmp_path / "in" / "sub").mkdir()
+    (tmp_path / "in" / "sub" / "a.bag").write_bytes(b"x")
+    refused(["batch", str(tmp_path / "in" / "a.mcap"), str(tmp_path / "in" / "sub" / "a.bag"), "--board",
+             "acircles_4x11", "--out", str(tmp_path / "b")], ["share a name", "a.mcap", "a.bag"])
+
+
+def test_a_truth_file_that_does_not_exist_is_named_plainly(tmp_path, capsys):
+    out = tmp_path / "o"
+    for truth in ("nosuch.yaml", "nosuch.truth.yaml"):
+        assert main(["calibrate", str(SAMPLE), "--board", "acircles_4x11_a2", "--truth", str(tmp_path / truth),
+                     "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert "does not exist" in err or "no ground truth beside" in err, err
+    assert f"truth file {tmp_path / 'nosuch.truth.yaml'} does not exist" in err

@@ -201,3 +201,20 @@ def test_streaming_memory_does_not_grow_with_recording_length(tmp_path):
     # 4x the events, about the same peak (one event chunk plus one 64 kB container chunk); a whole-stream
     # read would need 13 bytes per event, i.e. over 5 MB for the longer file.
     assert peaks[1] < 1.3 * peaks[0] and peaks[1] < 3e6
+
+
+def test_a_recording_without_camera_info_says_so_without_pointing_at_warnings_it_does_not_have(tmp_path):
+    # Before: "no usable sensor_msgs/CameraInfo (...: see the warnings)" where there was no such topic and no warning.
+    from plsgraph.errors import InputError
+    from plsgraph.options import CalibrationOptions
+    from plsgraph.pipeline import Run, read_inputs
+
+    ev, js, od, _ = _sim(n=3000, seconds=0.5)
+    p = tmp_path / "nocam.mcap"
+    write_recording(p, ev, js, None, None, event_format="dvs")
+    run = Run(p, CalibrationOptions(board="acircles_4x11"))
+    with pytest.raises(InputError) as e:
+        read_inputs(run)
+    msg = str(e.value)
+    assert "has no sensor_msgs/CameraInfo topic" in msg and "--camera-info" in msg
+    assert "see the warnings" not in msg

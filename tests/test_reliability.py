@@ -439,9 +439,37 @@ def test_batch_force_replaces_a_failed_recordings_old_result(tmp_path):
     out = _old_result(tmp_path / "a")
     row = _batch_item((str(rec), str(out), CalibrationOptions(board=BOARD), True))
     assert row["status"] == "failed"
-    assert sorted(p.name for p in out.iterdir()) == ["report.json"]
+    # The old calibration is no longer the folder's result, but it is kept apart, not lost.
+    assert sorted(p.name for p in out.iterdir()) == ["previous_calibration", "report.json"]
+    assert sorted(p.name for p in (out / "previous_calibration").iterdir()) == ["calibration.yaml", "residuals.png"]
     rep = json.loads((out / "report.json").read_text())
     assert rep["ok"] is False and rep["calibration"] is None and rep["problems"]
+    assert rep["previous_calibration"] == "previous_calibration"
+
+
+def test_a_run_without_a_calibration_keeps_the_one_it_replaces(tmp_path, monkeypatch):
+    # Before: calibrate --force of a recording cut short into a folder with a good calibration left report.json only.
+    import plsgraph.api as api
+
+    def too_little(*a, **k):
+        raise InsufficientDataError("only 2.9 s of camera velocity samples")
+
+    monkeypatch.setattr(api, "run_recording", too_little)
+    out = _old_result(tmp_path / "out")
+    res = api.calibrate_to_dir(tmp_path / "cut.mcap", out, CalibrationOptions(board=BOARD), force=True,
+                               figure_worker=False)
+    assert res["ok"] is False and "previous_calibration" in res["text"]
+    assert sorted(p.name for p in out.iterdir()) == ["previous_calibration", "report.json"]
+    assert (out / "previous_calibration" / "calibration.yaml").read_text() == "ok: true\n"
+    assert (out / "previous_calibration" / "residuals.png").read_bytes() == b"old"
+    # A second failure passes the kept calibration on; the folder stays one --force may replace.
+    api.calibrate_to_dir(tmp_path / "cut.mcap", out, CalibrationOptions(board=BOARD), force=True, figure_worker=False)
+    assert (out / "previous_calibration" / "calibration.yaml").read_text() == "ok: true\n"
+    assert not (out / "previous_calibration" / "previous_calibration").exists()
+    # A folder that never held a calibration keeps nothing.
+    fresh = tmp_path / "fresh"
+    api.calibrate_to_dir(tmp_path / "cut.mcap", fresh, CalibrationOptions(board=BOARD), figure_worker=False)
+    assert sorted(p.name for p in fresh.iterdir()) == ["report.json"]
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root may write anywhere")

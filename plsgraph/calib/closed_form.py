@@ -164,7 +164,9 @@ def lever_arm_and_odometry_scales(
         if not sol[0] > 0:
             raise DegenerateMotionError(
                 f"the camera drives against the odometry (speed scale {sol[0]:.3f}): this rotation points the "
-                "camera's motion backwards (a solver that latched onto noise, or swapped wheel signs); use pls"
+                "camera's motion backwards (a rotation solver that latched onto noise, or swapped wheel signs): "
+                "check the wheel order and signs, and seed with the PLS closed form (--method pls) if another was "
+                "used"
             )
         return sol[1:], float(sol[0]), s_w
     A = np.vstack([np.column_stack([z, -s_w * w]), np.column_stack([s_w * w, z])])
@@ -293,8 +295,8 @@ def _scale_warnings(s_v: float, s_w: float, info: dict) -> list[str]:
     )
     if "track_width_m" in rep:
         msg += (f". The closed form's effective wheel radius {rep['wheel_radius_m']:.4f} m and track width "
-                f"{rep['track_width_m']:.4f} m (the refinement estimates them again, with sigmas: calibration.yaml's "
-                "odometry)")
+                f"{rep['track_width_m']:.4f} m (the refinement estimates them again, with sigmas: the result's "
+                "odometry section)")
         if s_w < 1 - SCALE_WARN:
             msg += " (skid-steer robots turn less than their geometric track width predicts)"
     return [msg]

@@ -286,8 +286,8 @@ def _cca(X, Y, w, center: bool, rel_tol: float) -> RotationResult:
         if not ev[0] > _SINGULAR_REL * ev[-1]:
             raise DegenerateMotionError(
                 f"cca: the {side} covariance is singular (eigenvalues {np.array2string(ev, precision=3)}), so its "
-                "whitening S^(-1/2) does not exist; CCA needs motion along all three axes. Use method='pls' or "
-                "'procrustes' for planar (ground) motion"
+                "whitening S^(-1/2) does not exist; CCA needs motion along all three axes. Use the PLS or Procrustes "
+                "solver (method='pls' / 'procrustes'; --method on the command line) for planar (ground) motion"
             )
     Wx, Sx_half, evx = _inv_sqrt_psd(Sxx)
     Wy, _, evy = _inv_sqrt_psd(Syy)
@@ -613,7 +613,7 @@ def hand_eye(
     if ea.kind == "none" or eb.kind == "none":
         raise DegenerateMotionError(
             "hand_eye: the poses contain no rotation, so A X = X B cannot fix the rotation of X; turn the robot "
-            "while recording or use solve(..., method='pls') on velocities"
+            "while recording or use the velocity-based PLS solver (method='pls'; --method pls on the command line)"
         )
     if ea.rank < 2 or eb.rank < 2:
         warns.append(
@@ -638,7 +638,7 @@ def hand_eye(
     except cv2.error as exc:  # OpenCV raises on degenerate systems (e.g. Andreff under planar motion)
         raise DegenerateMotionError(
             f"hand_eye({method}): OpenCV failed ({str(exc).strip().splitlines()[-1]}); the motion does not "
-            "determine X. Add rotations about different axes or use solve(..., method='pls')"
+            "determine X. Add rotations about different axes or use the velocity-based PLS solver (method='pls')"
         ) from exc
     finally:
         if quiet is not None:
@@ -648,7 +648,7 @@ def hand_eye(
     if not (np.all(np.isfinite(R_c)) and np.all(np.isfinite(t_c))):
         raise DegenerateMotionError(
             f"hand_eye({method}): OpenCV returned NaN; the motion does not determine X. Add rotations about "
-            "different axes or use solve(..., method='pls')"
+            "different axes or use the velocity-based PLS solver (method='pls')"
         )
     R, s = _nearest_rotation(R_c)
     if ea.rank < 2:

@@ -328,6 +328,16 @@ def _lobe_stats(shifts: np.ndarray, values: np.ndarray, i_peak: int) -> tuple[fl
     return width, float(max(others.max(), 0.0) / peak)
 
 
+def seconds_short_of(have: float, need: float) -> str:
+    """``have`` seconds (less than ``need``) written to the digits that tell them from ``need``: 2.996 s is not
+    "3.00 s" when 3 s are needed."""
+    for digits in (2, 3, 4, 6):
+        text = f"{have:.{digits}f}"
+        if float(text) < need:
+            return text
+    return f"{have:.9f}"
+
+
 def estimate_time_offset(
     camera: CameraTrack | CameraVelocities,
     base: BaseTrack,
@@ -369,12 +379,13 @@ def estimate_time_offset(
         span_c = (cv.t[0], cv.t[-1])
         inside = cv.valid & (cv.t + lo >= base.t[0] + reach) & (cv.t + hi <= base.t[-1] - reach)
         overlap = (cv.t + lo >= base.t[0] + reach) & (cv.t + hi <= base.t[-1] - reach)
+        have = seconds_short_of(np.count_nonzero(inside) * dt_c, min_overlap_s)
         raise InsufficientDataError(
-            f"only {np.count_nonzero(inside) * dt_c:.2f} s of camera velocity samples fall inside the odometry "
+            f"only {have} s of camera velocity samples fall inside the odometry "
             f"for every td in {td_range} (camera track [{span_c[0]:.2f}, {span_c[1]:.2f}] s, "
             f"odometry [{base.t[0]:.2f}, {base.t[-1]:.2f}] s, {np.count_nonzero(overlap) * dt_c:.1f} s of overlap, "
             f"{np.count_nonzero(cv.valid)} of {cv.t.size} camera samples usable, the rest in detection gaps); "
-            f"need {min_overlap_s} s: record longer with the board in view, or narrow the td search range"
+            f"need {min_overlap_s:g} s: record longer with the board in view, or narrow the td search range"
         )
     tc = cv.t[keep]
     w_c, v_c = cv.omega[keep], cv.v[keep]

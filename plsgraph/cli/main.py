@@ -74,7 +74,9 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
     )
     p.add_argument("--rate", type=float, default=30.0, help="detection rate in Hz (default: %(default)s)")
     p.add_argument(
-        "--td-range", type=float, default=0.5, help="search the time offset in +-this many seconds (default: 0.5)"
+        "--td-range", type=float, default=0.5,
+        help="search the time offset in +-this many seconds, at most 10 (default: 0.5; clocks further apart: "
+        "--odometry or --clock-offset)"
     )
     p.add_argument(
         "--method",
@@ -130,14 +132,17 @@ def _build_parser() -> argparse.ArgumentParser:
     sub.required = True
 
     s = sub.add_parser("inspect", help="list topics, message counts, time spans and event statistics")
-    s.add_argument("log", type=Path)
+    s.add_argument("log", type=Path, help="recording: .mcap, ROS 2 .db3 folder/file, ROS 1 .bag, .aedat4 or "
+                   "Prophesee .raw")
     s.add_argument("--json", action="store_true", help="print machine-readable JSON")
     s.set_defaults(func=_cmd_inspect)
 
     s = sub.add_parser("simulate", help="write a simulated recording (MCAP) with its truth beside it")
-    s.add_argument("--motion", choices=["rich", "straight", "spin"], default="rich")
+    s.add_argument("--motion", choices=["rich", "straight", "spin"], default="rich",
+                   help="how the robot drives: rich (turns and curves, calibratable; default), straight or spin "
+                   "(degenerate: for seeing the diagnosis)")
     s.add_argument("--duration", type=float, default=10.0, help="seconds (default: %(default)s)")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=int, default=0, help="random seed, a whole number >= 0 (default: %(default)s)")
     s.add_argument("--td", type=float, default=0.03, help="true time offset in s (default: %(default)s)")
     s.add_argument("--event-format", choices=["dvs", "libcaer_cmp", "libcaer", "evt3", "mono"], default="dvs",
                    help="event message encoding (default: %(default)s, dvs_msgs/EventArray)")
@@ -166,9 +171,10 @@ def _build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("reproduce-paper", help="the paper's synthetic Tables I and II next to ours")
     s.add_argument("--out", type=Path, required=True, help="output folder")
-    s.add_argument("--trials", type=int, default=200, help="trials per cell (default: %(default)s, the paper's)")
+    s.add_argument("--trials", type=int, default=200,
+                   help="trials per cell, 2 to 10000 (default: %(default)s, the paper's)")
     s.add_argument("--quick", action="store_true", help="few trials, a few seconds")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=int, default=0, help="random seed, a whole number >= 0 (default: %(default)s)")
     s.add_argument("--force", action="store_true", help="overwrite existing tables")
     s.set_defaults(func=_cmd_reproduce)
 
@@ -177,11 +183,13 @@ def _build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", type=Path, required=True, help="output folder (one sub-folder per recording)")
     s.add_argument("--board", required=True, help="board YAML or bundled name, as for calibrate")
     s.add_argument("--camera-info", type=Path, metavar="FILE[:camN]", help="camera intrinsics file, as for calibrate")
-    s.add_argument("--wheel-radius", type=float, default=0.098)
-    s.add_argument("--track-width", type=float, default=0.37)
+    s.add_argument("--wheel-radius", type=float, default=0.098, help="wheel radius r in m (default: %(default)s)")
+    s.add_argument("--track-width", type=float, default=0.37, help="wheel separation b in m (default: %(default)s)")
     s.add_argument("--jobs", type=int, default=None, help="local worker processes (default: CPU count)")
     s.add_argument("--scheduler", help="Dask scheduler address (tcp://host:port) instead of local processes")
-    s.add_argument("--force", action="store_true")
+    s.add_argument("--force", action="store_true",
+                   help="replace earlier results in --out (a recording that now fails keeps its earlier calibration "
+                   "in previous_calibration/)")
     s.set_defaults(func=_cmd_batch)
     return p
 

@@ -146,8 +146,11 @@ def compare_solutions(
     cols = list(dict.fromkeys(k for r in rows for k in r))
     md = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in rows:
-        cells = [r["method"]] + [("" if k not in r else f"{r[k]:.4g}") for k in cols[1:]]
+        cells = [r["method"]] + [("" if k not in r else f"{r[k]:.4g}" if np.isfinite(r[k]) else "-") for k in cols[1:]]
         md.append("| " + " | ".join(cells) + " |")
+    if any(not np.isfinite(v) for r in rows for k, v in r.items() if k != "method"):
+        md.append("\n-: not determined (a solver that gives the rotation only has no translation; where the camera "
+                  "height is unknown, t is not scored, t_xy is)")
     return ComparisonTable(tuple(rows), "\n".join(md))
 
 

@@ -264,7 +264,9 @@ def write_html_report(out: Path, run: Any, report: dict,
                                                                        "note"])))
     rows = []
     for name, m in report["closed_form"].items():
-        rows.append({"method": name, "status": "error" if m["error"] else "ok", "detail": m["error"] or "",
+        # "warned": it gave an answer, with a caveat about it (e.g. a hand-eye solver on planar motion).
+        rows.append({"method": name, "status": "error" if m["error"] else "warned" if m["warnings"] else "ok",
+                     "detail": m["error"] or "",
                      "warnings": "; ".join(m["warnings"])})
     tail.append(("Closed-form solvers", html_table(rows, ["method", "status", "detail", "warnings"])))
     if "truth_errors" in report:
@@ -293,8 +295,8 @@ def _summary_table(c: dict) -> str:
         s = "-" if sig is None else f"± {sig[3 + i]:.4f}"
         rows.append({"parameter": f"{name} (m)", "value": f"{c['translation_m'][i]:.4f}", "sigma": s})
     td = c["time_offset_s"]
-    s = "-" if sig is None else f"± {1e3 * sig[6]:.2f} ms"
-    rows.append({"parameter": "time offset (s)", "value": f"{td:.6f}", "sigma": s})
+    s = "-" if sig is None else f"± {1e3 * sig[6]:.2f}"
+    rows.append({"parameter": "time offset (ms)", "value": f"{1e3 * td:.3f}", "sigma": s})
     note = ("<p>sigma: one standard deviation from the refinement's covariance (rotations as small angles about the "
             "base axes); '-' when there is none (closed form only). A sigma of 1 m on z means: not observable.</p>")
     return html_table(rows, ["parameter", "value", "sigma"]) + note

@@ -156,8 +156,9 @@ RESULT_FILES = frozenset({
 })
 
 
-#: The one sub-folder a calibration's folder may hold: the paper's tables, which scripts/demo.sh writes into it.
-CALIBRATION_SUBFOLDERS = frozenset({"paper_tables"})
+#: The sub-folders a calibration's folder may hold: the paper's tables, which scripts/demo.sh writes into it, and the
+#: calibration a run that gave none kept (plsgraph.report.output.keep_earlier_calibration).
+CALIBRATION_SUBFOLDERS = frozenset({"paper_tables", "previous_calibration"})
 
 
 def foreign_entries(folder: Path, depth: int = 1, subfolders: frozenset[str] | None = None) -> list[str]:
@@ -344,7 +345,8 @@ def markdown_table(rows: list[dict], columns: list[str], floatfmt: str = "{:.3f}
     return "\n".join(lines)
 
 
-_STATUS_COLOUR = {"observable": "#2e7d32", "weak": "#f9a825", "unobservable": "#c62828"}
+_STATUS_COLOUR = {"observable": "#2e7d32", "weak": "#f9a825", "unobservable": "#c62828",
+                  "ok": "#2e7d32", "warned": "#f9a825", "error": "#c62828"}
 
 
 def html_report(title: str, sections: list[tuple[str, str]], images: list[tuple[str, str]],

@@ -88,13 +88,45 @@ FRONTEND_ADVICE = (
 )
 
 
+#: Where a run that gives no calibration keeps the calibration it replaces (see :func:`keep_earlier_calibration`).
+PREVIOUS_CALIBRATION = "previous_calibration"
+
+
+def keep_earlier_calibration(earlier: Path | None, stage: Path) -> Path | None:
+    """A run that ends without a calibration (a diagnosis, a failure) into a folder that holds one (``--force``) keeps
+    that calibration's files in ``stage / PREVIOUS_CALIBRATION``: the folder says what the latest run gave, and a good
+    result is not lost to a bad recording. A folder without a calibration passes on the one it kept. Only result files
+    are copied (one generation). Returns the subfolder, or None when there is no calibration to keep."""
+    import shutil
+
+    from .files import RESULT_FILES
+
+    if earlier is None:
+        return None
+    # The calibration the folder holds, or the one an earlier run without a calibration kept there.
+    src = next((d for d in (Path(earlier), Path(earlier) / PREVIOUS_CALIBRATION) if (d / "calibration.yaml").is_file()),
+               None)
+    if src is None:
+        return None
+    keep = stage / PREVIOUS_CALIBRATION
+    keep.mkdir(parents=True, exist_ok=True)
+    for f in sorted(src.iterdir()):
+        if f.is_file() and not f.is_symlink() and f.name in RESULT_FILES:
+            shutil.copy2(f, keep / f.name)
+    return keep
+
+
 def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: str = DIAGNOSIS_ADVICE,
-                         coverage: dict | None = None, warnings: list[str] | None = None) -> dict:
+                         coverage: dict | None = None, warnings: list[str] | None = None,
+                         earlier: Path | None = None) -> dict:
     """A run that could not calibrate: report.json with the reason and advice (and the front end's ``coverage``
-    when it ran, and the run's ``warnings``: a file cut short says so), no calibration.yaml."""
+    when it ran, and the run's ``warnings``: a file cut short says so), no calibration.yaml. ``earlier``: the folder
+    this one replaces; a calibration in it is kept in the subfolder ``previous_calibration``
+    (:func:`keep_earlier_calibration`)."""
     from .. import __version__
 
     out.mkdir(parents=True, exist_ok=True)
+    kept = keep_earlier_calibration(earlier, out)
     report = {
         "plsgraph_version": __version__,
         "recording": str(log_path),
@@ -106,6 +138,8 @@ def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: s
     }
     if coverage is not None:
         report["coverage"] = coverage
+    if kept is not None:
+        report["previous_calibration"] = PREVIOUS_CALIBRATION
     write_json(out / "report.json", report)
     text = "\n".join([
         f"recording      {log_path}",
@@ -115,6 +149,8 @@ def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: s
         *([f"advice: {advice}"] if advice else []),
         *([f"warnings ({len(warnings)}):", *[f"  - {w}" for w in warnings[:12]]] if warnings else []),
         "",
+        *([f"kept: the calibration this folder held before, in {out / PREVIOUS_CALIBRATION} (this run gave none)"]
+          if kept is not None else []),
         f"written: {out / 'report.json'} (diagnosis only)",
     ])
     return {"ok": False, "text": text, "report": report}

@@ -27,6 +27,9 @@ from .routes import PLANAR_ROUTES, ROUTE_TITLES, make_trials
 
 log = logging.getLogger(__name__)
 
+#: Most trials per cell reproduce_paper takes: 50 times the paper's 200 (time and memory grow with them).
+MAX_TRIALS = 10_000
+
 #: Published figures (degrees). Table I gives means only; Table II mean, std and the reduction in percent.
 PAPER_TABLE1 = {"6dof": {"cca": 0.16, "pls": 0.21}, "planar": {"cca": 26.56, "pls": 0.26}}
 PAPER_TABLE2 = {
@@ -331,8 +334,11 @@ def reproduce_paper(
     route. The returned dict has "table1", "table2" (route -> method -> mean_deg, std_deg, n_trials, n_failed),
     "paper" (published figures), "protocol", "markdown" and "paths".
     """
-    if trials < 2:
-        raise InputError(f"trials must be at least 2 to report a std, got {trials}")
+    if isinstance(trials, bool) or not isinstance(trials, int | np.integer) or not 2 <= trials <= MAX_TRIALS:
+        raise InputError(f"trials (--trials) must be a whole number from 2 (to report a std) to {MAX_TRIALS} (50 times "
+                         f"the paper's 200; memory and time grow with it), got {trials!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise InputError(f"seed (--seed) must be a whole number >= 0, got {seed!r}")
     out = Path(out_dir)
     md_path, json_path = out / "paper_tables.md", out / "paper_tables.json"
     existing = [p for p in (md_path, json_path) if p.exists()]
