@@ -6,6 +6,7 @@ import dataclasses
 import json
 import logging
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -225,7 +226,9 @@ def test_a_wrong_turn_angle_search_does_not_flag_a_refinement_that_came_back(sim
     assert r.run.refinement.td_searched is None  # the closed form's td is the reference again
     assert abs(r.time_offset_s - s.td) < 3 * np.sqrt(r.covariance[6, 6])
     assert r.ok, r.problems
-    assert any("search's peak was the wrong one" in w for w in r.warnings)
+    # 150 ms off against a td sigma of a few ms: the data do not favour the search's peak (and say by how much).
+    assert any(re.search(r"nearer the closed form's \(the search's peak is \d+\.\d sigma from it; the data do "
+                         r"not favour it\)", w) for w in r.warnings), r.warnings
     assert not any("wrong correlation peak" in w for w in r.warnings)  # the closed form is not blamed
 
 
