@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -298,7 +299,7 @@ def calibration_result(run: Run) -> CalibrationResult:
     coverage = _coverage(run)
     report: dict[str, Any] = {
         "plsgraph_version": __version__,
-        "recording": str(run.log_path),
+        "recording": str(Path(run.log_path).absolute()),
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "ok": ok,
         "problems": problems,

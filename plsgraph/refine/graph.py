@@ -2630,5 +2630,6 @@ def _prior_notes(opt: RefinementOptions, frozen: list[np.ndarray]) -> dict[str, 
     for f in frozen:
         share = (f / np.linalg.norm(f)) ** 2
         ax = AXES[int(np.argmax(share))]
-        notes[ax] = (notes.get(ax, "") + " Held at the seed value during the solve (not observable).").strip()
+        notes[ax] = (notes.get(ax, "") + " Not observable: held at the seed value during the solve"
+                     + (" (a calibration writes z as 0: unknown)." if ax == "z" else ".")).strip()
     return notes

@@ -129,7 +129,7 @@ def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: s
     kept = keep_earlier_calibration(earlier, out)
     report = {
         "plsgraph_version": __version__,
-        "recording": str(log_path),
+        "recording": str(Path(log_path).absolute()),
         "ok": False,
         "calibration": None,
         "problems": [reason],

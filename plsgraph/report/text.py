@@ -15,7 +15,7 @@ def _height_note(report: dict) -> str:
         return ""
     if report["options"]["refine"].get("camera_height") is not None:
         return "   (z from --camera-height: the motion cannot observe it)"
-    return "   (z is only the seed: the height is not observable; give --camera-height)"
+    return "   (z unknown, written as 0: driving on a floor cannot observe the height; give --camera-height)"
 
 
 def _offset_line(c: dict) -> str:
