@@ -472,7 +472,32 @@ def _same_joint(w):
     return (o.code, *expect_user_error(o, "same joint"))
 
 
-@case("9e no lock files left beside the results")
+@case("9e --child-frame equal to the parent frame")
+def _same_frame(w):
+    o = plsgraph(*cal(SAMPLE, "frame", "--child-frame", "base_link"), cwd=w)
+    return (o.code, *expect_user_error(o, "same frame"))
+
+
+@case("9f --td-range 1e9")
+def _td_range(w):
+    o = plsgraph(*cal(SAMPLE, "tdr", "--td-range", "1e9"), cwd=w)
+    return (o.code, *expect_user_error(o, "--clock-offset"))
+
+
+@case("9g --force with a cut recording into a good result")
+def _keep_previous(w):
+    o1 = plsgraph(*cal(SAMPLE, "keep"), cwd=w)
+    data = SAMPLE.read_bytes()
+    rec = w / "cut50.mcap"
+    rec.write_bytes(data[: len(data) // 2])
+    o2 = plsgraph(*cal(rec, "keep", "--force"), cwd=w)
+    st, prev = folder_state(w / "keep"), folder_state(w / "keep" / "previous_calibration")
+    good = o1.code == 0 and o2.code == 1 and st.get("ok") is False and prev.get("yaml_ok") is True
+    return o2.code, good, (f"first exit {o1.code}; after: files {st['files']}, ok {st.get('ok')}; kept: "
+                           f"{prev['files'][:3]}..., ok {prev.get('yaml_ok')}")
+
+
+@case("9h no lock files left beside the results")
 def _locks(w):
     left = sorted(p.name for p in w.iterdir() if p.name.endswith(".plsgraph-lock"))
     return 0, not left, f"lock files left: {left or 'none'}"
