@@ -67,7 +67,7 @@ from .detect import (
     neighbour_distance,
     refine_centroids,
 )
-from .noise import drop_events, drop_pixels, flicker_events, hot_pixel_mask
+from .noise import drop_events, drop_pixels, flicker_census, flicker_events, hot_pixel_mask
 from .pose import camera_track_from_detections, frame_pose
 
 log = logging.getLogger(__name__)
@@ -790,12 +790,16 @@ def detect_in_events(
     # Lamps flickering with the mains: recognised and reported (see FLICKER_WARN_SHARE); their phase-locked events
     # are dropped only with SUPPRESS_FLICKER (docs/frontend.md, "Flickering lights"). Otherwise the windows do not
     # depend on the test, and with worker processes it runs in this process while they detect.
+    # Only to report it, a long stream's flicker is measured on a sample of it (noise.flicker_census).
     flicker_first = SUPPRESS_FLICKER or max(1, int(workers)) == 1
-    tested: list = []  # (flagged events, frequency, pixels) of the test run beside the workers
-    if flicker_first:
+    tested: list = []  # (share of the events, frequency, pixels) of the test run beside the workers
+    if SUPPRESS_FLICKER:
         flicker, flicker_hz, n_flicker = flicker_events(stream)
-        if SUPPRESS_FLICKER and flicker.any():
+        flicker_share = float(flicker.mean())
+        if flicker.any():
             stream = drop_events(stream, flicker)
+    elif flicker_first:
+        flicker_share, flicker_hz, n_flicker = flicker_census(stream)
     if t_query_ns is None:
         t_query = np.arange(stream.t_first + period_ns, stream.t_last + period_ns, period_ns, dtype=np.int64)
     else:
@@ -811,13 +815,13 @@ def detect_in_events(
     if workers == 1:
         parts = [job.run(t_query, i0s, i1s, progress)]
     else:
-        beside = None if flicker_first else (lambda: tested.append(flicker_events(stream)))
+        beside = None if flicker_first else (lambda: tested.append(flicker_census(stream)))
         solved = _run_parallel(job, t_query, i0s, i1s, workers, progress, pnp, beside)
         parts = [part for part, _ in solved]
         if pnp is not None:
             poses = [e for _, part_poses in solved for e in part_poses]
     if not flicker_first:
-        flicker, flicker_hz, n_flicker = tested[0] if tested else flicker_events(stream)
+        flicker_share, flicker_hz, n_flicker = tested[0] if tested else flicker_census(stream)
     skipped: Counter[str] = Counter()
     secs = {"surfaces": 0.0, "detection": 0.0, "blobs": 0.0, "backfill": 0.0}
     t_out, uv_out, src_out, span_out, win_out = [], [], [], [], []
@@ -869,7 +873,7 @@ def detect_in_events(
         "hot_pixels": n_hot,
         "flicker_hz": flicker_hz,
         "flicker_pixels": n_flicker,
-        "flicker_event_share": float(flicker.mean()) if flicker.size else 0.0,
+        "flicker_event_share": flicker_share,
     }
     _mark_outcomes(info, np.asarray(same_stamp_windows, dtype=float), "same_stamp")
     if board.pattern == "asymmetric_circles" and board_is_symmetric(board):
