@@ -73,10 +73,12 @@ class EventStream:
 
     def check_sorted(self) -> None:
         if self.t.size > 1:
-            d = np.diff(self.t)
-            if np.any(d < 0):
+            # A comparison of neighbours (one byte per event), not np.diff (eight): the same test, a fraction of the
+            # memory traffic on spans of ten million events.
+            back = np.count_nonzero(self.t[1:] < self.t[:-1])
+            if back:
                 raise InputError(
-                    f"events: {int(np.count_nonzero(d < 0))} timestamps go backwards; sort the stream "
+                    f"events: {int(back)} timestamps go backwards; sort the stream "
                     "(EventStream.sorted()) or check the recording for clock resets"
                 )
 
