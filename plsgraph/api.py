@@ -177,7 +177,9 @@ def calibrate_to_dir(
     figure_worker: bool | None = None,
 ) -> dict:
     """Calibrate and write calibration.yaml, report.json, report.html (+ PNGs) into ``out_dir``; a recording
-    that cannot determine the extrinsic gets a diagnosis (report.json only). Returns ``{ok, text, report}``.
+    that cannot determine the extrinsic gets a diagnosis (report.json, no calibration). A run whose result is flagged or
+    a diagnosis keeps a calibration the folder held before in ``previous_calibration/``
+    (:func:`~plsgraph.report.output.keep_earlier_calibration`). Returns ``{ok, text, report}``.
 
     ``figure_worker``: True draws the figures in a second process that loads matplotlib while the calibration runs
     (:mod:`plsgraph.report.figure_worker`; the same figures, sooner), False in this process (e.g. when many
@@ -189,6 +191,7 @@ def calibrate_to_dir(
         DAMAGED_ADVICE,
         DIAGNOSIS_ADVICE,
         FRONTEND_ADVICE,
+        PREVIOUS_CALIBRATION,
         write_calibration,
         write_diagnosis_only,
         write_result_folder,
@@ -215,8 +218,11 @@ def calibrate_to_dir(
                           FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else DIAGNOSIS_ADVICE)
                 return write_diagnosis_only(stage, recording, str(exc), advice, getattr(exc, "coverage", None),
                                             getattr(exc, "warnings", None), earlier=out)
-            written = write_calibration(stage, result, figures)
+            written = write_calibration(stage, result, figures, earlier=out)
         text = calibration_text(result.report) + "\n\nwritten: " + ", ".join(str(out / p.name) for p in written)
+        if result.report.get("previous_calibration"):
+            text += (f"\nkept: the calibration this folder held before, in {out / PREVIOUS_CALIBRATION} (this result "
+                     "is flagged)")
         return {"ok": result.ok, "text": text, "report": result.report, "result": result}
 
     # The whole folder is written at once: under a lock (a second run on it fails at once), into a staging folder
@@ -227,7 +233,7 @@ def calibrate_to_dir(
 
 def failure_to_dir(recording: str | Path, out_dir: str | Path, error: str) -> None:
     """Replace ``out_dir`` with a report.json saying the recording failed (batch --force: an older result there
-    must not pass for this recording's)."""
+    must not pass for this recording's; its calibration is kept in ``previous_calibration/``)."""
     from .report.output import write_diagnosis_only, write_result_folder
 
     write_result_folder(Path(out_dir), lambda stage: write_diagnosis_only(stage, recording, error, advice="",

@@ -103,11 +103,14 @@ def _check_shared_inputs(options: CalibrationOptions) -> None:
     """What every recording of the batch uses (the board, an intrinsics file) checked once, before any work: a wrong
     one is the user's error, not a failure of each recording."""
     from .core.board import load_board
-    from .io.camera_files import read_camera_file
+    from .io.camera_files import split_camera_choice
 
     load_board(options.board)
     if options.inputs.camera_info is not None:
-        read_camera_file(options.inputs.camera_info)
+        # Only that it is there: which camera of a camchain is used depends on each recording's events topic.
+        path, _ = split_camera_choice(options.inputs.camera_info)
+        if not path.is_file():
+            raise InputError(f"camera file {path} does not exist")
 
 
 def run_batch(
@@ -170,7 +173,8 @@ def _remove_stale_results(out: Path, current: set[str]) -> list[str]:
     from .report.files import CALIBRATION_SUBFOLDERS, RESULT_FILES, foreign_entries
 
     stale = []
-    for d in sorted(p for p in out.iterdir() if p.is_dir() and not p.is_symlink() and p.name not in current):
+    for d in sorted(p for p in out.iterdir() if p.is_dir() and not p.is_symlink() and p.name not in current
+                    and not p.name.startswith(".")):  # hidden: a staging folder of a run, not a recording's
         ours = not foreign_entries(d, subfolders=CALIBRATION_SUBFOLDERS)
         if ours and any(f.name in RESULT_FILES for f in d.iterdir()):
             shutil.rmtree(d)

@@ -141,8 +141,8 @@ class ClosedFormSettings:
         if self.td_range > MAX_TD_RANGE_S:
             raise InputError(f"td_range (--td-range) {self.td_range:g} s is above {MAX_TD_RANGE_S:g} s: the fine "
                              "search is for offsets of a fraction of a second; for clocks seconds to hours apart "
-                             "give the odometry's file with --odometry (its clock is aligned first) or "
-                             "--clock-offset SECONDS")
+                             "give the odometry's file with --odometry, or --clock-align always (the clocks are "
+                             "aligned first), or --clock-offset SECONDS")
 
 
 @dataclass(frozen=True)

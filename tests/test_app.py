@@ -323,3 +323,42 @@ def test_the_summary_of_a_flagged_result_says_so_before_any_number(sim_run):
     lines = calibration_text(flagged).splitlines()
     assert lines[0].startswith("FLAGGED: do not use this calibration (1 problem(s)")
     assert lines.index("PROBLEMS (the calibration is flagged: do not use it):") > 0
+
+
+def test_a_flagged_result_keeps_the_calibration_it_replaces_and_a_failed_copy_costs_only_the_copy(
+        sim_run, tmp_path, monkeypatch):
+    # Before: --force with a recording whose result came out flagged replaced a good calibration without a trace.
+    import copy
+    import dataclasses
+    import shutil
+
+    from plsgraph.report import output
+    from plsgraph.report.output import write_result_folder
+
+    _, result = sim_run
+    report = copy.deepcopy(result.report)
+    report["ok"], report["problems"] = False, ["a problem made up for the test"]
+    report["calibration"] = dict(report["calibration"], ok=False, problems=report["problems"])
+    flagged = dataclasses.replace(result, ok=False, problems=tuple(report["problems"]), report=report)
+    out = tmp_path / "calib"
+    write_result_folder(out, lambda stage: (write_calibration(stage, result), {"ok": True, "text": ""})[1])
+    good = (out / "calibration.yaml").read_text()
+    write_result_folder(out, lambda stage: (write_calibration(stage, flagged, earlier=out),
+                                            {"ok": False, "text": ""})[1])
+    assert yaml.safe_load((out / "calibration.yaml").read_text())["ok"] is False
+    assert (out / "previous_calibration" / "calibration.yaml").read_text() == good
+    assert json.loads((out / "report.json").read_text())["previous_calibration"] == "previous_calibration"
+    # Flagged again: the good one stays kept (preferred over the flagged one the folder now holds).
+    write_result_folder(out, lambda stage: (write_calibration(stage, flagged, earlier=out),
+                                            {"ok": False, "text": ""})[1])
+    assert (out / "previous_calibration" / "calibration.yaml").read_text() == good
+    # A copy that fails (an unreadable file, a full disk) leaves the new result whole, without the kept one.
+    def refuse(*a, **k):
+        raise PermissionError("not readable")
+
+    monkeypatch.setattr(shutil, "copy2", refuse)
+    write_result_folder(out, lambda stage: (write_calibration(stage, flagged, earlier=out),
+                                            {"ok": False, "text": ""})[1])
+    assert not (out / "previous_calibration").exists() and (out / "report.json").exists()
+    assert "previous_calibration" not in json.loads((out / "report.json").read_text())
+    assert output.PREVIOUS_CALIBRATION == "previous_calibration"

@@ -213,3 +213,30 @@ def test_the_flicker_census_of_a_long_stream_measures_a_sample_with_the_whole_st
     assert noise.flicker_census(lamp, budget=len(lamp)) == (float(flagged.mean()), hz, n_pix)  # the whole stream
     steady, *_ = _board_sweep(0.6, hot_pixels=30, noise_rate_hz=2.0, contrast_sigma=0.03)
     assert noise.flicker_census(steady, budget=len(steady) // 5) == (0.0, None, 0)
+
+
+def test_the_flicker_census_finds_a_lamp_lighting_part_of_the_image():
+    """A lamp lighting a 30 x 30 px patch (100 Hz, one event per cycle near one phase) in busy background activity: a
+    ninth of the pixels gives its frequency, its share of the events and about its pixel count, as the whole test."""
+    from plsgraph.frontend import noise
+
+    rng = np.random.default_rng(3)
+    seconds, parts = 2.0, []
+    n_bg = rng.poisson(20.0 * W * H * seconds)  # 20 Hz per pixel of activity that does not lock
+    parts.append((rng.uniform(0, seconds, n_bg), rng.integers(0, W, n_bg), rng.integers(0, H, n_bg)))
+    cycles = np.arange(int(100 * seconds)) / 100.0
+    for x in range(40, 70):
+        for y in range(30, 60):
+            phase = rng.uniform(0, 0.01)
+            parts.append((cycles + phase + rng.normal(0, 3e-4, cycles.size), np.full(cycles.size, x),
+                          np.full(cycles.size, y)))
+    t, x, y = (np.concatenate([p[k] for p in parts]) for k in range(3))
+    t = np.clip(t, 0.0, seconds)
+    order = np.argsort(t, kind="stable")
+    ev = EventStream.from_arrays((t[order] * 1e9).astype(np.int64), x[order], y[order], np.ones(t.size, bool), W, H)
+    flagged, hz, n_pix = noise.flicker_events(ev)
+    assert hz == 100.0 and 850 <= n_pix <= 900, n_pix  # the 900 lamp pixels (a few jittered ones missed)
+    share, hz9, n9 = noise.flicker_census(ev, budget=len(ev) // 9 + 1)
+    assert hz9 == 100.0
+    assert abs(share - flagged.mean()) < 0.02, (share, flagged.mean())
+    assert abs(n9 - n_pix) < 0.25 * n_pix, (n9, n_pix)

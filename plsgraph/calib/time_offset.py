@@ -475,7 +475,7 @@ def estimate_time_offset(
     if edge:
         warnings.append(
             f"time offset {td:+.4f} s lies on the border of the search range [{lo}, {hi}] s: the true offset may be "
-            "outside it; widen td_range"
+            "outside it; widen td_range (at most 10 s; clocks further apart: --clock-align always or --clock-offset)"
         )
     if score < min_score:
         warnings.append(f"weak peak: {method} score {score:.2f} < {min_score}; the time offset is poorly determined")

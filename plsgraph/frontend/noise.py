@@ -215,10 +215,12 @@ def flicker_census(stream: EventStream, budget: int | None = None) -> tuple[floa
     A stream of at most ``budget`` events (default :data:`FLICKER_CENSUS_EVENTS`) is tested whole. A longer one is
     tested on every event of about one pixel in k (k = events / budget, rounded up; the pixels picked by a
     multiplicative hash, spread over the image without a pattern a lit area could line up with). Each sampled pixel
-    has all its events, so it is judged exactly as in the whole test; the share is that of the sampled pixels' events
-    and the pixel count is scaled up by the sample's size. The test then costs one cheap pass over the events plus a
-    fixed amount, instead of one that grows with the event rate (0.75 s of a processor for 10 s at 2 M events/s,
-    beside the detector's workers)."""
+    has all its events, so it is judged as in the whole test (its parts of the span and the span's length are the
+    sample's, which spans the stream); the share is that of the sampled pixels' events and the pixel count is scaled
+    up by the sample's size, an estimate. A lamp lighting fewer than about k pixels can go unseen: it carries too
+    few of the events to matter to the warning. The test then costs one cheap pass over the events plus a fixed
+    amount, instead of one that grows with the event rate (0.75 s of a processor for 10 s at 2 M events/s, beside
+    the detector's workers)."""
     n = len(stream)
     budget = FLICKER_CENSUS_EVENTS if budget is None else int(budget)
     if n <= budget:

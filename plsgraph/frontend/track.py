@@ -1018,8 +1018,8 @@ def _track_from_detections(
     if share >= FLICKER_WARN_SHARE and found < FLICKER_WARN_FOUND:
         info["warnings"].append(
             f"the board was found in only {100 * found:.0f} % of the windows, and {100 * share:.0f} % of the events "
-            f"come from {info['flicker_pixels']} pixels flickering in step with {info['flicker_hz']:g} Hz lighting "
-            "(lamps on AC mains); if the board was in view, record under steady (DC or day) light or with the "
+            f"come from about {info['flicker_pixels']} pixels flickering in step with {info['flicker_hz']:g} Hz "
+            "lighting (lamps on AC mains); if the board was in view, record under steady (DC or day) light or with the "
             "camera's anti-flicker filter on"
         )
     for w in info["warnings"]:

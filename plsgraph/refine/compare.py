@@ -150,7 +150,7 @@ def compare_solutions(
         md.append("| " + " | ".join(cells) + " |")
     if any(not np.isfinite(v) for r in rows for k, v in r.items() if k != "method"):
         md.append("\n-: not determined (a solver that gives the rotation only has no translation; where the camera "
-                  "height is unknown, t is not scored, t_xy is)")
+                  "height is unknown, t is not scored, t_xy is; rms_px where the solution could not be replayed)")
     return ComparisonTable(tuple(rows), "\n".join(md))
 
 

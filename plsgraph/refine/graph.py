@@ -1986,9 +1986,10 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             compare_rotation = back
             warnings = [w for w in warnings if w != search_note]
             sig_all = float(np.hypot(sig_td, opt.seed_sigma_td))
-            where = (f"nearer the closed form's (the search's peak is {abs(td - td_search) / sig_all:.1f} sigma from "
-                     "it" + ("; the data do not favour it" if abs(td - td_search) > 3.0 * sig_all else
-                             ": td is weakly determined here") + ")" if back else
+            apart = f"{1e3 * abs(td - td_search):.0f} ms"
+            if sig_all > 0:
+                apart += f", {abs(td - td_search) / sig_all:.1f} sigma"
+            where = (f"nearer the closed form's; the search's peak lies {apart} from the refined td" if back else
                      f"{1e3 * abs(td - td_given):.0f} ms from the closed form's and farther from the search's: it "
                      "agrees with neither")
             warnings.append(f"the turn-angle search put the time offset at {1e3 * td_search:+.1f} ms, "

@@ -7,6 +7,7 @@ never holds files of two runs and an interrupted run leaves the previous result 
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,8 @@ import yaml
 
 from .coverage import DETECTED, NOT_SEARCHED
 from .files import OutputLock, _atomic_write, staged_output, to_jsonable, write_json
+
+log = logging.getLogger(__name__)
 
 
 def _flagged_header(problems: list[str]) -> str:
@@ -32,8 +35,10 @@ def write_calibration_yaml(path: Path, calib: dict) -> None:
     _atomic_write(Path(path), text.encode())
 
 
-def write_calibration(out: Path, result: Any, figures: Any = None) -> list[Path]:
-    """Write a :class:`plsgraph.result.CalibrationResult` into the folder ``out`` (made if missing).
+def write_calibration(out: Path, result: Any, figures: Any = None, earlier: Path | None = None) -> list[Path]:
+    """Write a :class:`plsgraph.result.CalibrationResult` into the folder ``out`` (made if missing). ``earlier``: the
+    folder this one replaces; when the result is flagged, a calibration in it is kept in ``previous_calibration``
+    (:func:`keep_earlier_calibration`).
 
     ``figures``: a started :class:`plsgraph.report.figure_worker.FigureWorker` draws the figures while the other
     files are written (else, or if it fails, they are drawn here). report.html and report.json come last: a figure
@@ -59,6 +64,10 @@ def write_calibration(out: Path, result: Any, figures: Any = None) -> list[Path]
     drawn = figures.result() if pending else None
     write_html_report(out, result.run, report, drawn)  # drawn here when the worker did not (drawn is None)
     report.setdefault("timing_s", {})["figures"] = round(waited + time.perf_counter() - t1, 4)
+    if not report.get("ok", True) and keep_earlier_calibration(earlier, out) is not None:
+        report["previous_calibration"] = PREVIOUS_CALIBRATION
+    else:
+        report.pop("previous_calibration", None)
     write_json(out / "report.json", report)
     return [out / "calibration.yaml", out / "report.json", out / "report.html", *robot]
 
@@ -103,17 +112,30 @@ def keep_earlier_calibration(earlier: Path | None, stage: Path) -> Path | None:
 
     if earlier is None:
         return None
-    # The calibration the folder holds, or the one an earlier run without a calibration kept there.
-    src = next((d for d in (Path(earlier), Path(earlier) / PREVIOUS_CALIBRATION) if (d / "calibration.yaml").is_file()),
-               None)
-    if src is None:
+    # The calibration the folder holds, or the one an earlier run kept there; a good one before a flagged one.
+    found = [d for d in (Path(earlier), Path(earlier) / PREVIOUS_CALIBRATION) if (d / "calibration.yaml").is_file()]
+    if not found:
         return None
+    src = next((d for d in found if _calibration_ok(d / "calibration.yaml")), found[0])
     keep = stage / PREVIOUS_CALIBRATION
-    keep.mkdir(parents=True, exist_ok=True)
-    for f in sorted(src.iterdir()):
-        if f.is_file() and not f.is_symlink() and f.name in RESULT_FILES:
-            shutil.copy2(f, keep / f.name)
+    try:
+        keep.mkdir(parents=True, exist_ok=True)
+        for f in sorted(src.iterdir()):
+            if f.is_file() and not f.is_symlink() and f.name in RESULT_FILES:
+                shutil.copy2(f, keep / f.name)
+    except OSError as exc:  # the new result matters more than the copy: written without it, and said so
+        shutil.rmtree(keep, ignore_errors=True)
+        log.warning("the earlier calibration in %s could not be kept (%s); it is replaced", earlier, exc)
+        return None
     return keep
+
+
+def _calibration_ok(path: Path) -> bool:
+    """Whether a calibration.yaml says ``ok: true`` (False when it cannot be read)."""
+    try:
+        return bool((yaml.safe_load(path.read_text()) or {}).get("ok"))
+    except (OSError, yaml.YAMLError, AttributeError):
+        return False
 
 
 def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: str = DIAGNOSIS_ADVICE,
