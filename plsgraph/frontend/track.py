@@ -1168,7 +1168,12 @@ def camera_track_from_event_chunks(
     if workers > 1:
         import multiprocessing as mp
 
+        from ..core.processes import spawn_would_rerun_main, warn_in_process
+
         if mp.current_process().daemon:  # e.g. a Dask or multiprocessing pool worker: it may not start processes
+            workers = 1
+        elif spawn_would_rerun_main():  # a spawned worker would run the calling script again
+            warn_in_process("the front end")
             workers = 1
 
     # The buffered events as the chunks they came in, in time order: a span is handed on as its chunks and joined

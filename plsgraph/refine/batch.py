@@ -62,7 +62,16 @@ def _run_one(fn: Callable[[Any, int], Any], item: Any, seed: int) -> tuple:
 
 
 def default_executor(n_items: int, max_workers: int | None = None) -> Executor:
-    """A ProcessPoolExecutor with the "spawn" start method (safe with threads and GTSAM in the parent)."""
+    """A ProcessPoolExecutor with the "spawn" start method (safe with threads and GTSAM in the parent); one thread of
+    this process instead when called at a script's unguarded top level, where a spawned worker would run the script
+    again (:func:`plsgraph.core.processes.spawn_would_rerun_main`)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from ..core.processes import spawn_would_rerun_main, warn_in_process
+
+    if spawn_would_rerun_main():
+        warn_in_process("the batch")
+        return ThreadPoolExecutor(max_workers=1)
     workers = max_workers or min(n_items, os.cpu_count() or 1)
     return ProcessPoolExecutor(max_workers=max(1, workers), mp_context=multiprocessing.get_context("spawn"))
 

@@ -1,0 +1,73 @@
+"""Whether worker processes started with "spawn" can be used from where the library was called.
+
+A process started with the "spawn" method (the front end's and batch's workers: safe with the threads the calling
+process may have) imports the calling script again, as ``__mp_main__``. A script that calls plsgraph at its top
+level, outside ``if __name__ == "__main__":``, would then calibrate again inside every worker, which Python stops
+with a "bootstrapping phase" error and a broken pool. :func:`spawn_would_rerun_main` tells that case apart, so that
+the work is done in the calling process instead (the same result, more slowly) with a warning that says how to get
+the workers back.
+"""
+
+from __future__ import annotations
+
+import ast
+import functools
+import logging
+import sys
+
+log = logging.getLogger(__name__)
+
+
+@functools.lru_cache(maxsize=8)
+def _guarded_lines(path: str) -> tuple[tuple[int, int], ...]:
+    """Line ranges of the top-level ``if __name__ == "__main__":`` blocks of the script at ``path``."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            tree = ast.parse(f.read(), filename=path)
+    except (OSError, SyntaxError, UnicodeDecodeError, ValueError):
+        return ((0, sys.maxsize),)  # unreadable: assumed guarded (nothing changes)
+    out = []
+    for node in tree.body:
+        if isinstance(node, ast.If) and _is_main_test(node.test):
+            out.append((node.lineno, node.end_lineno or node.lineno))
+    return tuple(out)
+
+
+def _is_main_test(test: ast.expr) -> bool:
+    if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
+        return False
+    sides = [test.left, test.comparators[0]]
+    names = [s for s in sides if isinstance(s, ast.Name) and s.id == "__name__"]
+    consts = [s for s in sides if isinstance(s, ast.Constant) and s.value == "__main__"]
+    return len(names) == 1 and len(consts) == 1
+
+
+def spawn_would_rerun_main() -> bool:
+    """True when this call comes from the top level of a script run as ``__main__`` outside its
+    ``if __name__ == "__main__":`` block: a spawned worker would run that call again. False for the ``plsgraph``
+    command, interactive sessions, notebooks and calls made under the guard or from a function that
+    the guarded block calls."""
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if not path:  # an interactive session, python -c, a notebook: nothing to run again
+        return False
+    frame = sys._getframe(1)
+    while frame is not None:
+        if frame.f_code.co_name == "<module>" and frame.f_globals.get("__name__") == "__main__":
+            line = frame.f_lineno
+            return not any(a <= line <= b for a, b in _guarded_lines(str(path)))
+        frame = frame.f_back
+    return False
+
+
+_WARNED: set[str] = set()
+
+
+def warn_in_process(what: str) -> None:
+    """Say once per process and ``what`` that the work runs here because of :func:`spawn_would_rerun_main`."""
+    if what in _WARNED:
+        return
+    _WARNED.add(what)
+    log.warning("%s runs in this process, without worker processes: plsgraph was called at the top level of the "
+                "script %s; put the calls under 'if __name__ == \"__main__\":' to use the workers (a worker process "
+                "imports the script again)", what, getattr(sys.modules.get("__main__"), "__file__", "?"))

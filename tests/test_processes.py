@@ -1,0 +1,60 @@
+"""Worker processes from a script that calls plsgraph at its top level (a spawned worker imports the script again)."""
+
+import subprocess
+import sys
+import textwrap
+
+from realdata import SAMPLE
+
+STREAMED = """
+from plsgraph.core.board import load_board
+from plsgraph.frontend.track import camera_track_from_event_chunks
+from plsgraph.io.events_reader import iter_event_chunks
+from plsgraph.io.recording import read_recording
+
+def track():
+    camera = read_recording({sample!r}, with_events=False).camera
+    chunks = (c for c in iter_event_chunks({sample!r}, chunk_events=100_000) if c.t_first < c.t_first + 1)
+    t = camera_track_from_event_chunks(chunks, camera, load_board("acircles_4x11_a2"), kind="count", span_s=1.0,
+                                       history_s=0.5, workers=2)
+    print("poses", len(t), flush=True)
+"""
+
+
+def _run(tmp_path, body: str):
+    script = tmp_path / "user_script.py"
+    script.write_text(textwrap.dedent(body))
+    return subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+
+
+def test_a_script_that_calls_at_its_top_level_is_served_in_its_own_process(tmp_path):
+    # Before: the README's example saved as a script ended in "bootstrapping phase" errors and a BrokenProcessPool:
+    # each spawned worker ran the script's calibration again.
+    p = _run(tmp_path, STREAMED.format(sample=str(SAMPLE)) + "\ntrack()\n")
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert "poses" in p.stdout and "bootstrapping" not in p.stderr and "BrokenProcessPool" not in p.stderr
+    assert "runs in this process, without worker processes" in p.stderr
+    assert "if __name__ == \"__main__\":" in p.stderr  # the warning says how to get the workers back
+
+
+def test_the_guard_and_functions_it_calls_keep_the_workers(tmp_path):
+    body = """
+    from plsgraph.core.processes import spawn_would_rerun_main
+
+    def inner():
+        return spawn_would_rerun_main()
+
+    print("top", spawn_would_rerun_main(), flush=True)
+    if __name__ == "__main__":
+        print("guard", spawn_would_rerun_main(), inner(), flush=True)
+    """
+    p = _run(tmp_path, body)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.split() == ["top", "True", "guard", "False", "False"]
+    p = subprocess.run([sys.executable, "-c", "from plsgraph.core.processes import spawn_would_rerun_main as s; "
+                        "print(s())"], capture_output=True, text=True, timeout=120)
+    assert p.stdout.strip() == "False"  # python -c: no script to run again
+    guarded = STREAMED.format(sample=str(SAMPLE)) + "\nif __name__ == '__main__':\n    track()\n"
+    p = _run(tmp_path, guarded)
+    assert p.returncode == 0 and "poses" in p.stdout, p.stderr[-2000:]
+    assert "without worker processes" not in p.stderr
