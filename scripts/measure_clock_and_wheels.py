@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """How well the coarse clock alignment and the wheel-order check work on simulated tracks (no events: fast).
 
-    scripts/measure_clock_and_wheels.py [--seeds 10] [--durations 10 30 60]
+    .venv/bin/python scripts/measure_clock_and_wheels.py [--seeds 10] [--durations 10 30 60]
 
 For each seed and duration: a rich drive (simulate_robot), the camera track (PnP-like pose noise) on a 2026 epoch
 clock, the wheel joints on a clock ahead by a random 1 s .. 24 h, wired in each of the four ways. Prints the coarse
