@@ -421,10 +421,18 @@ def _trunc(w):
     return o.code, not dup, f"{len(lines)} line(s) mention truncation; duplicates: {dup}"
 
 
-@case("8n --rate 1e6")
-def _rate(w):
-    o = plsgraph(*cal(SAMPLE, "rate", "--rate", "1e6"), cwd=w)
-    return (o.code, *expect_user_error(o, "--rate"))
+def _refused(name: str, out: str, flags: tuple[str, ...], mention: str) -> None:
+    """A case: calibrate the sample with ``flags`` must be refused at once (exit 2) with a message naming
+    ``mention``."""
+
+    def run(w):
+        o = plsgraph(*cal(SAMPLE, out, *flags), cwd=w)
+        return (o.code, *expect_user_error(o, mention))
+
+    case(name)(run)
+
+
+_refused("8n --rate 1e6", "rate", ("--rate", "1e6"), "--rate")
 
 
 @case("8o batch --jobs 0")
@@ -472,16 +480,8 @@ def _same_joint(w):
     return (o.code, *expect_user_error(o, "same joint"))
 
 
-@case("9e --child-frame equal to the parent frame")
-def _same_frame(w):
-    o = plsgraph(*cal(SAMPLE, "frame", "--child-frame", "base_link"), cwd=w)
-    return (o.code, *expect_user_error(o, "same frame"))
-
-
-@case("9f --td-range 1e9")
-def _td_range(w):
-    o = plsgraph(*cal(SAMPLE, "tdr", "--td-range", "1e9"), cwd=w)
-    return (o.code, *expect_user_error(o, "--clock-offset"))
+_refused("9e --child-frame equal to the parent frame", "frame", ("--child-frame", "base_link"), "same frame")
+_refused("9f --td-range 1e9", "tdr", ("--td-range", "1e9"), "--clock-offset")
 
 
 @case("9g --force with a cut recording into a good result")
