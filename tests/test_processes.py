@@ -58,3 +58,24 @@ def test_the_guard_and_functions_it_calls_keep_the_workers(tmp_path):
     p = _run(tmp_path, guarded)
     assert p.returncode == 0 and "poses" in p.stdout, p.stderr[-2000:]
     assert "without worker processes" not in p.stderr
+
+
+def test_a_spawned_worker_of_a_guarded_script_may_start_workers_itself(tmp_path):
+    # A batch worker (spawned) runs the front end, whose own workers it may start: the worker's bootstrap is a
+    # "<module>" frame named __main__ too, but not the script's top level. Before this was told apart, every batch
+    # worker's front end ran without its workers.
+    body = """
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    def probe():
+        from plsgraph.core.processes import spawn_would_rerun_main
+        return spawn_would_rerun_main()
+
+    if __name__ == "__main__":
+        with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as ex:
+            print("spawned", ex.submit(probe).result(), flush=True)
+    """
+    p = _run(tmp_path, body)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.split() == ["spawned", "False"]

@@ -13,6 +13,7 @@ from __future__ import annotations
 import ast
 import functools
 import logging
+import os
 import sys
 
 log = logging.getLogger(__name__)
@@ -51,11 +52,15 @@ def spawn_would_rerun_main() -> bool:
     path = getattr(main, "__file__", None)
     if not path:  # an interactive session, python -c, a notebook: nothing to run again
         return False
+    script = os.path.abspath(path)
     frame = sys._getframe(1)
     while frame is not None:
-        if frame.f_code.co_name == "<module>" and frame.f_globals.get("__name__") == "__main__":
+        # The script's own top level (a spawned worker's bootstrap is a "<module>" frame named __main__ too, but
+        # of other code: its tasks come from functions, not from the script's top level).
+        if frame.f_code.co_name == "<module>" and frame.f_globals.get("__name__") == "__main__" \
+                and os.path.abspath(frame.f_code.co_filename) == script:
             line = frame.f_lineno
-            return not any(a <= line <= b for a, b in _guarded_lines(str(path)))
+            return not any(a <= line <= b for a, b in _guarded_lines(script))
         frame = frame.f_back
     return False
 
