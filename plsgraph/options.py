@@ -216,8 +216,12 @@ class CalibrationOptions:
         return replace(base, **top, **sections)
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"board": self.board, "truth": None if self.truth is None else str(self.truth)}
+        """The options as report.json records them; file paths absolute (a report read elsewhere still names the
+        files)."""
+        out: dict[str, Any] = {"board": self.board,
+                               "truth": None if self.truth is None else str(Path(self.truth).absolute())}
         for sec in self.SECTIONS:
             obj = getattr(self, sec)
-            out[sec] = {f.name: (str(v) if isinstance(v := getattr(obj, f.name), Path) else v) for f in fields(obj)}
+            out[sec] = {f.name: (str(v.absolute()) if isinstance(v := getattr(obj, f.name), Path) else v)
+                        for f in fields(obj)}
         return out
