@@ -94,7 +94,9 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
     if need_out:
         p.add_argument("--out", type=Path, required=True,
                        help="output folder: new, empty, or an earlier plsgraph result (replaced with --force)")
-        p.add_argument("--force", action="store_true", help="replace an earlier plsgraph result in the output folder")
+        p.add_argument("--force", action="store_true",
+                       help="replace an earlier plsgraph result in the output folder (a result that is flagged, or no "
+                       "calibration at all, keeps the earlier calibration in previous_calibration/)")
 
 
 def _add_ecosystem_options(p: argparse.ArgumentParser) -> None:
@@ -188,8 +190,8 @@ def _build_parser() -> argparse.ArgumentParser:
     s.add_argument("--jobs", type=int, default=None, help="local worker processes (default: CPU count)")
     s.add_argument("--scheduler", help="Dask scheduler address (tcp://host:port) instead of local processes")
     s.add_argument("--force", action="store_true",
-                   help="replace earlier results in --out (a recording that now fails keeps its earlier calibration "
-                   "in previous_calibration/)")
+                   help="replace earlier results in --out (a recording whose result is now flagged or fails keeps "
+                   "its earlier calibration in previous_calibration/)")
     s.set_defaults(func=_cmd_batch)
     return p
 
