@@ -348,6 +348,7 @@ def test_a_flagged_result_keeps_the_calibration_it_replaces_and_a_failed_copy_co
     assert yaml.safe_load((out / "calibration.yaml").read_text())["ok"] is False
     assert (out / "previous_calibration" / "calibration.yaml").read_text() == good
     assert json.loads((out / "report.json").read_text())["previous_calibration"] == "previous_calibration"
+    assert "href='previous_calibration/report.html'" in (out / "report.html").read_text()
     # Flagged again: the good one stays kept (preferred over the flagged one the folder now holds).
     write_result_folder(out, lambda stage: (write_calibration(stage, flagged, earlier=out),
                                             {"ok": False, "text": ""})[1])

@@ -253,8 +253,11 @@ def write_html_report(out: Path, run: Any, report: dict,
     sections.append(("Result", f"<p><b>{html.escape(status)}</b> (from {html.escape(c['source'])})</p>"
                      + _summary_table(c) + _robot_notes(report) + "<pre>" + html.escape(_result_block(c)) + "</pre>"))
     if report["problems"]:
+        kept = ([f"<li>The calibration this folder held before is kept in <a href='{report['previous_calibration']}/"
+                 f"report.html'>{report['previous_calibration']}/</a>.</li>"] if report.get("previous_calibration")
+                else [])
         sections.append(("Problems", "<ul>" + "".join(f"<li class='warn'><b>{html.escape(p)}</b></li>"
-                                                      for p in report["problems"]) + "</ul>"))
+                                                      for p in report["problems"]) + "".join(kept) + "</ul>"))
     if report["warnings"]:
         sections.append(("Warnings", "<ul>" + "".join(f"<li class='warn'>{html.escape(w)}</li>"
                                                       for w in report["warnings"]) + "</ul>"))

@@ -60,14 +60,14 @@ def write_calibration(out: Path, result: Any, figures: Any = None, earlier: Path
     waited = time.perf_counter() - t0
     write_calibration_yaml(out / "calibration.yaml", report["calibration"])
     robot = write_robot_files(out, result)  # a flagged result gets comment-only files that say why
-    t1 = time.perf_counter()
-    drawn = figures.result() if pending else None
-    write_html_report(out, result.run, report, drawn)  # drawn here when the worker did not (drawn is None)
-    report.setdefault("timing_s", {})["figures"] = round(waited + time.perf_counter() - t1, 4)
     if not report.get("ok", True) and keep_earlier_calibration(earlier, out) is not None:
         report["previous_calibration"] = PREVIOUS_CALIBRATION
     else:
         report.pop("previous_calibration", None)
+    t1 = time.perf_counter()
+    drawn = figures.result() if pending else None
+    write_html_report(out, result.run, report, drawn)  # drawn here when the worker did not (drawn is None)
+    report.setdefault("timing_s", {})["figures"] = round(waited + time.perf_counter() - t1, 4)
     write_json(out / "report.json", report)
     return [out / "calibration.yaml", out / "report.json", out / "report.html", *robot]
 
