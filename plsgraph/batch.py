@@ -133,6 +133,7 @@ def run_batch(
     logs = find_recordings(inputs)
     _check_shared_inputs(options)
     out = prepare_output_dir(out_dir, force=force, whole=False)  # written into; each recording's folder replaced
+    earlier = _earlier_batch_folders(out)  # read before this batch's summary replaces the earlier one
     items = []
     for p in logs:
         truth = p.with_name(p.stem + ".truth.yaml")
@@ -159,21 +160,34 @@ def run_batch(
     ok = all(r["status"] == "ok" for r in rows)
     text = table + f"\n\nwritten: {out / 'summary.json'}, {out / 'summary.md'}"
     if force:
-        stale = _remove_stale_results(out, {Path(item[1]).name for item in items})
+        stale = _remove_stale_results(out, earlier - {Path(item[1]).name for item in items})
         if stale:
             text += f"\nremoved the earlier results of recordings not in this batch: {', '.join(stale)}"
     return {"ok": ok, "text": text, "rows": rows}
 
 
-def _remove_stale_results(out: Path, current: set[str]) -> list[str]:
-    """With --force the batch's folder holds this batch's results only: remove the folders of earlier results
-    (nothing but what plsgraph writes) of recordings not in it; anything else stays."""
+def _earlier_batch_folders(out: Path) -> set[str]:
+    """The recordings' folders an earlier batch's summary.json in ``out`` lists (empty when there is none, or it
+    cannot be read): only those are a batch's to remove."""
+    import json
+
+    try:
+        rows = json.loads((out / "summary.json").read_text()).get("recordings", [])
+        return {Path(str(r["recording"])).stem for r in rows if isinstance(r, dict) and r.get("recording")}
+    except (OSError, ValueError, AttributeError, TypeError):
+        return set()
+
+
+def _remove_stale_results(out: Path, stale_names: set[str]) -> list[str]:
+    """With --force the batch's folder holds this batch's results only: remove the folders of the earlier batch's
+    recordings (``stale_names``: listed in its summary.json) that are not in this one, when they hold nothing but what
+    plsgraph writes; anything else stays (a calibration's folder put there by hand is no batch's to remove)."""
     import shutil
 
     from .report.files import CALIBRATION_SUBFOLDERS, RESULT_FILES, foreign_entries
 
     stale = []
-    for d in sorted(p for p in out.iterdir() if p.is_dir() and not p.is_symlink() and p.name not in current
+    for d in sorted(p for p in out.iterdir() if p.is_dir() and not p.is_symlink() and p.name in stale_names
                     and not p.name.startswith(".")):  # hidden: a staging folder of a run, not a recording's
         ours = not foreign_entries(d, subfolders=CALIBRATION_SUBFOLDERS)
         if ours and any(f.name in RESULT_FILES for f in d.iterdir()):

@@ -208,10 +208,22 @@ def test_batch_force_leaves_no_result_of_a_recording_no_longer_given(tmp_path, c
     (out / "gone" / "report.json").write_text('{"ok": false}')
     (out / "mine").mkdir()
     (out / "mine" / "notes.txt").write_text("kept")
+    # A calibration's folder put beside the batch's by hand (no earlier summary lists it): not the batch's to remove.
+    (out / "robotA_final").mkdir()
+    (out / "robotA_final" / "calibration.yaml").write_text("ok: true\n")
+    (out / "summary.json").write_text(json.dumps({"recordings": [{"recording": "/somewhere/gone.mcap"}]}))
     assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11_a2", "--out", str(out), "--force",
                  "--jobs", "1"]) == 1
     assert "removed the earlier results of recordings not in this batch: gone" in capsys.readouterr().out
     assert not (out / "gone").exists() and (out / "mine" / "notes.txt").read_text() == "kept"
+    assert (out / "robotA_final" / "calibration.yaml").read_text() == "ok: true\n"
+    # Without an earlier summary nothing but this batch's own folders is touched (before: every result folder went).
+    (out / "summary.json").unlink()
+    (out / "robotB_final").mkdir()
+    (out / "robotB_final" / "report.json").write_text('{"ok": true}')
+    main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11_a2", "--out", str(out), "--force", "--jobs", "1"])
+    assert "removed" not in capsys.readouterr().out
+    assert (out / "robotB_final" / "report.json").exists() and (out / "robotA_final").exists()
 
 
 def test_flags_that_cannot_make_sense_are_refused_before_any_work(tmp_path, capsys):
