@@ -53,7 +53,7 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
         type=Path,
         metavar="FILE[:camN]",
         help="camera intrinsics: plsgraph / ROS camera_calibration / OpenCV FileStorage YAML, or a Kalibr camchain "
-        "(FILE:cam1 picks a camera; default: the one whose rostopic matches the events topic, else cam0). "
+        "(FILE:cam1 picks a camera; default: the one whose rostopic matches the events topic, or the only one). "
         "Default: CameraInfo in the recording",
     )
     p.add_argument("--wheel-radius", type=float, default=0.098, help="wheel radius r in m (default: %(default)s)")

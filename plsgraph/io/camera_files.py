@@ -64,6 +64,13 @@ def read_camera_file(spec: str | Path, events_topic: str | None = None) -> Camer
     """Read the intrinsics in ``spec`` (a path, or ``path:camN`` for one camera of a Kalibr camchain)."""
     path, choice = split_camera_choice(spec)
     if not path.is_file():
+        s = str(spec)
+        # The file before the first colon that leaves an existing file (FILE:cam1:cam0, FILE:, FILE:CAM1).
+        head, tail = next(((s[:i], s[i + 1:]) for i, c in enumerate(s) if c == ":" and i and Path(s[:i]).is_file()),
+                          ("", ""))
+        if head:
+            raise InputError(f"camera file {head}: {tail!r} is not a camera of a Kalibr camchain; choose one as "
+                             f"{head}:camN (or {head}:N), e.g. {head}:cam0")
         raise InputError(f"camera file {path} does not exist")
     try:
         text = path.read_text()
@@ -232,11 +239,12 @@ def _pick_kalibr(path: Path, cams: dict, choice: str | None, events_topic: str |
         if len(same_ns) == 1:
             return same_ns[0], []
     listing = ", ".join(f"{k} ({topics[k] or 'no rostopic'})" for k in names)
-    why = f"none matches the events topic {events_topic}" if events_topic else "no events topic to match"
-    return names[0], [
-        f"camera file {path} has {len(names)} cameras: {listing}; {why}, so {names[0]} is used "
-        f"(choose one with --camera-info {path}:camN)"
-    ]
+    why = (f"none matches the events topic {events_topic}" if events_topic else
+           "the events have no topic to match (an event-camera file)")
+    # Taking one of them anyway gave a confident wrong answer where cam0 was another camera (a 5 % focal length off
+    # moved the lever arm by 10 cm within a 1 cm sigma): which camera saw the events is the user's to say.
+    raise InputError(f"camera file {path} has {len(names)} cameras: {listing}; {why}, so which one saw the events "
+                     f"is not known: choose it with --camera-info {path}:camN")
 
 
 def _kalibr(path: Path, name: str, cam) -> CameraModel:
