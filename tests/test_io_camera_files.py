@@ -83,6 +83,12 @@ def test_ros_and_plsgraph_yaml(tmp_path):
     f = read_camera_file(ros)
     assert f.format == "ros"
     np.testing.assert_allclose(f.camera.dist, D)
+    # A distortion line cut short (before: padded with zeros, a wrong camera taken as right).
+    for data in ([float(D[0])], [], D[:3].tolist()):
+        ros.write_text(ros.read_text().rsplit("distortion_coefficients", 1)[0]
+                       + f"distortion_coefficients: {{rows: 1, cols: 5, data: {data}}}\n")
+        with pytest.raises(InputError, match=rf"has {len(data)} numbers where rows x cols say 5"):
+            read_camera_file(ros)
     own = tmp_path / "own.yaml"
     own.write_text(f"width: 346\nheight: 260\nK: {K.tolist()}\nD: {D.tolist()}\n")
     assert read_camera_file(own).format == "plsgraph"

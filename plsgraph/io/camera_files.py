@@ -176,6 +176,12 @@ def _ros_or_plsgraph(path: Path, d: dict) -> CameraModel:
         if not isinstance(dc, dict) or "data" not in dc:
             raise _bad(path, "distortion_coefficients", "must be a mapping with 'data'")
         dn, D = "distortion_coefficients.data", dc["data"]
+        declared = [dc.get(k) for k in ("rows", "cols")]
+        if all(isinstance(v, int) and not isinstance(v, bool) for v in declared) and isinstance(D, list | tuple) \
+                and len(D) != declared[0] * declared[1]:
+            # Padding the missing ones with zeros passed a wrong camera as a right one (a cut-off line).
+            raise _bad(path, dn, f"has {len(D)} numbers where rows x cols say {declared[0] * declared[1]}; write all "
+                       "of them (or rows: 1, cols: 0 and data: [] for no distortion)")
     else:
         raise _bad(path, "D", "is missing (or 'distortion_coefficients'); write D: [] for no distortion")
     Ka = _numbers(path, kn, K, (9,))
