@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -100,6 +102,14 @@ def test_ros_and_plsgraph_yaml(tmp_path):
     bad.write_text("width: 346\nheight: 260\nK: [1, 2, 3]\nD: []\n")
     with pytest.raises(InputError, match="'K' must have 9 numbers, got 3"):
         load_camera_file(bad)
+    # A principal point at (0, 0) or outside the image, a last row that is not [0, 0, 1]: refused (before: taken, and
+    # the run ended blaming the clocks).
+    for Kb, words in ((np.array([[255.0, 0, 0], [0, 255.0, 0], [0, 0, 1]]), "principal point (0, 0)"),
+                      (np.array([[255.0, 0, 400], [0, 255.0, 130], [0, 0, 1]]), "principal point (400, 130)"),
+                      (np.array([[255.0, 0, 173], [0, 255.0, 130], [0, 0, 0]]), "last row")):
+        bad.write_text(f"width: 346\nheight: 260\nK: {Kb.tolist()}\nD: []\n")
+        with pytest.raises(InputError, match=re.escape(words)):
+            load_camera_file(bad)
     bad.write_text(f"width: 346\nheight: 260\nK: {K.tolist()}\nD: []\ndistortion_model: equidistant\n")
     with pytest.raises(InputError, match="distortion_model.*equidistant"):
         load_camera_file(bad)

@@ -29,6 +29,12 @@ class CameraModel:
         d[: dist.size] = dist
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise InputError(f"camera: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
+        if not np.allclose(K[2], [0.0, 0.0, 1.0], rtol=0.0, atol=1e-9):
+            raise InputError(f"camera: K's last row must be [0, 0, 1], got {K[2].tolist()}")
+        if not (0.0 < K[0, 2] < self.width and 0.0 < K[1, 2] < self.height):
+            # (0, 0) or a point outside the image: a matrix written in another convention, or the wrong camera.
+            raise InputError(f"camera: the principal point ({K[0, 2]:g}, {K[1, 2]:g}) must lie inside the "
+                             f"{self.width} x {self.height} image")
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", d)
 
