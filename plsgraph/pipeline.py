@@ -118,6 +118,8 @@ def read_inputs(run: Run) -> Any:
         cam_file = read_camera_file(opts.inputs.camera_info, events_topic=_events_topic(rec, opts))
         run.camera = cam_file.camera
         run.warn(*cam_file.warnings)
+        if rec.camera is not None:
+            run.warn(*camera_disagreement(rec.camera, cam_file.camera, str(opts.inputs.camera_info)))
     elif rec.camera is not None:
         run.camera = rec.camera
     else:
@@ -133,6 +135,28 @@ def read_inputs(run: Run) -> Any:
             "(a plsgraph, ROS camera_calibration or OpenCV YAML, or a Kalibr camchain as FILE[:camN])"
         )
     return rec
+
+
+#: Relative difference of focal length or principal point (of the image size) between the recording's CameraInfo and
+#: --camera-info above which the run says they disagree (a 5 % focal length moved the lever arm by 10 cm).
+CAMERA_DISAGREE_REL = 0.01
+
+
+def camera_disagreement(recorded: Any, given: Any, source: str) -> list[str]:
+    """A warning when the intrinsics given (``--camera-info``), which are used, differ from the recording's own."""
+    if (recorded.width, recorded.height) != (given.width, given.height):
+        return [f"the intrinsics of {source} are for a {given.width} x {given.height} image, the recording's "
+                f"CameraInfo for {recorded.width} x {recorded.height}; {source} is used: check it is this camera's"]
+    scale = np.array([given.fx, given.fy, given.width, given.height], dtype=float)
+    diff = np.abs(np.array([recorded.fx - given.fx, recorded.fy - given.fy, recorded.cx - given.cx,
+                            recorded.cy - given.cy])) / scale
+    if np.max(diff) <= CAMERA_DISAGREE_REL:
+        return []
+    return [f"the intrinsics of {source} (fx {given.fx:.1f}, fy {given.fy:.1f}, cx {given.cx:.1f}, cy {given.cy:.1f}) "
+            f"differ from the recording's CameraInfo (fx {recorded.fx:.1f}, fy {recorded.fy:.1f}, "
+            f"cx {recorded.cx:.1f}, cy {recorded.cy:.1f}) by up to {100 * np.max(diff):.0f} %; {source} is used: "
+            "a focal length a few percent off moves the lever arm by centimetres, so make sure it is this camera's "
+            "calibration"]
 
 
 def _require_streams(run: Run, rec: Any) -> None:

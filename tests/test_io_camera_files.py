@@ -206,3 +206,20 @@ def test_pipeline_picks_the_camchain_camera_of_the_events_topic(tmp_path):
     run = Run(rec_path, CalibrationOptions.build(camera_info=f"{chain}:cam0"))
     read_inputs(run)
     assert run.camera.width == 640
+
+
+def test_intrinsics_given_that_differ_from_the_recordings_camera_info_are_used_and_warned_of():
+    # Before: --camera-info silently replaced the recording's CameraInfo even where the two differed by 5 %.
+    from plsgraph.core.camera import CameraModel
+    from plsgraph.pipeline import camera_disagreement
+
+    rec = CameraModel(346, 260, K, D)
+    assert camera_disagreement(rec, CameraModel(346, 260, K, D), "f.yaml") == []
+    K5 = K.copy()
+    K5[0, 0] *= 1.05
+    (w,) = camera_disagreement(rec, CameraModel(346, 260, K5, D), "f.yaml")
+    assert "differ from the recording's CameraInfo" in w and "by up to 5 %" in w and "f.yaml is used" in w
+    K6 = K.copy()
+    K6[0, 2], K6[1, 2] = 320.0, 240.0
+    (w,) = camera_disagreement(rec, CameraModel(640, 480, K6, D), "f.yaml")
+    assert "640 x 480" in w and "346 x 260" in w
