@@ -110,6 +110,25 @@ def coarse_rule(run: Any) -> tuple[bool, str]:
     return False, "same clock (the camera's and the odometry's time spans overlap)"
 
 
+def _require_overlap(cam: np.ndarray, odo: np.ndarray, centre: float, w: float, given: float | None) -> None:
+    """The camera's span, shifted by ``centre`` (the clock difference given, or 0 for one clock), must meet the
+    odometry's for some time offset within +-``w``; else the fine search has nothing to compare and the run would end
+    in a diagnosis that blames the driving."""
+    from .errors import InputError
+
+    lo, hi = cam[0] + centre, cam[-1] + centre
+    if not (hi + w < odo[0] or lo - w > odo[-1]):
+        return
+    spans = (f"the camera's span on the odometry clock is [{lo:.2f}, {hi:.2f}] s and the odometry's "
+             f"[{odo[0]:.2f}, {odo[-1]:.2f}] s: they do not overlap for any time offset within +-{w:g} s")
+    if given is not None:
+        raise InputError(f"with --clock-offset {given:g} s {spans}. Check the offset and its sign (t_odom = t_cam + "
+                         "offset), or leave --clock-offset out to have the clocks aligned from the motion")
+    raise InputError(f"with --clock-align never the two clocks are taken as one, but {spans}. Let the clocks be "
+                     "aligned from the motion (--clock-align auto or always), or give their difference with "
+                     "--clock-offset SECONDS")
+
+
 def pair_tracks(run: Any) -> None:
     """Check the wheel order and align the clocks; updates ``run.base_track``, ``run.camera_track`` (shifted onto
     the odometry clock), ``run.clock_offset_s`` and ``run.recording_info['clock' / 'wheel_order']``."""
@@ -122,6 +141,8 @@ def pair_tracks(run: Any) -> None:
     given = opts.inputs.clock_offset
     centre = given if given is not None else 0.0
     window = None if coarse else (centre - w, centre + w)
+    if not coarse:
+        _require_overlap(run.camera_track.t, run.base_track.t, centre, w, given)
     alignment = None
     wheels = getattr(run, "wheels", None)
     if wheels is not None and opts.odometry.wheel_order != "off":
@@ -158,17 +179,6 @@ def pair_tracks(run: Any) -> None:
         if not alignment.ok:  # pragma: no cover - align_clocks(strict=True) raised already
             raise ClockAlignmentError(alignment.reason)
     shift = float(clock["offset_s"])
-    if given is not None and not coarse:
-        cam, odo = run.camera_track.t, run.base_track.t
-        lo, hi = cam[0] + given, cam[-1] + given
-        if hi + w < odo[0] or lo - w > odo[-1]:  # no td in the search range puts them side by side
-            from .errors import InputError
-
-            raise InputError(
-                f"with --clock-offset {given:g} s the camera's span on the odometry clock is [{lo:.2f}, {hi:.2f}] s "
-                f"and the odometry's [{odo[0]:.2f}, {odo[-1]:.2f}] s: they do not overlap for any time offset within "
-                f"+-{w:g} s. Check the offset and its sign (t_odom = t_cam + offset), or leave --clock-offset out "
-                "to have the clocks aligned from the motion")
     if shift != 0.0:
         run.camera_track = shift_camera_track(run.camera_track, shift)
         run.clock_offset_s = shift

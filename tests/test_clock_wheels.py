@@ -184,3 +184,9 @@ def test_a_clock_offset_that_leaves_the_two_spans_apart_is_refused_with_its_sign
     run = _run(sim, "as_given", clock_offset=DIFF)
     pair_tracks(run)  # the right one
     assert run.clock_offset_s == DIFF
+    # --clock-align never with the clocks an hour apart: refused the same way (before: exit 1, a diagnosis that
+    # advised recording longer and driving forwards and backwards).
+    run = _run(sim, "as_given", clock_align="never")
+    with pytest.raises(InputError, match=r"--clock-align never the two clocks are taken as one, but .* do not "
+                                         r"overlap .*--clock-align auto or always"):
+        pair_tracks(run)
