@@ -174,6 +174,9 @@ def test_diagnose_and_compare_answer_a_recording_too_short_to_calibrate_as_calib
     assert d["ok"] is False and d["problems"] and d["advice"]
     assert main(["compare", *args]) == 1
     assert "no comparison" in capsys.readouterr().err
+    assert main(["compare", *args, "--json"]) == 1  # before: nothing on stdout
+    c = json.loads(capsys.readouterr().out)
+    assert c["ok"] is False and c["problems"] and c["rows"] == []
 
 
 def test_a_recording_with_events_alone_is_said_to_lack_the_odometry(tmp_path, capsys):

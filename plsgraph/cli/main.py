@@ -294,6 +294,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         res = compare(args.log, options=_options(args), progress=ProgressBar)
     except (DegenerateMotionError, InsufficientDataError) as exc:  # a result of the recording, not a user error
         print(f"plsgraph: no comparison: {exc}", file=sys.stderr)
+        if args.json:  # a script reading stdout gets an answer it can parse, as diagnose --json gives
+            print(json.dumps({"recording": str(args.log), "ok": False, "problems": [str(exc)], "warnings": [],
+                              "rows": [], "failed": {}}, indent=2))
         return 1
     return _emit(args, json.dumps(res.to_dict(), indent=2) if args.json else comparison_text(res), 0 if res.ok else 1)
 
