@@ -129,3 +129,23 @@ def test_report_html_puts_the_result_first_and_every_image_exists(calibrated):
     # Before: the page named neither the odometry file nor the clock step, which the terminal and report.json gave.
     assert "odometry read from" in page and "odometry.mcap" in page and "clocks aligned coarsely" in page
     assert "effective wheel radius" in page
+
+
+def test_a_damaged_odometry_file_is_said_to_be_damaged_not_to_lack_its_topic(pair, tmp_path):
+    # Before: "holds neither sensor_msgs/JointState nor nav_msgs/Odometry messages (it has /joint_states
+    # (sensor_msgs/msg/JointState), ...)": the topic was listed as there while said to be missing.
+    from plsgraph.errors import RecordingError
+    from plsgraph.pairing import merge_odometry_file
+    from plsgraph.pipeline import Run
+
+    data = bytearray((pair / "odometry.mcap").read_bytes())
+    data[200:4296] = bytes(4096)  # the start of its only data chunk overwritten
+    bad = tmp_path / "odo_damaged.mcap"
+    bad.write_bytes(bytes(data))
+    run = Run(pair / "events.mcap", CalibrationOptions.build(board="acircles_4x11_a2", odometry_file=bad))
+    from plsgraph.pairing import read_events_file
+
+    with pytest.raises(RecordingError) as e:
+        merge_odometry_file(run, read_events_file(run.log_path, None))
+    msg = str(e.value)
+    assert "damaged" in msg and "holds neither" not in msg, msg
