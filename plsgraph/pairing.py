@@ -66,10 +66,10 @@ def merge_odometry_file(run: Any, rec: Any) -> Any:
         wheel_topics = [t for t, i in odo.topics.items() if i.msgtype.split("/")[-1] in ("JointState", "Odometry")]
         if wheel_topics and (odo.lost or odo.warnings):
             # The topic is there; its messages were lost to damage (saying "holds neither" contradicted the listing).
-            said = [w for w in odo.warnings if any(t in w for t in wheel_topics)] or list(odo.warnings)
+            said = ([w for w in odo.warnings if any(t in w for t in wheel_topics)] or list(odo.warnings)
+                    or ["messages lost"])
             raise RecordingError(f"odometry file {path} has {', '.join(wheel_topics)}, but fewer than two of their "
-                                 f"messages could be read: the file is damaged ({said[0] if said else 'messages lost'}); "
-                                 "use a complete copy")
+                                 f"messages could be read: the file is damaged ({said[0]}); use a complete copy")
         raise RecordingError(f"odometry file {path} holds neither sensor_msgs/JointState nor nav_msgs/Odometry "
                              f"messages (it has {listed}); name the topic with --joints-topic/--odom-topic")
     used = {k: v for k, v in rec.used_topics.items() if k not in ("joints", "odometry", "imu")}
