@@ -78,12 +78,13 @@ def _calibrate_item(item: tuple[str, str, CalibrationOptions, bool]) -> dict:
 
 
 def _replace_with_failure(log_path: str, out_dir: str, force: bool, error: str) -> None:
-    """With --force, a failed recording's folder is replaced by a report.json saying so (an older ok
-    calibration.yaml there must not pass for this run's); without --force an existing folder was refused."""
+    """A failed recording gets a folder with a report.json saying so: a new one, or with --force the earlier one
+    replaced (an older ok calibration.yaml there must not pass for this run's; it is kept in previous_calibration/);
+    without --force an existing folder was refused and stays as it was."""
     from .api import failure_to_dir
     from .report.files import CALIBRATION_SUBFOLDERS, foreign_entries
 
-    if not (force and Path(out_dir).exists()) or foreign_entries(Path(out_dir), subfolders=CALIBRATION_SUBFOLDERS):
+    if Path(out_dir).exists() and (not force or foreign_entries(Path(out_dir), subfolders=CALIBRATION_SUBFOLDERS)):
         return  # refused, or a folder of the user's own (--force replaces only an earlier result)
     try:
         failure_to_dir(log_path, out_dir, error)
@@ -134,6 +135,10 @@ def run_batch(
     _check_shared_inputs(options)
     out = prepare_output_dir(out_dir, force=force, whole=False)  # written into; each recording's folder replaced
     earlier = _earlier_batch_folders(out)  # read before this batch's summary replaces the earlier one
+    for name in ("summary.json", "summary.md"):
+        # From now on the folders are this batch's: an earlier summary would describe folders being replaced (and,
+        # if this batch is interrupted, a mix of the two runs). This batch's summary is written when it completes.
+        (out / name).unlink(missing_ok=True)
     items = []
     for p in logs:
         truth = p.with_name(p.stem + ".truth.yaml")

@@ -114,6 +114,29 @@ def test_batch_reports_failures_without_stopping(tmp_path, capsys):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert [r["status"] for r in summary["recordings"]] == ["failed", "failed"]
     assert all(r["error"] for r in summary["recordings"])
+    # Each failed recording has its folder saying so (before: only where an earlier folder was replaced).
+    for name in ("a", "b"):
+        rep = json.loads((tmp_path / "out" / name / "report.json").read_text())
+        assert rep["ok"] is False and rep["calibration"] is None and rep["problems"]
+
+
+def test_an_interrupted_batch_leaves_no_summary_of_the_batch_before(tmp_path, monkeypatch):
+    # Before: Ctrl-C during batch --force left the earlier batch's summary.json beside folders of the new run.
+    import plsgraph.refine.batch as rb
+
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "a.mcap").write_bytes(b"not a recording")
+    out = tmp_path / "out"
+    assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11", "--out", str(out), "--jobs", "1"]) == 1
+    assert (out / "summary.json").exists()
+
+    def interrupted(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rb, "refine_many", interrupted)
+    assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11", "--out", str(out), "--jobs", "1",
+                 "--force"]) == 130
+    assert not (out / "summary.json").exists() and not (out / "summary.md").exists()
 
 
 SAMPLE = __import__("realdata").SAMPLE
