@@ -57,6 +57,13 @@ def merge_odometry_file(run: Any, rec: Any) -> Any:
     path = Path(opts.odometry_file)
     if not path.exists():
         raise InputError(f"odometry file {path} does not exist")
+    if path.resolve() == Path(run.log_path).resolve():
+        raise InputError(f"--odometry names the recording itself ({path}); leave --odometry out: a recording's own "
+                         "odometry is read from it, on its own clock")
+    own = rec.joints is not None or rec.odometry is not None
+    if own:
+        run.warn(f"{Path(run.log_path).name} has wheel odometry of its own; the odometry of {path.name} (--odometry) "
+                 "is used instead")
     topics = {k: v for k, v in opts.topics.items() if k in ("joints", "odometry")} or None
     odo = read_recording(path, topics=topics, with_events=False)
     run.warn(*(f"{path.name}: {w}" for w in odo.warnings))

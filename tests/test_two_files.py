@@ -149,3 +149,19 @@ def test_a_damaged_odometry_file_is_said_to_be_damaged_not_to_lack_its_topic(pai
         merge_odometry_file(run, read_events_file(run.log_path, None))
     msg = str(e.value)
     assert "damaged" in msg and "holds neither" not in msg, msg
+
+
+def test_the_recording_given_as_its_own_odometry_file_is_refused_and_a_second_odometry_is_said_to_win(pair):
+    # Before: the same file as both ran, saying its odometry came "from another file, so from another clock"; an
+    # events file with its own odometry had it ignored without a word.
+    from plsgraph.errors import InputError
+    from plsgraph.pairing import merge_odometry_file, read_events_file
+    from plsgraph.pipeline import Run
+
+    run = Run(SAMPLE, CalibrationOptions.build(board="acircles_4x11_a2", odometry_file=SAMPLE))
+    with pytest.raises(InputError, match="names the recording itself"):
+        merge_odometry_file(run, read_events_file(run.log_path, None))
+    run = Run(SAMPLE, CalibrationOptions.build(board="acircles_4x11_a2", odometry_file=pair / "odometry.mcap"))
+    merge_odometry_file(run, read_events_file(run.log_path, None))
+    assert any("has wheel odometry of its own; the odometry of odometry.mcap (--odometry) is used instead" in w
+               for w in run.warnings), run.warnings
