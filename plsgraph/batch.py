@@ -15,6 +15,8 @@ from .options import CalibrationOptions
 log = logging.getLogger(__name__)
 
 RECORDING_SUFFIXES = (".mcap", ".bag", ".db3")
+#: Event-only files: they need their odometry from a second file (calibrate --odometry), which batch does not take.
+EVENT_ONLY_SUFFIXES = (".raw", ".aedat4")
 
 
 def find_recordings(inputs: list[Path]) -> list[Path]:
@@ -26,6 +28,9 @@ def find_recordings(inputs: list[Path]) -> list[Path]:
         if p.is_dir():
             found += sorted(q for q in p.iterdir() if q.suffix in RECORDING_SUFFIXES and q.is_file())
         elif p.is_file():
+            if p.suffix in EVENT_ONLY_SUFFIXES:
+                raise InputError(f"{p} holds events only: its odometry comes from a second file, which batch does not "
+                                 f"take; calibrate it with 'plsgraph calibrate {p} --odometry ODOMETRY_FILE ...'")
             found.append(p)
         else:
             raise InputError(f"{p} does not exist")
@@ -100,6 +105,23 @@ def _as_row(result: Any, item: tuple) -> dict:
             "seconds": round(result.seconds, 2)}
 
 
+def skipped_in_folders(inputs: list[Path]) -> list[str]:
+    """What the folders given hold that a batch does not calibrate, said so that nothing is skipped silently:
+    event-only files (they need --odometry) and recordings in sub-folders (folders are not searched down)."""
+    notes = []
+    for p in map(Path, inputs):
+        if not p.is_dir():
+            continue
+        events = sorted(q.name for q in p.iterdir() if q.suffix in EVENT_ONLY_SUFFIXES and q.is_file())
+        nested = sorted(str(q.relative_to(p)) for q in p.glob("*/*") if q.suffix in RECORDING_SUFFIXES and q.is_file())
+        if events:
+            notes.append(f"not calibrated: {', '.join(events)} in {p} (events only: calibrate each with --odometry)")
+        if nested:
+            notes.append(f"not calibrated: {', '.join(nested[:5])}{' ...' if len(nested) > 5 else ''} in "
+                         f"sub-folders of {p} (name the sub-folders to include them)")
+    return notes
+
+
 def _check_shared_inputs(options: CalibrationOptions) -> None:
     """What every recording of the batch uses (the board, an intrinsics file) checked once, before any work: a wrong
     one is the user's error, not a failure of each recording."""
@@ -164,6 +186,8 @@ def run_batch(
     write_text(out / "summary.md", table + "\n")
     ok = all(r["status"] == "ok" for r in rows)
     text = table + f"\n\nwritten: {out / 'summary.json'}, {out / 'summary.md'}"
+    for note in skipped_in_folders(inputs):
+        text += "\n" + note
     if force:
         stale = _remove_stale_results(out, earlier - {Path(item[1]).name for item in items})
         if stale:

@@ -114,6 +114,17 @@ def test_batch_reports_failures_without_stopping(tmp_path, capsys):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert [r["status"] for r in summary["recordings"]] == ["failed", "failed"]
     assert all(r["error"] for r in summary["recordings"])
+    # Nothing in the folder is skipped without a word (before: silently): event-only files, sub-folders' recordings.
+    (tmp_path / "in" / "ev.raw").write_bytes(b"x")
+    (tmp_path / "in" / "sub").mkdir()
+    (tmp_path / "in" / "sub" / "c.mcap").write_bytes(b"x")
+    capsys.readouterr()
+    main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11", "--out", str(tmp_path / "out2"), "--jobs", "1"])
+    out = capsys.readouterr().out
+    assert "not calibrated: ev.raw" in out and "--odometry" in out and "not calibrated: sub/c.mcap" in out
+    assert main(["batch", str(tmp_path / "in" / "ev.raw"), "--board", "acircles_4x11", "--out",
+                 str(tmp_path / "out3")]) == 2
+    assert "holds events only" in capsys.readouterr().err and not (tmp_path / "out3").exists()
     # Each failed recording has its folder saying so (before: only where an earlier folder was replaced).
     for name in ("a", "b"):
         rep = json.loads((tmp_path / "out" / name / "report.json").read_text())
