@@ -497,7 +497,33 @@ def _keep_previous(w):
                            f"{prev['files'][:3]}..., ok {prev.get('yaml_ok')}")
 
 
-@case("9h no lock files left beside the results")
+@case("9h batch --force beside calibrations put there by hand")
+def _batch_beside(w):
+    out = w / "beside"
+    (out / "robotA_final").mkdir(parents=True)
+    (out / "robotA_final" / "calibration.yaml").write_text("ok: true\n")
+    junk = w / "junkrecs"
+    junk.mkdir()
+    (junk / "junk.mcap").write_bytes(b"\0" * 4096)
+    o = plsgraph("batch", junk, "--board", BOARD, "--out", out, "--jobs", "1", "--force", cwd=w)
+    kept = (out / "robotA_final" / "calibration.yaml").exists()
+    failed = folder_state(out / "junk").get("ok") is False
+    return o.code, kept and failed and o.code == 1, (f"exit {o.code}; the hand-made calibration kept: {kept}; "
+                                                     f"the failed recording's folder says so: {failed}")
+
+
+@case("9i a camchain of two cameras, neither on the events topic")
+def _camchain(w):
+    chain = w / "chain.yaml"
+    cam = "  camera_model: pinhole\n  distortion_model: radtan\n  distortion_coeffs: [0, 0, 0, 0]\n"
+    chain.write_text("cam0:\n" + cam + "  intrinsics: [255, 255, 173, 130]\n  resolution: [346, 260]\n"
+                     "  rostopic: /rgb/image_raw\ncam1:\n" + cam + "  intrinsics: [240, 240, 173, 130]\n"
+                     "  resolution: [346, 260]\n  rostopic: /cam1/image_raw\n")
+    o = plsgraph(*cal(SAMPLE, "chain", "--camera-info", chain), cwd=w)
+    return (o.code, *expect_user_error(o, ":camN"))
+
+
+@case("9j no lock files left beside the results")
 def _locks(w):
     left = sorted(p.name for p in w.iterdir() if p.name.endswith(".plsgraph-lock"))
     return 0, not left, f"lock files left: {left or 'none'}"
