@@ -130,8 +130,10 @@ def read_inputs(run: Run) -> Any:
         why = ("no sensor_msgs/CameraInfo topic" if not info_topics else
                f"no usable sensor_msgs/CameraInfo ({', '.join(info_topics)}: "
                + ("; ".join(said) if said else "none of its messages makes a camera") + ")")
+        also = (f" (nor does the odometry file {opts.inputs.odometry_file} give one)"
+                if opts.inputs.odometry_file is not None and not info_topics else "")
         raise InputError(
-            f"{run.log_path} has {why}; pass the intrinsics with --camera-info FILE "
+            f"{run.log_path} has {why}{also}; pass the intrinsics with --camera-info FILE "
             "(a plsgraph, ROS camera_calibration or OpenCV YAML, or a Kalibr camchain as FILE[:camN])"
         )
     return rec

@@ -217,4 +217,4 @@ def test_a_recording_without_camera_info_says_so_without_pointing_at_warnings_it
         read_inputs(run)
     msg = str(e.value)
     assert "has no sensor_msgs/CameraInfo topic" in msg and "--camera-info" in msg
-    assert "see the warnings" not in msg
+    assert "see the warnings" not in msg and "odometry file" not in msg
