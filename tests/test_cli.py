@@ -301,3 +301,12 @@ def test_a_truth_file_that_does_not_exist_is_named_plainly(tmp_path, capsys):
         err = capsys.readouterr().err
         assert "does not exist" in err or "no ground truth beside" in err, err
     assert f"truth file {tmp_path / 'nosuch.truth.yaml'} does not exist" in err
+
+
+def test_intrinsics_missing_from_both_files_names_both(tmp_path, capsys):
+    jackal = SHARED_REAL_DIR / "jackal_odometry.bag"
+    if not (DAVIS.exists() and jackal.exists()):
+        pytest.skip("real recordings missing")
+    assert main(["diagnose", str(DAVIS), "--odometry", str(jackal), "--board", "aprilgrid_4x3_tagboard"]) == 2
+    err = capsys.readouterr().err
+    assert "has no sensor_msgs/CameraInfo topic (nor does the odometry file" in err and "--camera-info" in err
