@@ -168,8 +168,14 @@ def run_batch(
     own = executor is None
     if own:
         executor = default_executor(len(items), jobs)
+    started = time.time()
     try:
         results = refine_many(items, _batch_item, executor=executor)
+    except KeyboardInterrupt:
+        done = [Path(item[1]).name for item in items if _written_since(Path(item[1]), started)]
+        log.warning("batch interrupted: %s; no summary is written (run the batch again with --force for one)",
+                    f"the folders of {', '.join(done)} are this run's" if done else "no recording had finished")
+        raise
     finally:
         if own:
             executor.shutdown(wait=True)
@@ -193,6 +199,14 @@ def run_batch(
         if stale:
             text += f"\nremoved the earlier results of recordings not in this batch: {', '.join(stale)}"
     return {"ok": ok, "text": text, "rows": rows}
+
+
+def _written_since(folder: Path, t0: float) -> bool:
+    """Whether a recording's folder holds a report.json written since ``t0`` (this batch's)."""
+    try:
+        return (folder / "report.json").stat().st_mtime >= t0
+    except OSError:
+        return False
 
 
 def _earlier_batch_folders(out: Path) -> set[str]:

@@ -1,6 +1,7 @@
 """The command's user-facing behaviour: exit codes, messages, refusal to overwrite, machine-readable output."""
 
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -131,7 +132,7 @@ def test_batch_reports_failures_without_stopping(tmp_path, capsys):
         assert rep["ok"] is False and rep["calibration"] is None and rep["problems"]
 
 
-def test_an_interrupted_batch_leaves_no_summary_of_the_batch_before(tmp_path, monkeypatch):
+def test_an_interrupted_batch_leaves_no_summary_of_the_batch_before(tmp_path, monkeypatch, caplog):
     # Before: Ctrl-C during batch --force left the earlier batch's summary.json beside folders of the new run.
     import plsgraph.refine.batch as rb
 
@@ -145,9 +146,25 @@ def test_an_interrupted_batch_leaves_no_summary_of_the_batch_before(tmp_path, mo
         raise KeyboardInterrupt
 
     monkeypatch.setattr(rb, "refine_many", interrupted)
-    assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11", "--out", str(out), "--jobs", "1",
-                 "--force"]) == 130
+    with caplog.at_level(logging.WARNING):
+        assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11", "--out", str(out), "--jobs", "1",
+                     "--force"]) == 130
     assert not (out / "summary.json").exists() and not (out / "summary.md").exists()
+    assert any("batch interrupted: no recording had finished; no summary is written" in r.message
+               for r in caplog.records)
+
+    def after_one(items, fn, executor=None):
+        folder = Path(items[0][1])
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "report.json").write_text("{}")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rb, "refine_many", after_one)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11", "--out", str(out), "--jobs", "1",
+                     "--force"]) == 130
+    assert any("the folders of a are this run's" in r.message for r in caplog.records)
 
 
 SAMPLE = __import__("realdata").SAMPLE
