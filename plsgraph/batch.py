@@ -172,15 +172,15 @@ def run_batch(
     try:
         results = refine_many(items, _batch_item, executor=executor)
     except KeyboardInterrupt:
-        if own:  # the recordings not started are not started, those running are stopped (not waited for)
-            _stop_workers(executor)
         done = [Path(item[1]).name for item in items if _written_since(Path(item[1]), started)]
-        log.warning("batch interrupted: %s; no summary is written (run the batch again with --force for one)",
-                    f"the folders of {', '.join(done)} are this run's" if done else "no recording had finished")
+        log.warning("batch interrupted: %s (a recording a worker was on may still finish; the others do not start); "
+                    "no summary is written (run the batch again with --force for one)",
+                    f"so far the folders of {', '.join(done)} are this run's" if done else
+                    "no recording had finished yet")
         raise
     finally:
         if own:
-            executor.shutdown(wait=True, cancel_futures=True)
+            executor.shutdown(wait=True, cancel_futures=True)  # after an interrupt: the rest never start
     rows = [_as_row(r, item) for r, item in zip(results, items, strict=True)]
     write_json(out / "summary.json", {"recordings": rows})
     table = markdown_table(
@@ -201,30 +201,6 @@ def run_batch(
         if stale:
             text += f"\nremoved the earlier results of recordings not in this batch: {', '.join(stale)}"
     return {"ok": ok, "text": text, "rows": rows}
-
-
-def _stop_workers(executor: Any, grace_s: float = 10.0) -> None:
-    """Stop a process pool's workers now (an interrupt reaches only this process when it is sent to it alone, e.g. by
-    ``kill -INT`` or a scheduler; a terminal's Ctrl-C reaches the workers too). Each is interrupted as Ctrl-C would:
-    a recording it was writing keeps the folder it had (the result is written into a staging folder, removed on the
-    interrupt, with its lock file). One that does not end within ``grace_s`` is terminated."""
-    import os
-    import signal
-
-    procs = list((getattr(executor, "_processes", None) or {}).values())
-    for proc in procs:
-        try:
-            os.kill(proc.pid, signal.SIGINT)
-        except (OSError, TypeError, AttributeError):
-            pass
-    end = time.monotonic() + grace_s
-    for proc in procs:
-        try:
-            proc.join(max(0.0, end - time.monotonic()))
-            if proc.is_alive():
-                proc.terminate()
-        except (OSError, ValueError, AttributeError, AssertionError):
-            pass
 
 
 def _written_since(folder: Path, t0: float) -> bool:

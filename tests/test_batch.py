@@ -64,26 +64,3 @@ def test_process_pool_refines_recordings_and_records_errors():
     d = np.degrees(rotation_error_base_axes(r.R_base_cam, case.rec.T_base_cam[:3, :3]))
     assert np.all(np.abs(d) < 4 * r.sigma_rot_deg + 0.05)
     assert not res[1].ok and res[1].error_type == "InputError"
-
-
-def test_an_interrupted_batch_stops_its_workers_instead_of_waiting_for_them():
-    # Before: an interrupt sent to the batch process alone (kill -INT, a scheduler) waited for every recording still
-    # queued; the workers are now interrupted as a terminal's Ctrl-C would (their staging folders removed) and the
-    # queued ones never start.
-    import multiprocessing as mp
-    import time
-    from concurrent.futures import ProcessPoolExecutor
-
-    from plsgraph.batch import _stop_workers
-
-    ex = ProcessPoolExecutor(2, mp_context=mp.get_context("spawn"))
-    futures = [ex.submit(time.sleep, 60) for _ in range(4)]
-    deadline = time.monotonic() + 60
-    while sum(f.running() for f in futures) < 2 and time.monotonic() < deadline:
-        time.sleep(0.05)
-    procs = list(ex._processes.values())
-    t0 = time.monotonic()
-    _stop_workers(ex, grace_s=10.0)
-    ex.shutdown(wait=True, cancel_futures=True)
-    assert time.monotonic() - t0 < 8.0
-    assert procs and not any(p.is_alive() for p in procs)
