@@ -210,8 +210,14 @@ def calibrate_to_dir(
                     figures.warm()
                     figures.early(stage, run)
 
+                # And the figures that need only the refined solution once the refinement's solve ends: they are
+                # drawn while its second opinions are worked out, and kept if the result's solution is that one.
+                def solution_known(run: Any, solution: Any) -> None:
+                    figures.speculate(stage, run, solution)
+
                 result = calibration_result(run_recording(recording, _options(None, options, {}), refine=refine,
-                                                          progress=progress, tracks_final=tracks_final))
+                                                          progress=progress, tracks_final=tracks_final,
+                                                          solution_known=solution_known))
             except (DegenerateMotionError, InsufficientDataError) as exc:
                 # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
                 advice = (DAMAGED_ADVICE if getattr(exc, "damaged", False) else

@@ -329,7 +329,9 @@ def run_closed_form(run: Run) -> Any:
     return cf
 
 
-def run_refinement(run: Run, progress: ProgressFactory) -> Any:
+def run_refinement(run: Run, progress: ProgressFactory,
+                   solution_known: Callable[[Run, Any], None] | None = None) -> Any:
+    """The refinement seeded by the run's closed form. ``solution_known(run, solution)``: see :func:`solve`."""
     from .refine.graph import RefinementOptions, refine
 
     cf = run.closed_form  # its rotation exists: solve and diagnose check before they refine
@@ -343,7 +345,8 @@ def run_refinement(run: Run, progress: ProgressFactory) -> Any:
         scale = cf.odometry_scale or {}
         s0 = (scale.get("speed", 1.0), scale.get("turn_rate", 1.0))  # the closed form's odometry scales: the seed
         res = refine(run.camera_track, run.base_track, run.camera, seed, cf.td, opts, progress=bar,
-                     seed_odometry_scale=s0 if all(0.2 < x < 5.0 for x in s0) else None)
+                     seed_odometry_scale=s0 if all(0.2 < x < 5.0 for x in s0) else None,
+                     on_solution=None if solution_known is None else lambda sol: solution_known(run, sol))
     run.warn(*res.warnings)
     from .gate import path_warnings
 
@@ -355,10 +358,13 @@ def run_refinement(run: Run, progress: ProgressFactory) -> Any:
 
 
 def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress,
-          tracks_final: Callable[[Run], None] | None = None) -> Run:
+          tracks_final: Callable[[Run], None] | None = None,
+          solution_known: Callable[[Run, Any], None] | None = None) -> Run:
     """Closed form, then (optionally) the refinement it seeds, on a run whose tracks are set. ``tracks_final(run)``
-    is called once the tracks are final (cut at gaps), before the closed form; what it raises is logged, not raised
-    (it is for work beside the calibration, e.g. figures)."""
+    is called once the tracks are final (cut at gaps), before the closed form; ``solution_known(run, solution)`` once
+    the refinement's solve has ended, before its second opinions (see :func:`~plsgraph.refine.graph.refine`'s
+    ``on_solution``). What they raise is logged, not raised (they are for work beside the calibration, e.g.
+    figures)."""
     from .gaps import cut_at_gaps
 
     cut_at_gaps(run)  # never across a gap the robot moved across: the longest stretch without one, or an error
@@ -382,7 +388,7 @@ def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress,
             + "); drive forwards and backwards while turning in front of the board"
         )
     if refine:
-        run_refinement(run, progress)
+        run_refinement(run, progress, solution_known)
     return run
 
 
@@ -413,14 +419,16 @@ def say_wheel_track_warnings(run: Run) -> None:
 def run_recording(
     log_path: str | Path, options: CalibrationOptions, refine: bool = True, progress: ProgressFactory = no_progress,
     tracks_final: Callable[[Run], None] | None = None,
+    solution_known: Callable[[Run, Any], None] | None = None,
 ) -> Run:
     """The whole calibration of one recording. Raises typed errors on user mistakes. ``tracks_final(run)`` is called
-    once the tracks are final (see :func:`solve`): the front end, which keeps every processor busy, is done."""
+    once the tracks are final (see :func:`solve`): the front end, which keeps every processor busy, is done;
+    ``solution_known(run, solution)`` once the refinement's solve has ended (see :func:`solve`)."""
     run = Run(Path(log_path), options)
     run.truth = load_truth(options.truth)
     try:
         build_tracks(run, progress)
-        return solve(run, refine, progress, tracks_final)
+        return solve(run, refine, progress, tracks_final, solution_known)
     except (DegenerateMotionError, InsufficientDataError) as exc:
         exc.warnings = list(run.warnings)  # the diagnosis keeps them: a file cut short says so there
         exc.damaged = _damaged(run)

@@ -46,7 +46,8 @@ STAGES = ("read", "odometry", "frontend", "pairing", "closed_form", "refinement"
 BOARD = "acircles_4x11_a2"
 TRUTH_KEYS = ("refined.rot_err_deg", "refined.t_xy_err_m", "refined.td_err_ms",
               "closed_form.pls.rot_err_deg", "closed_form.t_xy_err_m", "closed_form.td_err_ms")
-THIS_TREE = Path(__file__).resolve().parent.parent
+SCRIPT = str(Path(__file__).resolve())
+THIS_TREE = Path(SCRIPT).parent.parent
 # The plsgraph command as its console script runs it (older trees have main only).
 CLI = ("import sys; import plsgraph.cli.main as m; "
        "m.run() if hasattr(m, 'run') else sys.exit(m.main())")
@@ -108,7 +109,9 @@ def _ingest_worker(log: Path) -> None:
 
 
 def _env(tree: Path) -> dict[str, str]:
-    """The environment for a process that must import ``tree``'s plsgraph."""
+    """The environment for a process that must import ``tree``'s plsgraph. Each such process also runs in ``tree``:
+    ``python -c`` puts the working folder first on the path, ahead of PYTHONPATH, so run from another checkout it
+    would import that one's plsgraph (as an older tree's figure worker did, and then failed on this tree's jobs)."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(tree), *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
     return env
@@ -120,7 +123,7 @@ def _simulate(duration: float, folder: Path, seed: int, realistic: bool) -> tupl
            "--duration", f"{duration:g}", "--seed", str(seed), "--contrast", "0.45", "--event-format", "evt3",
            "--board", BOARD, "--out", str(log), "--force"]
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(THIS_TREE))
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(THIS_TREE), cwd=THIS_TREE)
     if proc.returncode != 0:
         raise SystemExit(f"simulating {log} failed (exit {proc.returncode}):\n{proc.stderr[-2000:]}")
     for line in proc.stderr.strip().splitlines():
@@ -132,7 +135,7 @@ def _run_worker(cmd: list[str], tree: Path) -> dict | str:
     """The worker's JSON line with the process's wall time (``process_s``) and the time it took to end after its
     work (``exit_s``), or the reason it failed (its last stderr line)."""
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(tree))
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=_env(tree), cwd=tree)
     t_end, process_s = time.time(), time.perf_counter() - t0
     if proc.returncode != 0:
         lines = proc.stderr.strip().splitlines() or ["(no message)"]
@@ -146,7 +149,7 @@ def _run_worker(cmd: list[str], tree: Path) -> dict | str:
 
 def _time_command(args: list[str], tree: Path) -> float:
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", CLI, *args], capture_output=True, env=_env(tree))
+    subprocess.run([sys.executable, "-c", CLI, *args], capture_output=True, env=_env(tree), cwd=tree)
     return time.perf_counter() - t0
 
 
@@ -156,14 +159,14 @@ def _median(values: list[float]) -> float:
 
 
 def _one_run(log: Path, truth: Path, out: Path, tree: Path) -> dict | str:
-    r = _run_worker([sys.executable, __file__, "--_worker", str(log), str(truth), str(out)], tree)
+    r = _run_worker([sys.executable, SCRIPT, "--_worker", str(log), str(truth), str(out)], tree)
     if isinstance(r, str):
         return r
     timing = r["timing_s"]
     timing.setdefault("figures", float("nan"))  # a tree from before the figures were timed: they are in the rest
     r["rest_s"] = r["wall_s"] - sum(v for s in STAGES if (v := timing.get(s, 0.0)) == v)
     r["startup_s"] = r["process_s"] - r["wall_s"] - r.get("exit_s", 0.0)  # Python, the script, importing plsgraph
-    ing = _run_worker([sys.executable, __file__, "--_ingest", str(log)], tree)
+    ing = _run_worker([sys.executable, SCRIPT, "--_ingest", str(log)], tree)
     r["ingest"] = ing if isinstance(ing, dict) else {"ingest_s": float("nan"), "peak_rss_mib": float("nan"),
                                                     "events": 0}
     r["help_s"] = _time_command(["--help"], tree)
@@ -329,7 +332,7 @@ def main() -> int:
             ap.error(f"--baseline {args.baseline} holds no plsgraph package")
     if args.keep is not None:
         args.keep.mkdir(parents=True, exist_ok=True)
-        folder = args.keep
+        folder = args.keep.resolve()  # the timed processes run in their tree's folder
     else:
         folder = Path(tempfile.mkdtemp(prefix="bench_calibrate_"))
     load = os.getloadavg()

@@ -150,7 +150,7 @@ def test_figures_drawn_while_the_calibration_runs_are_the_same(tmp_path):
     calibrate_to_dir(SAMPLE, tmp_path / "worker", opts, figure_worker=True)
     calibrate_to_dir(SAMPLE, tmp_path / "here", opts, figure_worker=False)
     there, here = tmp_path / "worker", tmp_path / "here"
-    assert not (there / figure_worker.EARLY_DIR).exists()
+    assert not (there / figure_worker.EARLY_DIR).exists() and not (there / figure_worker.SPECULATIVE_DIR).exists()
     names = sorted(p.name for p in there.iterdir())
     assert names == sorted(p.name for p in here.iterdir()) and "event_frames.png" in names
     for f in names:
@@ -158,6 +158,79 @@ def test_figures_drawn_while_the_calibration_runs_are_the_same(tmp_path):
             assert (there / f).read_bytes() == (here / f).read_bytes(), f
     rep = json.loads((there / "report.json").read_text())
     assert not any("figure" in w for w in rep["warnings"])
+
+
+def _solution(run, rotate_deg: float = 0.0):
+    """The run's refined solution as the refinement hands it over before its second opinions, its rotation turned
+    by ``rotate_deg`` about z."""
+    from types import SimpleNamespace
+
+    from plsgraph.core.geometry import make_T, so3_exp
+
+    ref = run.refinement
+    T = ref.T_base_cam
+    if rotate_deg:
+        T = T @ make_T(so3_exp(np.array([0.0, 0.0, np.radians(rotate_deg)])), np.zeros(3))
+    return SimpleNamespace(T_base_cam=T, R_base_cam=T[:3, :3], td=ref.td, T_world_board=ref.T_world_board,
+                           observability=None)
+
+
+@pytest.mark.parametrize("rotate_deg", [0.0, 2.0])
+def test_speculative_figures_are_kept_only_for_the_final_solution(sample_result, tmp_path, monkeypatch, rotate_deg):
+    """Figures drawn from the refinement's solution before its second opinions are kept when the result's solution is
+    that one (the final job draws only the rest) and drawn again when it is not: either way the pictures are those
+    drawn in the process, and no subfolder is left."""
+    here = prepare_output_dir(tmp_path / "here")
+    write_calibration(here, sample_result)
+    jobs = []
+    frame = figure_worker._frame
+    monkeypatch.setattr(figure_worker, "_frame", lambda job: jobs.append(job) or frame(job))
+    out = prepare_output_dir(tmp_path / "worker")
+    with FigureWorker.start() as worker:
+        worker.warm()
+        worker.early(out, sample_result.run)
+        worker.speculate(out, sample_result.run, _solution(sample_result.run, rotate_deg))
+        write_calibration(out, sample_result, worker)
+    final = [j for j in jobs if j[3]]
+    assert len(jobs) == 3 and len(final) == 1
+    kept = str(out / figure_worker.SPECULATIVE_DIR) in final[0][4]
+    assert kept == (rotate_deg == 0.0)
+    assert set(final[0][2]) == ({3} if kept else {0, 1, 2, 3, 4, 5})
+    assert not (out / figure_worker.SPECULATIVE_DIR).exists() and not (out / figure_worker.EARLY_DIR).exists()
+    pngs = sorted(p.name for p in here.iterdir() if p.suffix == ".png")
+    assert len(pngs) == 7 and pngs == sorted(p.name for p in out.iterdir() if p.suffix == ".png")
+    for f in pngs:
+        assert (out / f).read_bytes() == (here / f).read_bytes(), f
+
+
+def test_calibrate_keeps_the_figures_drawn_from_the_refinements_solution(tmp_path, monkeypatch):
+    """calibrate_to_dir has the worker draw the figures that need only the refined solution when the refinement's solve
+    ends; on the sample the result's solution is that one, so they are kept."""
+    from realdata import SAMPLE
+
+    if not SAMPLE.exists():
+        pytest.skip("the sample recording is not in this checkout")
+    jobs = []
+    frame = figure_worker._frame
+    monkeypatch.setattr(figure_worker, "_frame", lambda job: jobs.append(job) or frame(job))
+    calibrate_to_dir(SAMPLE, tmp_path / "c", CalibrationOptions.build(board="acircles_4x11_a2"), figure_worker=True)
+    assert [j[2] for j in jobs] == [figure_worker.EARLY, figure_worker.SPECULATIVE, (3,)]
+    assert len(jobs[2][4]) == 2
+
+
+def test_the_worker_draws_with_the_callers_plsgraph_whatever_the_working_folder_holds(sim_run, tmp_path, monkeypatch):
+    """A plsgraph folder in the working folder (another checkout, run from its root) is not what the worker imports:
+    ``python -c`` would put it first on the path."""
+    _, result = sim_run
+    other = tmp_path / "checkout"
+    (other / "plsgraph" / "report").mkdir(parents=True)
+    (other / "plsgraph" / "__init__.py").write_text("raise ImportError('the wrong plsgraph')\n")
+    monkeypatch.chdir(other)
+    out = prepare_output_dir(tmp_path / "calib")
+    with FigureWorker.start() as worker:
+        worker.send(out, result.run)
+        drawn = worker.result()
+    assert drawn is not None and len(drawn[0]) >= 5 and not drawn[1]
 
 
 def test_early_figures_of_a_worker_that_died_are_removed(sample_result, tmp_path):

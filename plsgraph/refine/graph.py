@@ -30,6 +30,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from types import SimpleNamespace
 
 import gtsam
 import numpy as np
@@ -1530,6 +1531,7 @@ def refine(
     options: RefinementOptions | None = None,
     progress: Callable[[int, int], None] | None = None,
     seed_odometry_scale: tuple[float, float] | None = None,
+    on_solution: Callable[[SimpleNamespace], None] | None = None,
 ) -> RefinementResult:
     """Refine T_base_cam and td jointly with the base trajectory and the board pose.
 
@@ -1543,6 +1545,11 @@ def refine(
     directions of (T_base_cam, td) the data does not observe are held at the seed and the solve is
     repeated from the seed (a wandering unobservable direction would bias the others through the
     nonlinearity). The covariance is always that of the graph without the freezing prior.
+
+    ``on_solution(solution)`` is called once the solve has ended, before its covariance and second opinions are
+    worked out, with its T_base_cam, R_base_cam, td and T_world_board (the result's, unless something later replaces
+    them; it is not called when two starts are solved, since which one is reported is known only at the end). What
+    it raises is logged, not raised: it is for work beside the refinement (the report's figures).
     """
     opt = options or RefinementOptions()
     t_start = time.perf_counter()
@@ -1567,7 +1574,7 @@ def refine(
             td_seed = found[0]
     if td_seed == td_given or not opt.td_two_starts:
         res = _refine_from(camera_track, base_track, camera, opt, progress, C_seed, td_seed, td_given, td_seed,
-                           scale0, search_note, None, t_start)[0]
+                           scale0, search_note, None, t_start, on_solution=on_solution)[0]
         for w in res.warnings:
             log.warning(w)
         return res
@@ -1607,7 +1614,8 @@ def refine(
 def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, opt: RefinementOptions,
                  progress, C_seed: np.ndarray, td_start: float, td_given: float, td_search: float,
                  scale0: tuple[float, float], search_note: str | None, knot_tds: tuple[float, float] | None,
-                 t_start: float, probe: bool = False, warm: dict | None = None, defer_knots: bool = False
+                 t_start: float, probe: bool = False, warm: dict | None = None, defer_knots: bool = False,
+                 on_solution: Callable[[SimpleNamespace], None] | None = None
                  ) -> tuple:
     """One refinement started at ``td_start`` (and odometry scales ``scale0``): the result, a scorer (the final
     graph's error of any values of the same knots, their frames bracketed at their own td) and the final values.
@@ -1828,6 +1836,11 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                  vib_var=vib_var,
                  adapt=opt.adapt_odometry_noise, anchor=(C_anc, td_anc, R_anc), rejected_t=prob.frame_t[rejected])),
             opt.workers > 1, deadline_s=max(300.0, 20.0 * t_opt))
+    if on_solution is not None:
+        try:
+            on_solution(SimpleNamespace(T_base_cam=C, R_base_cam=C[:3, :3], td=td, T_world_board=B, observability=None))
+        except Exception as exc:  # noqa: BLE001 - work beside the refinement must not cost it
+            log.warning("after the refinement's solve: %s", exc)
     try:  # until the end: a job started beside is not left running when something below raises
         if converged and opt.marginals:
             try:

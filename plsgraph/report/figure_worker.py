@@ -17,14 +17,19 @@ None, and the caller draws the figures itself as before: the worker can cost tim
 
 The figure that needs only the final tracks (the event frames: :data:`EARLY`) can be drawn while the closed form and the
 refinement run (:meth:`FigureWorker.early`, right after the warm-up): into a subfolder of the run's folder, moved into
-it with the others once all are drawn, removed if the worker does not finish.
+it with the others once all are drawn, removed if the worker does not finish. The figures that need only the refined
+extrinsic, time offset and board pose (:data:`SPECULATIVE`) can be drawn as soon as the refinement's solve ends
+(:meth:`FigureWorker.speculate`), while its second opinions are still solved (one of them beside, in a process of its
+own, which leaves a processor idle once the marginals are done): into a second subfolder, kept only if the final
+result's inputs to those figures are the same to the byte (else they are drawn again with the rest).
 
 Protocol: the parent writes the line ``warm``, then jobs, each an 8-byte little-endian length and a pickle
-``(out_dir, inputs, which, final)``, and closes stdin after the final one; the worker warms up when it reads the line,
-draws a job that is not final (the early figures) into its ``out_dir`` at once, draws the final job's figures
-(``which``: indices into figures.FIGURES, None for all) in two processes, moves the early ones into the final job's
-folder, and writes one pickle ``(images, failures)`` (as :func:`~plsgraph.report.figures.render_figures` returns
-them, for all the figures) to its stdout and exits. End of input before the line or before a final job means:
+``(out_dir, inputs, which, final, keep)``, and closes stdin after the final one; the worker warms up when it reads the
+line, draws a job that is not final (early or speculative figures) into its ``out_dir`` at once, draws the final job's
+figures (``which``: indices into figures.FIGURES, None for all) in two processes, moves the figures of the earlier jobs
+whose folders the final job lists in ``keep`` into its folder (and removes the others), and writes one pickle
+``(images, failures)`` (as :func:`~plsgraph.report.figures.render_figures` returns them, for all the figures) to its
+stdout and exits. End of input before the line or before a final job means:
 nothing to draw, exit.
 """
 
@@ -41,10 +46,14 @@ from typing import Any
 
 log = logging.getLogger(__name__)
 
+#: How much lower the worker's scheduling priority is than the calibration's (os.nice).
+NICE = 10
 # Longest wait for the figures once the job is sent; then they are drawn in the calling process instead.
 RENDER_TIMEOUT_S = 120.0
-# The worker's code: the same plsgraph as the caller's (its folder goes first on the path, see _env).
-_BOOT = "from plsgraph.report.figure_worker import serve; serve()"
+# The worker's code: the same plsgraph as the caller's (its folder goes first on the path, see _env). ``python -c``
+# puts the working folder ahead of that: dropped, or a plsgraph folder there (another checkout) would be imported.
+_BOOT = ("import sys; sys.path[:1] = [p for p in sys.path[:1] if p]; "
+         "from plsgraph.report.figure_worker import serve; serve()")
 # The line that tells the worker to warm up; the jobs follow it.
 _WARM = b"warm\n"
 #: Indices into figures.FIGURES of the figures that can be drawn before the calibration ends: the event frames (they
@@ -53,6 +62,23 @@ _WARM = b"warm\n"
 EARLY = (6,)
 #: The subfolder of the run's folder the early figures are drawn into.
 EARLY_DIR = ".figures-early"
+#: Indices into figures.FIGURES of the figures drawn once the refinement's solve ends (:meth:`FigureWorker.speculate`):
+#: all but the observability bars (they show the marginals and the second opinions, known last) and the early ones.
+SPECULATIVE = (0, 1, 2, 4, 5)
+#: The subfolder of the run's folder the speculative figures are drawn into.
+SPECULATIVE_DIR = ".figures-speculative"
+
+
+def _key(inputs: Any) -> bytes:
+    """What the speculative figures read of ``inputs`` (figures.figure_inputs): all of it but the observability,
+    pickled. Equal keys draw equal speculative figures."""
+    from types import SimpleNamespace
+
+    ref = inputs.refinement
+    if ref is not None:
+        inputs = SimpleNamespace(**{**vars(inputs), "refinement": SimpleNamespace(**{**vars(ref),
+                                                                                     "observability": None})})
+    return pickle.dumps(inputs, protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def _frame(job: tuple) -> bytes:
@@ -213,7 +239,9 @@ class FigureWorker:
         self._reply: bytes | None = None
         self._error: BaseException | None = None
         self._warmed = False
-        self._early: tuple | None = None  # (writer thread, folder, which) of the early figures
+        # The jobs sent before the final one: (writer thread, folder, which, key), key None for the early figures
+        # (always kept) and _key(inputs) for the speculative ones (kept if the final inputs have the same key).
+        self._jobs: list[tuple] = []
 
     @classmethod
     def start(cls) -> FigureWorker:
@@ -250,35 +278,54 @@ class FigureWorker:
     def early(self, out: Path, run: Any) -> None:
         """Have the worker draw the figures :data:`EARLY` of ``run`` now, while the calibration goes on (once, before
         :meth:`send`, on the run's final tracks; the folder ``out`` is the one :meth:`send` will get)."""
+        if any(job[3] is None for job in self._jobs):
+            return
+        self._queue(Path(out) / EARLY_DIR, run, EARLY, speculative=False)
+
+    def speculate(self, out: Path, run: Any, refinement: Any) -> None:
+        """Have the worker draw the figures :data:`SPECULATIVE` of ``run`` with ``refinement`` (its solution before
+        the second opinions: T_base_cam, R_base_cam, td, T_world_board) now, while the calibration goes on (once,
+        before :meth:`send`; the folder ``out`` is the one :meth:`send` will get). :meth:`send` keeps them only if the
+        final result's inputs to them are the same."""
+        if any(job[3] is not None for job in self._jobs):
+            return
+        self._queue(Path(out) / SPECULATIVE_DIR, run, SPECULATIVE, speculative=True, refinement=refinement)
+
+    def _queue(self, folder: Path, run: Any, which: tuple, speculative: bool, refinement: Any = None) -> None:
         import threading
 
         from .figures import figure_inputs
 
-        if self._early is not None or self._thread is not None or not self.available:
+        if self._thread is not None or not self.available:
             return
-        folder = Path(out) / EARLY_DIR
         try:
-            job = (b"" if self._warmed else _WARM) + _frame((str(folder), figure_inputs(run), EARLY, False))
+            inputs = figure_inputs(run, refinement)
+            job = (b"" if self._warmed else _WARM) + _frame((str(folder), inputs, which, False, ()))
+            key = _key(inputs) if speculative else None
         except Exception as exc:  # something that does not pickle: they are drawn with the others
-            log.debug("figure inputs do not pickle (%s); the early figures are drawn with the others", exc)
+            log.debug("figure inputs do not pickle (%s); these figures are drawn with the others", exc)
             return
         self._warmed = True
         stdin = self.proc.stdin
+        before = self._jobs[-1][0] if self._jobs else None
 
         def write() -> None:  # the worker reads it once warm: the pipe holds less than the job
             try:
+                if before is not None:
+                    before.join(RENDER_TIMEOUT_S)  # one writer at a time, in order
                 stdin.write(job)
                 stdin.flush()
             except (OSError, ValueError) as exc:  # it died: result() finds out and the caller draws
-                log.debug("figure worker did not take the early figures (%s)", exc)
+                log.debug("figure worker did not take the figures sent before the result (%s)", exc)
 
         thread = threading.Thread(target=write, name="plsgraph-figures-early", daemon=True)
         thread.start()
-        self._early = (thread, folder, EARLY)
+        self._jobs.append((thread, folder, which, key))
 
     def send(self, out: Path, run: Any) -> None:
-        """Hand the worker the figures of ``run`` to draw into ``out`` (those :meth:`early` did not take); returns at
-        once (the job is written from a helper thread). Collect them with :meth:`result`."""
+        """Hand the worker the figures of ``run`` to draw into ``out`` (those the jobs sent before did not take, or
+        whose speculative inputs were not the final ones); returns at once (the job is written from a helper thread).
+        Collect them with :meth:`result`."""
         import threading
 
         from .figures import FIGURES, figure_inputs
@@ -286,24 +333,32 @@ class FigureWorker:
         if not self.available:
             self.close()
             return
-        early = self._early
-        if early is not None and Path(out) / EARLY_DIR != early[1]:
-            self.close()  # another folder than the early figures': draw in this process
+        jobs = self._jobs
+        if any(folder.parent != Path(out) for _, folder, _, _ in jobs):
+            self.close()  # another folder than the earlier jobs': draw in this process
             return
-        which = None if early is None else tuple(i for i in range(len(FIGURES)) if i not in early[2])
         try:
-            job = (b"" if self._warmed else _WARM) + _frame((str(out), figure_inputs(run), which, True))
+            inputs = figure_inputs(run)
+            final_key = _key(inputs) if any(key is not None for *_, key in jobs) else None
+            kept = [(folder, which) for _, folder, which, key in jobs if key is None or key == final_key]
+            taken = {i for _, which in kept for i in which}
+            which = None if not jobs else tuple(i for i in range(len(FIGURES)) if i not in taken)
+            job = (b"" if self._warmed else _WARM) + _frame((str(out), inputs, which, True,
+                                                            tuple(str(folder) for folder, _ in kept)))
             self._warmed = True
         except Exception as exc:  # something that does not pickle: draw in this process
             log.debug("figure inputs do not pickle (%s); figures are drawn in this process", exc)
             self.close()
             return
+        if len(kept) < len(jobs):
+            log.debug("the speculative figures' inputs are not the result's: they are drawn again")
         proc = self.proc
+        writers = [job[0] for job in jobs]
 
         def talk() -> None:
             try:
-                if early is not None:
-                    early[0].join(RENDER_TIMEOUT_S)  # its job first: one writer at a time
+                for w in writers:
+                    w.join(RENDER_TIMEOUT_S)  # their jobs first: one writer at a time
                 self._reply = proc.communicate(job, timeout=RENDER_TIMEOUT_S)[0]
             except Exception as exc:  # reported by result()
                 self._error = exc
@@ -346,10 +401,10 @@ class FigureWorker:
         try:
             self._stop()
         finally:
-            if self._early is not None:
-                import shutil
+            import shutil
 
-                shutil.rmtree(self._early[1], ignore_errors=True)
+            for _, folder, _, _ in self._jobs:
+                shutil.rmtree(folder, ignore_errors=True)
 
     def _stop(self) -> None:
         proc, self.proc = self.proc, None
@@ -424,9 +479,9 @@ def _render_in_two(out: Path, inputs: Any, which: Any = None) -> tuple[list[tupl
     this process draws the rest itself. The result is in the order of figures.FIGURES, as render_figures gives it."""
     from .figures import FIGURES, render_figures
 
-    if not hasattr(os, "fork"):
-        return render_figures(out, inputs, which)
     _here, _forked = _split(which)
+    if not hasattr(os, "fork") or not _here or not _forked:
+        return render_figures(out, inputs, which)
     r, w = os.pipe()
     pid = os.fork()
     if pid == 0:  # the fork: draw its share, answer, and end without running the parent's cleanup
@@ -461,6 +516,18 @@ def serve() -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the caller stops the worker; an interrupt is the caller's
+    try:
+        # Below the calibration's own processes: the figures drawn before the result take what processor time
+        # they leave (the refinement's second opinion solved beside lost a fifth of a second to them otherwise),
+        # and the last figures are drawn when nothing else runs.
+        os.nice(NICE)
+    except (AttributeError, OSError):
+        pass
+    try:  # on Linux with autogroups, a new session is its own group: the group's niceness is what counts
+        with open("/proc/self/autogroup", "w", encoding="ascii") as f:
+            f.write(str(NICE))
+    except OSError:
+        pass
     reply_fd = os.dup(1)
     os.dup2(2, 1)  # anything printed while drawing goes to stderr, not into the reply
     if sys.stdin.buffer.readline() != _WARM:
@@ -480,17 +547,18 @@ def serve() -> None:
         job = _read_frame(sys.stdin.buffer)
         if job is None:
             return  # no final job: the calibration ended without figures
-        out, inputs, which, final = job
+        out, inputs, which, final, keep = job
         if not final:
             Path(out).mkdir(parents=True, exist_ok=True)
             drawn.append((Path(out), render_figures(Path(out), inputs, which)))
             continue
         images, failures = _render_in_two(Path(out), inputs, which)
         for folder, (imgs, fails) in drawn:
-            for _caption, name in imgs:
-                os.replace(folder / name, Path(out) / name)
+            if str(folder) in keep:
+                for _caption, name in imgs:
+                    os.replace(folder / name, Path(out) / name)
+                images, failures = images + imgs, failures + fails
             shutil.rmtree(folder, ignore_errors=True)
-            images, failures = images + imgs, failures + fails
         order = {caption: i for i, (caption, _) in enumerate(FIGURES)}
         result = sorted(images, key=lambda x: order[x[0]]), sorted(failures, key=lambda x: order[x[0]])
         with os.fdopen(reply_fd, "wb") as f:

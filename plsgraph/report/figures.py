@@ -191,10 +191,11 @@ def _coverage(name: str, run: Any, out: Path) -> str | None:
     return getattr(coverage, name)(run, out)
 
 
-def figure_inputs(run: Any) -> SimpleNamespace:
+def figure_inputs(run: Any, refinement: Any = None) -> SimpleNamespace:
     """What the figures read of a run, and nothing else: plain arrays and the two tracks (it pickles, to be drawn
-    in another process)."""
-    ref, cf = run.refinement, run.closed_form
+    in another process). ``refinement`` (T_base_cam, R_base_cam, td, T_world_board, observability) stands in for
+    the run's own, e.g. a solution before its second opinions."""
+    ref, cf = run.refinement if refinement is None else refinement, run.closed_form
     refinement = None
     if ref is not None:
         obs = None
