@@ -49,6 +49,9 @@ class Run:
     recording_info: dict[str, Any] = field(default_factory=dict)
     wheels: Any = None  # the cleaned wheel signals (odometry.wheel_order.WheelSignals), when joints were used
     clock_offset_s: float = 0.0  # camera track shifted by this onto the odometry clock (pairing.pair_tracks)
+    # (mid, count image) of some detections' windows (ns on the events' clock), kept by the streaming front end for
+    # the report's event frames (report.coverage.fig_event_frames); None: they are read from the recording
+    event_frames: list | None = None
     input_problems: list[str] = field(default_factory=list)  # found before solving, e.g. wheels flagged as wrong
 
     def warn(self, *messages: str) -> None:
@@ -279,6 +282,7 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
             )
         finally:
             run.warn(*src.log.warnings)
+    run.event_frames = track.info.pop("event_frames", None)
     run.recording_info.update({
         "event_topic": topic,
         "event_type": info.msgtype,

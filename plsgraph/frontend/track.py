@@ -963,6 +963,40 @@ FLICKER_WARN_FOUND = 0.5
 QUEUED_SPANS = 1
 
 
+#: Detections per streamed span whose windows' events are kept as count images for the report's event frames (the
+#: span's first and last and some between), and most such images kept for the whole recording (every other one is
+#: dropped when there are more: an even spread over the recording, in bounded memory).
+EVENT_FRAMES_PER_SPAN = 5
+EVENT_FRAMES_KEPT = 24
+
+
+def event_frame(stream: EventStream, mid_ns: int, window_s: float) -> np.ndarray | None:
+    """The count image (height, width; uint16) of ``stream``'s events within half a window of ``mid_ns`` (t0 <= t < t1,
+    as the report's event frames show a detection's window), or None without events there."""
+    half = int(window_s * 0.5e9)
+    ev = stream.slice_time(mid_ns - half, mid_ns + half)
+    if len(ev) == 0:
+        return None
+    w, h = stream.width, stream.height
+    counts = np.bincount(ev.y.astype(np.int64) * w + ev.x, minlength=w * h)
+    return np.minimum(counts, np.iinfo(np.uint16).max).astype(np.uint16).reshape(h, w)
+
+
+def _event_frames(stream: EventStream, t: np.ndarray, window_s: float, n: int = EVENT_FRAMES_PER_SPAN) -> list[tuple]:
+    """(mid, count image) of up to ``n`` of the detections at times ``t`` (s, the events' clock) evenly over them: the
+    images the report's event frames draw (:func:`plsgraph.report.coverage.fig_event_frames`), made here from the
+    events at hand instead of decoding the recording again."""
+    if t.size == 0:
+        return []
+    out = []
+    for i in np.unique(np.linspace(0, t.size - 1, n).round().astype(int)):
+        mid = int(round(float(t[i]) * 1e9))
+        img = event_frame(stream, mid, window_s)
+        if img is not None:
+            out.append((mid, img))
+    return out
+
+
 def _keep_frames(info: dict, n: int, keep: np.ndarray) -> None:
     for key in PER_FRAME_INFO:
         if len(info.get(key, ())) == n:
@@ -1079,6 +1113,7 @@ def _detect_span(args: tuple) -> tuple[Detections, dict, list]:
         buf = buf[0] if len(buf) == 1 else EventStream.concatenate(buf)
     dets, part = detect_in_events(buf, camera, board, rate_hz, kind, t_query_ns=q, require_detection=False,
                                   **detect_options)
+    part["event_frames"] = _event_frames(buf, dets.t, float(part["window_s"]))
     c0 = time.perf_counter()
     poses = [frame_pose(uv, dets.board_points, camera, sigma_px=sigma_px) for uv in dets.uv]
     part["seconds"]["pnp"] = part["seconds"].get("pnp", 0.0) + time.perf_counter() - c0
@@ -1134,8 +1169,13 @@ def camera_track_from_event_chunks(
     if expected_span_ns is not None:
         total = max(1, int((expected_span_ns[1] - expected_span_ns[0]) // period))
 
+    event_frames: list[tuple] = []  # (mid, count image) of some detections' windows, for the report
+
     def absorb(dets: Detections, part: dict, poses: list) -> None:
-        nonlocal info
+        nonlocal info, event_frames
+        event_frames.extend(part.pop("event_frames", []))
+        if len(event_frames) > EVENT_FRAMES_KEPT:
+            event_frames = event_frames[::2] + ([event_frames[-1]] if len(event_frames) % 2 == 0 else [])
         t_parts.append(dets.t)
         pose_parts.extend(poses)
         uv_parts.append(dets.uv)
@@ -1265,6 +1305,7 @@ def camera_track_from_event_chunks(
     info["skipped"] = dict(skipped)
     info["detected"] = int(t.size)
     info["streamed_span_s"] = span_s
+    info["event_frames"] = event_frames  # taken out by the pipeline (Run.event_frames); images, not a report item
     info["late_events"] = late_events  # arrived after their windows were detected (out-of-order packets)
     if t.size == 0:
         raise _no_board(info.get("windows", 0), skipped, board, info)

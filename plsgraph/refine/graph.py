@@ -1679,6 +1679,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         rows = np.flatnonzero(~rejected)
     t_opt = 0.0
     cov = cov_base = None
+    early_knots: tuple | None = None  # (the knots' second opinion started at the adaptation, what it started with)
     for pas in range(opt.max_passes):
         graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C_anc, td_anc, R_anc, odo_var=odo_var,
                                           planar_var=planar_var, vib_var=vib_var)
@@ -1729,6 +1730,13 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             # scaled noise, the residuals' correlation would be counted a second time).
             adapted = True
             held_solution = (values.atPose3(KEY_CAM).matrix(), float(values.atVector(KEY_TD)[0]))
+            if not probe and warm is None and _wants_knot_probe(opt):
+                # The knots' second opinion adapts its own noise at its own spacing, so it can start from the solution
+                # under the model's own noise: now, beside the passes still to come, rather than after them. It is
+                # used if those passes end with the frames, frozen directions and rocking it started with.
+                early_knots = _start_knot_probe(camera_track, base_track, camera, opt, td_given, td_search, knot_tds,
+                                                values, prob, frozen, rejected, vib_var, odo_var, planar_var,
+                                                (C_anc, td_anc, R_anc), scale0, t_opt)
             if opt.split_odometry_noise:
                 tilt = opt.adapt_odometry_tilt and not opt.scale_odometry_tilt
                 odo_var = tuple(float(v) for v in np.clip(odometry_noise_factor(graph, values, split=True, tilt=tilt),
@@ -1826,16 +1834,17 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                                 chi2_per_dof=chi2, observability=None, warnings=tuple(warnings), priors={},
                                 timing={"total_s": time.perf_counter() - t_start}), None, values
     knots_job = None
-    if converged and opt.marginals and opt.knot_rate_hz and opt.knot_sensitivity_factor \
-            and opt.knot_sensitivity_factor > 1:
+    if early_knots is not None:
+        if converged and _wants_knot_probe(opt) and early_knots[1] == _knot_probe_inputs(prob, frozen, rejected,
+                                                                                            vib_var):
+            knots_job = early_knots[0]
+        else:
+            early_knots[0].discard()
+    if knots_job is None and converged and _wants_knot_probe(opt):
         # Started here so that, with a second process, it is solved beside the marginals and the jackknife.
-        scales = tuple(float(x) for x in values.atVector(KEY_SCALE)) if prob.steps is not None else scale0
-        knots_job = _Beside(knot_spacing_sensitivity, (
-            camera_track, base_track, camera, opt, td_given, td_search, knot_tds, C, td, scales,
-            dict(B=B, knot_t=prob.knot_t, T_world_base=T_knots, odo_var=odo_var, planar_var=planar_var, frozen=frozen,
-                 vib_var=vib_var,
-                 adapt=opt.adapt_odometry_noise, anchor=(C_anc, td_anc, R_anc), rejected_t=prob.frame_t[rejected])),
-            opt.workers > 1, deadline_s=max(300.0, 20.0 * t_opt))
+        knots_job = _start_knot_probe(camera_track, base_track, camera, opt, td_given, td_search, knot_tds, values,
+                                      prob, frozen, rejected, vib_var, odo_var, planar_var, (C_anc, td_anc, R_anc),
+                                      scale0, t_opt)[0]
     if on_solution is not None:
         try:
             on_solution(SimpleNamespace(T_base_cam=C, R_base_cam=C[:3, :3], td=td, T_world_board=B, observability=None))
@@ -1906,7 +1915,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         t_knots = time.perf_counter()
         if job is not None:
             if cov_base is not None:
-                knot_sensitivity, knot_spacing = job.result()
+                knot_sensitivity, knot_spacing = knot_change(job.result(), prob.knot_t, C, td)
             else:
                 job.discard()
         t_knots = time.perf_counter() - t_knots
@@ -2206,6 +2215,37 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
 KNOT_WARN_FACTOR = 2.0
 
 
+def _wants_knot_probe(opt: RefinementOptions) -> bool:
+    """Whether the refinement asks for the knots' second opinion (:func:`knot_spacing_sensitivity`)."""
+    return bool(opt.marginals and opt.knot_rate_hz and opt.knot_sensitivity_factor and opt.knot_sensitivity_factor > 1)
+
+
+def _knot_probe_inputs(prob: _Problem, frozen: list, rejected: np.ndarray, vib_var: float) -> tuple:
+    """What the knots' second opinion takes from the refinement besides its solution, comparable with ==: the knots,
+    the frozen directions, the frames dropped as outliers and the base's rocking."""
+    return (prob.knot_t.tobytes(), tuple(np.asarray(f, dtype=float).tobytes() for f in frozen),
+            np.flatnonzero(rejected).tobytes(), float(vib_var))
+
+
+def _start_knot_probe(camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, opt: RefinementOptions,
+                      td_given: float, td_search: float, knot_tds: tuple[float, float] | None, values: gtsam.Values,
+                      prob: _Problem, frozen: list, rejected: np.ndarray, vib_var: float, odo_var, planar_var,
+                      anchor: tuple, scale0: tuple[float, float], t_opt: float) -> tuple[_Beside, tuple]:
+    """The knots' second opinion (:func:`denser_solution`) started from the solution in ``values``: in a second
+    process when ``opt.workers`` > 1, else solved when its result is asked for (the same answer); and what it started
+    with (:func:`_knot_probe_inputs`)."""
+    C = values.atPose3(KEY_CAM).matrix()
+    td = float(values.atVector(KEY_TD)[0])
+    T_knots = np.stack([values.atPose3(knot_key(i)).matrix() for i in range(prob.knot_t.size)])
+    scales = tuple(float(x) for x in values.atVector(KEY_SCALE)) if prob.steps is not None else scale0
+    warm = dict(B=values.atPose3(KEY_BOARD).matrix(), knot_t=prob.knot_t, T_world_base=T_knots, odo_var=odo_var,
+                planar_var=planar_var, frozen=list(frozen), vib_var=vib_var, adapt=opt.adapt_odometry_noise,
+                anchor=anchor, rejected_t=prob.frame_t[rejected])
+    job = _Beside(denser_solution, (camera_track, base_track, camera, opt, td_given, td_search, knot_tds, C, td,
+                                    scales, warm), opt.workers > 1, deadline_s=max(300.0, 20.0 * t_opt))
+    return job, _knot_probe_inputs(prob, frozen, rejected, vib_var)
+
+
 def knot_warning(change: np.ndarray, spacing: tuple[float, float]) -> str:
     """The warning for an answer that moves with the knots' spacing (``change`` and ``spacing`` (s, this solve's and
     the denser one's) as knot_spacing_sensitivity gives them)."""
@@ -2323,6 +2363,17 @@ def knot_spacing_sensitivity(camera_track: CameraTrack, base_track: BaseTrack, c
     pitch, slip, stamps that jitter) the extrinsic and td the data favour move with the spacing, by more than the
     marginals allow. How far they move is an uncertainty of the model itself. Knots sit on odometry samples, so the
     denser spacing is a whole number of samples: with 50 Hz wheels 0.04 s against 0.1 s."""
+    return knot_change(denser_solution(camera_track, base_track, camera, opt, td_given, td_search, knot_tds, C, td,
+                                       scales, warm), warm["knot_t"], C, td)
+
+
+def denser_solution(camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel,
+                    opt: RefinementOptions, td_given: float, td_search: float,
+                    knot_tds: tuple[float, float] | None, C: np.ndarray, td: float,
+                    scales: tuple[float, float], warm: dict) -> SimpleNamespace | None:
+    """The solve of :func:`knot_spacing_sensitivity` with the denser knots, started from ``C``, ``td``, ``scales`` and
+    ``warm``: its T_base_cam, td, knot_t, iterations, seconds and whether it converged; None when the odometry's
+    samples allow no denser knots or the solve fails."""
     dt = float(np.median(np.diff(base_track.t)))
     step = max(1, int(round(1.0 / (float(opt.knot_rate_hz) * dt))))
     # Twice the passes: with denser knots a smaller move of td re-brackets the frames, which takes a pass each.
@@ -2331,12 +2382,22 @@ def knot_spacing_sensitivity(camera_track: CameraTrack, base_track: BaseTrack, c
                      max_passes=2 * opt.max_passes)
     if max(1, int(round(1.0 / (denser.knot_rate_hz * dt)))) >= step:
         log.info("refine: the knots are as dense as the odometry's samples allow; no knot-spacing second opinion")
-        return None, None
+        return None
     try:
         alt = _refine_from(camera_track, base_track, camera, denser, None, C, td, td_given, td_search, scales, None,
                            knot_tds, time.perf_counter(), probe=True, warm=warm)[0]
     except Exception as exc:  # noqa: BLE001 - a second opinion never costs the answer
         log.info("refine: the solve with denser knots failed (%s); no knot-spacing second opinion", exc)
+        return None
+    return SimpleNamespace(T_base_cam=alt.T_base_cam, td=alt.td, knot_t=alt.knot_t, iterations=alt.iterations,
+                           seconds=alt.timing["total_s"], converged=alt.converged)
+
+
+def knot_change(alt: SimpleNamespace | None, knot_t: np.ndarray, C: np.ndarray, td: float
+                ) -> tuple[np.ndarray | None, tuple[float, float] | None]:
+    """:func:`knot_spacing_sensitivity`'s answer from the denser solve ``alt`` (:func:`denser_solution`) and the
+    answer ``C``, ``td`` it is compared with, solved on the knots at ``knot_t``."""
+    if alt is None:
         return None, None
     change = noise_model_sensitivity(alt.T_base_cam, alt.td, C, td)
     if not np.all(np.isfinite(change)):
@@ -2346,9 +2407,9 @@ def knot_spacing_sensitivity(camera_track: CameraTrack, base_track: BaseTrack, c
         # Where the denser model does not settle, the answer depends on the knots at least as far as it wandered:
         # its last answer is used (leaving the second opinion out here would drop it where it matters most).
         log.info("refine: the solve with denser knots did not converge; its last answer is used")
-    spacing = (float(np.median(np.diff(warm["knot_t"]))), float(np.median(np.diff(alt.knot_t))))
+    spacing = (float(np.median(np.diff(knot_t))), float(np.median(np.diff(alt.knot_t))))
     log.info("refine: with a knot every %.0f ms (%d iterations, %.2f s) the calibration moves by %.3f deg, %.1f mm, "
-             "%.2f ms", 1e3 * spacing[1], alt.iterations, alt.timing["total_s"],
+             "%.2f ms", 1e3 * spacing[1], alt.iterations, alt.seconds,
              np.degrees(np.linalg.norm(change[:3])), 1e3 * np.linalg.norm(change[3:6]), 1e3 * change[6])
     return change, spacing
 

@@ -185,15 +185,21 @@ def fig_event_frames(run: Any, out: Path, truth_T: Any = None, n_frames: int = 3
     track = getattr(run, "camera_track", None)
     log_path = getattr(run, "log_path", None)
     det = None if track is None else track.detections
-    if det is None or len(det) == 0 or log_path is None or not Path(log_path).is_file():
-        return None  # no detections, or tracks given without their recording
+    if det is None or len(det) == 0:
+        return None
     window_s = float(track.info.get("window_s") or 1.0 / 30.0)
     picks = np.unique(np.linspace(0, len(det) - 1, n_frames).round().astype(int))
     # Detections are on the odometry clock when the camera track was shifted there; events are not.
     shift = float(getattr(run, "clock_offset_s", 0.0) or 0.0)
     half = int(window_s * 0.5e9)
-    mids = [int(round((float(det.t[i]) - shift) * 1e9)) for i in picks]
-    frames = _window_counts(log_path, [(m - half, m + half) for m in mids])
+    mids = np.array([int(round((float(t) - shift) * 1e9)) for t in det.t], dtype=np.int64)
+    kept = _kept_frames(getattr(run, "event_frames", None), mids, picks)
+    if kept is not None:  # the front end kept these detections' windows: no second pass over the recording
+        picks, frames = kept
+    elif log_path is None or not Path(log_path).is_file():
+        return None  # tracks given without their recording
+    else:
+        frames = _window_counts(log_path, [(int(mids[i]) - half, int(mids[i]) + half) for i in picks])
     tiles = []
     for i, img in zip(picks, frames, strict=True):
         if img is None:
@@ -220,6 +226,24 @@ def fig_event_frames(run: Any, out: Path, truth_T: Any = None, n_frames: int = 3
         row = np.hstack([row, gap, tile])
     cv2.imwrite(str(out / "event_frames.png"), row)
     return "event_frames.png"
+
+
+def _kept_frames(kept: list | None, mids: np.ndarray, picks: np.ndarray) -> tuple[np.ndarray, list] | None:
+    """Of the count images the front end kept (``kept``: (mid ns, image), see Run.event_frames), those of detections
+    still in the track (``mids``: each detection's mid on the events' clock), one nearest each of ``picks`` (indices
+    into the detections): (their detections' indices, their images as float32), or None without any."""
+    if not kept:
+        return None
+    at = {}
+    for mid, img in kept:
+        i = int(np.argmin(np.abs(mids - mid)))
+        if abs(int(mids[i]) - mid) <= 1000:  # the same detection (to rounding: the track may have been shifted)
+            at[i] = img
+    if not at:
+        return None
+    have = np.array(sorted(at))
+    chosen = np.unique([have[np.argmin(np.abs(mids[have] - mids[p]))] for p in picks])
+    return chosen, [at[int(i)].astype(np.float32) for i in chosen]
 
 
 def _window_counts(log_path: Any, windows: list[tuple[int, int]]) -> list[np.ndarray | None]:

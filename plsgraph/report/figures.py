@@ -215,7 +215,8 @@ def figure_inputs(run: Any, refinement: Any = None) -> SimpleNamespace:
     truth = None if run.truth is None else {"T_base_cam": np.asarray(run.truth["T_base_cam"], dtype=float)}
     return SimpleNamespace(camera_track=run.camera_track, base_track=run.base_track, camera=run.camera,
                            refinement=refinement, closed_form=closed_form, truth=truth,
-                           clock_offset_s=getattr(run, "clock_offset_s", 0.0), log_path=getattr(run, "log_path", None))
+                           clock_offset_s=getattr(run, "clock_offset_s", 0.0), log_path=getattr(run, "log_path", None),
+                           event_frames=getattr(run, "event_frames", None))
 
 
 def render_figures(out: Path, run: Any, which: Any = None) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
