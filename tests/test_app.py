@@ -233,6 +233,34 @@ def test_the_worker_draws_with_the_callers_plsgraph_whatever_the_working_folder_
     assert drawn is not None and len(drawn[0]) >= 5 and not drawn[1]
 
 
+def test_the_event_frames_come_from_the_front_end_without_reading_the_recording_again(sample_result, tmp_path,
+                                                                                      monkeypatch):
+    """The streaming front end keeps the count images of a few detections' windows (each span's first and last among
+    them, at most EVENT_FRAMES_KEPT): the recording's events in those windows, as a second pass would count them. The
+    event frames figure draws from them, the first and the last detection among its tiles."""
+    from plsgraph.frontend.track import EVENT_FRAMES_KEPT
+    from plsgraph.report import coverage
+    from plsgraph.report.figures import figure_inputs
+
+    run = sample_result.run
+    kept = run.event_frames
+    assert kept and len(kept) <= EVENT_FRAMES_KEPT and "event_frames" not in run.camera_track.info
+    half = int(run.camera_track.info["window_s"] * 0.5e9)
+    decoded = coverage._window_counts(run.log_path, [(m - half, m + half) for m, _ in kept])
+    for (_, img), ref in zip(kept, decoded, strict=True):
+        np.testing.assert_array_equal(img, ref)
+    det = run.camera_track.detections
+    mids = {m for m, _ in kept}
+    shift = run.clock_offset_s
+    assert {int(round((float(det.t[i]) - shift) * 1e9)) for i in (0, len(det) - 1)} <= mids
+
+    def no_second_pass(*args, **kw):
+        raise AssertionError("the recording was read again")
+
+    monkeypatch.setattr(coverage, "_window_counts", no_second_pass)
+    assert coverage.fig_event_frames(figure_inputs(run), tmp_path) == "event_frames.png"
+
+
 def test_early_figures_of_a_worker_that_died_are_removed(sample_result, tmp_path):
     out = prepare_output_dir(tmp_path / "calib")
     worker = FigureWorker.start()
