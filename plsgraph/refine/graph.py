@@ -1679,7 +1679,6 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         rows = np.flatnonzero(~rejected)
     t_opt = 0.0
     cov = cov_base = None
-    early_knots: tuple | None = None  # (the knots' second opinion started at the adaptation, what it started with)
     for pas in range(opt.max_passes):
         graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C_anc, td_anc, R_anc, odo_var=odo_var,
                                           planar_var=planar_var, vib_var=vib_var)
@@ -1730,13 +1729,6 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             # scaled noise, the residuals' correlation would be counted a second time).
             adapted = True
             held_solution = (values.atPose3(KEY_CAM).matrix(), float(values.atVector(KEY_TD)[0]))
-            if not probe and warm is None and _wants_knot_probe(opt):
-                # The knots' second opinion adapts its own noise at its own spacing, so it can start from the solution
-                # under the model's own noise: now, beside the passes still to come, rather than after them. It is
-                # used if those passes end with the frames, frozen directions and rocking it started with.
-                early_knots = _start_knot_probe(camera_track, base_track, camera, opt, td_given, td_search, knot_tds,
-                                                values, prob, frozen, rejected, vib_var, odo_var, planar_var,
-                                                (C_anc, td_anc, R_anc), scale0, t_opt)
             if opt.split_odometry_noise:
                 tilt = opt.adapt_odometry_tilt and not opt.scale_odometry_tilt
                 odo_var = tuple(float(v) for v in np.clip(odometry_noise_factor(graph, values, split=True, tilt=tilt),
@@ -1834,17 +1826,15 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                                 chi2_per_dof=chi2, observability=None, warnings=tuple(warnings), priors={},
                                 timing={"total_s": time.perf_counter() - t_start}), None, values
     knots_job = None
-    if early_knots is not None:
-        if converged and _wants_knot_probe(opt) and early_knots[1] == _knot_probe_inputs(prob, frozen, rejected,
-                                                                                            vib_var):
-            knots_job = early_knots[0]
-        else:
-            early_knots[0].discard()
-    if knots_job is None and converged and _wants_knot_probe(opt):
-        # Started here so that, with a second process, it is solved beside the marginals and the jackknife.
+    if converged and _wants_knot_probe(opt):
+        # Started here so that, with a second process, it is solved beside the marginals and the jackknife. Not
+        # earlier (at the noise model's adaptation, beside the passes after it: tried, 2026-11-28): its solve stops
+        # at a relative tolerance, so in a direction the data hardly fix (td) it ends near where it starts, and from
+        # the solution before the adapted passes it counted their move as the knots' (td changes of 17-24 ms on study
+        # runs where it had found under 2 ms).
         knots_job = _start_knot_probe(camera_track, base_track, camera, opt, td_given, td_search, knot_tds, values,
                                       prob, frozen, rejected, vib_var, odo_var, planar_var, (C_anc, td_anc, R_anc),
-                                      scale0, t_opt)[0]
+                                      scale0, t_opt)
     if on_solution is not None:
         try:
             on_solution(SimpleNamespace(T_base_cam=C, R_base_cam=C[:3, :3], td=td, T_world_board=B, observability=None))
@@ -2220,20 +2210,12 @@ def _wants_knot_probe(opt: RefinementOptions) -> bool:
     return bool(opt.marginals and opt.knot_rate_hz and opt.knot_sensitivity_factor and opt.knot_sensitivity_factor > 1)
 
 
-def _knot_probe_inputs(prob: _Problem, frozen: list, rejected: np.ndarray, vib_var: float) -> tuple:
-    """What the knots' second opinion takes from the refinement besides its solution, comparable with ==: the knots,
-    the frozen directions, the frames dropped as outliers and the base's rocking."""
-    return (prob.knot_t.tobytes(), tuple(np.asarray(f, dtype=float).tobytes() for f in frozen),
-            np.flatnonzero(rejected).tobytes(), float(vib_var))
-
-
 def _start_knot_probe(camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, opt: RefinementOptions,
                       td_given: float, td_search: float, knot_tds: tuple[float, float] | None, values: gtsam.Values,
                       prob: _Problem, frozen: list, rejected: np.ndarray, vib_var: float, odo_var, planar_var,
-                      anchor: tuple, scale0: tuple[float, float], t_opt: float) -> tuple[_Beside, tuple]:
+                      anchor: tuple, scale0: tuple[float, float], t_opt: float) -> _Beside:
     """The knots' second opinion (:func:`denser_solution`) started from the solution in ``values``: in a second
-    process when ``opt.workers`` > 1, else solved when its result is asked for (the same answer); and what it started
-    with (:func:`_knot_probe_inputs`)."""
+    process when ``opt.workers`` > 1, else solved when its result is asked for (the same answer)."""
     C = values.atPose3(KEY_CAM).matrix()
     td = float(values.atVector(KEY_TD)[0])
     T_knots = np.stack([values.atPose3(knot_key(i)).matrix() for i in range(prob.knot_t.size)])
@@ -2243,7 +2225,7 @@ def _start_knot_probe(camera_track: CameraTrack, base_track: BaseTrack, camera: 
                 anchor=anchor, rejected_t=prob.frame_t[rejected])
     job = _Beside(denser_solution, (camera_track, base_track, camera, opt, td_given, td_search, knot_tds, C, td,
                                     scales, warm), opt.workers > 1, deadline_s=max(300.0, 20.0 * t_opt))
-    return job, _knot_probe_inputs(prob, frozen, rejected, vib_var)
+    return job
 
 
 def knot_warning(change: np.ndarray, spacing: tuple[float, float]) -> str:

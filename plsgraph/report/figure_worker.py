@@ -460,15 +460,20 @@ def _warm_up(plt) -> None:
 # 20 s benchmark recording), the residuals, the methods and the coverage strip in the fork (0.41 s).
 _HERE = (0, 3, 6)
 _HERE_LATE = (0, 2, 3)
+# The speculative figures (:data:`SPECULATIVE`, drawn in two processes too): trajectories and residuals here (0.19 s),
+# the time-offset curve, the methods and the coverage strip in the fork (0.20 s).
+_HERE_SPECULATIVE = (0, 1)
 
 
 def _split(which: Any = None) -> tuple[tuple[int, ...], tuple[int, ...]]:
     """The figures ``which`` (indices into figures.FIGURES, None for all) split into this process's and the fork's:
-    :data:`_HERE` here when the early figures are among them, else :data:`_HERE_LATE`."""
+    :data:`_HERE` here when the early figures are among them, :data:`_HERE_SPECULATIVE` for the speculative ones,
+    else :data:`_HERE_LATE`."""
     from .figures import FIGURES
 
     which = tuple(range(len(FIGURES))) if which is None else tuple(which)
-    mine = _HERE if set(EARLY) <= set(which) else _HERE_LATE
+    mine = (_HERE if set(EARLY) <= set(which) else _HERE_SPECULATIVE if set(which) == set(SPECULATIVE)
+            else _HERE_LATE)
     here = tuple(i for i in which if i in mine)
     return here, tuple(i for i in which if i not in here)
 
@@ -540,7 +545,7 @@ def serve() -> None:
         pass
     import shutil
 
-    from .figures import FIGURES, render_figures
+    from .figures import FIGURES
 
     drawn: list[tuple[Path, tuple]] = []  # (folder, (images, failures)) of the early jobs
     while True:
@@ -549,8 +554,10 @@ def serve() -> None:
             return  # no final job: the calibration ended without figures
         out, inputs, which, final, keep = job
         if not final:
+            # Two processes here too: they take what processor time the calibration leaves (see NICE), and once its
+            # second opinions are solved the speculative figures have both processors.
             Path(out).mkdir(parents=True, exist_ok=True)
-            drawn.append((Path(out), render_figures(Path(out), inputs, which)))
+            drawn.append((Path(out), _render_in_two(Path(out), inputs, which)))
             continue
         images, failures = _render_in_two(Path(out), inputs, which)
         for folder, (imgs, fails) in drawn:
