@@ -861,6 +861,45 @@ def test_the_knot_spacing_second_opinion_is_the_same_in_one_or_two_processes(mon
     np.testing.assert_array_equal(here.cov_base_axes, beside.cov_base_axes)
 
 
+def test_a_knot_second_opinion_started_before_a_direction_is_frozen_is_dropped(monkeypatch):
+    """The denser knots' solve starts as soon as the passes have settled, before the last check for unobservable
+    directions; when that check freezes one (here made to, once) the solve starts over from the seed, the second
+    opinion started before is dropped and another starts from the new answer."""
+    from refine_cases import sim_case
+
+    import plsgraph.refine.graph as graph_module
+
+    starts, dropped = [], []
+    start = graph_module._start_knot_probe
+
+    def counted(*a):
+        job = start(*a)
+        starts.append((a[7], job))
+        discard = job.discard
+        job.discard = lambda: dropped.append(job) or discard()
+        return job
+
+    monkeypatch.setattr(graph_module, "_start_knot_probe", counted)
+    check = graph_module._unobservable_at
+    calls = []
+
+    def freezes_roll_once(graph, values, opt, frozen, warnings):
+        calls.append(len(frozen))
+        found, cov = check(graph, values, opt, frozen, warnings)
+        if len(calls) == 2:  # the first check at a solution
+            found = [*found, np.eye(7)[0]]
+        return found, cov
+
+    monkeypatch.setattr(graph_module, "_unobservable_at", freezes_roll_once)
+    case = sim_case("rich")
+    res = refine(case.track, case.base, case.rec.camera, case.seed_T, case.seed_td, RefinementOptions(workers=2))
+    assert res.converged and len(calls) >= 3
+    assert len(starts) == 2 and dropped[:1] == [starts[0][1]]
+    np.testing.assert_array_equal(starts[1][0].atPose3(graph_module.KEY_CAM).matrix(), res.T_base_cam)
+    assert not np.array_equal(starts[0][0].atPose3(graph_module.KEY_CAM).matrix(), res.T_base_cam)
+    assert res.inflation["knot_spacing_sensitivity"] is not None
+
+
 def test_no_knot_spacing_second_opinion_when_the_knots_sit_on_every_odometry_sample():
     """Knots on every odometry sample cannot be made denser: no second solve, nothing added, and the result says
     so by leaving the second opinion out."""

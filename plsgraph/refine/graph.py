@@ -1679,6 +1679,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         rows = np.flatnonzero(~rejected)
     t_opt = 0.0
     cov = cov_base = None
+    knots_job: _Beside | None = None  # the knots' second opinion, started once the solve has settled
+    solution_sent = False  # on_solution called
     for pas in range(opt.max_passes):
         graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C_anc, td_anc, R_anc, odo_var=odo_var,
                                           planar_var=planar_var, vib_var=vib_var)
@@ -1769,11 +1771,28 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         if not (converged and opt.freeze_unobservable and opt.marginals) or warm is not None:
             settled = True
             break
+        # The knots' second opinion and the figures need only this solution: they start before the check below,
+        # which rarely finds a direction (then the second opinion is dropped and the solve starts over; the figures
+        # are drawn again if their solution is not the result's).
+        if converged and not probe and knots_job is None and _wants_knot_probe(opt):
+            knots_job = _start_knot_probe(camera_track, base_track, camera, opt, td_given, td_search, knot_tds,
+                                          values, prob, frozen, rejected, vib_var, odo_var, planar_var,
+                                          (C_anc, td_anc, R_anc), scale0, t_opt)
+        if not solution_sent:
+            solution_sent = _send_solution(on_solution, values)
         # Check again at the solution; a direction found only now is frozen and the solve starts over.
-        new = _unobservable_at(graph, values, opt, frozen, warnings)[0]
+        try:
+            new = _unobservable_at(graph, values, opt, frozen, warnings)[0]
+        except BaseException:
+            if knots_job is not None:
+                knots_job.discard()
+            raise
         if not new:
             settled = True
             break
+        if knots_job is not None:
+            knots_job.discard()
+            knots_job = None
         frozen += new
         values = seed_values
         log.info("refine: %d direction(s) not observable; holding them at the seed and solving again", len(new))
@@ -1825,8 +1844,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                                 n_frames_dropped=prob.n_dropped, n_points=n_pts, cov=None, cov_base_axes=None,
                                 chi2_per_dof=chi2, observability=None, warnings=tuple(warnings), priors={},
                                 timing={"total_s": time.perf_counter() - t_start}), None, values
-    knots_job = None
-    if converged and _wants_knot_probe(opt):
+    if knots_job is None and converged and _wants_knot_probe(opt):
         # Started here so that, with a second process, it is solved beside the marginals and the jackknife. Not
         # earlier (at the noise model's adaptation, beside the passes after it: tried, 2026-11-28): its solve stops
         # at a relative tolerance, so in a direction the data hardly fix (td) it ends near where it starts, and from
@@ -1835,11 +1853,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         knots_job = _start_knot_probe(camera_track, base_track, camera, opt, td_given, td_search, knot_tds, values,
                                       prob, frozen, rejected, vib_var, odo_var, planar_var, (C_anc, td_anc, R_anc),
                                       scale0, t_opt)
-    if on_solution is not None:
-        try:
-            on_solution(SimpleNamespace(T_base_cam=C, R_base_cam=C[:3, :3], td=td, T_world_board=B, observability=None))
-        except Exception as exc:  # noqa: BLE001 - work beside the refinement must not cost it
-            log.warning("after the refinement's solve: %s", exc)
+    if not solution_sent:
+        _send_solution(on_solution, values)
     try:  # until the end: a job started beside is not left running when something below raises
         if converged and opt.marginals:
             try:
@@ -2203,6 +2218,20 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
 
 #: A warning says so when the knots' spacing moves yaw, x, y or td by more than this many times its other sigmas.
 KNOT_WARN_FACTOR = 2.0
+
+
+def _send_solution(on_solution: Callable[[SimpleNamespace], None] | None, values: gtsam.Values) -> bool:
+    """``on_solution`` (see :func:`refine`) called with the solution in ``values``; whether it was called. What it
+    raises is logged: work beside the refinement must not cost it."""
+    if on_solution is None:
+        return False
+    C = values.atPose3(KEY_CAM).matrix()
+    try:
+        on_solution(SimpleNamespace(T_base_cam=C, R_base_cam=C[:3, :3], td=float(values.atVector(KEY_TD)[0]),
+                                    T_world_board=values.atPose3(KEY_BOARD).matrix(), observability=None))
+    except Exception as exc:  # noqa: BLE001
+        log.warning("after the refinement's solve: %s", exc)
+    return True
 
 
 def _wants_knot_probe(opt: RefinementOptions) -> bool:
