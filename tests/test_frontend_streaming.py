@@ -93,6 +93,31 @@ def test_spans_detected_in_parallel_give_the_same_track():
     assert len(one) <= sum(ladder.values()) <= len(one) + 3 and ladder == two.info["detected_at_window_fraction"]
 
 
+def test_work_done_while_the_workers_finish_costs_the_front_end_nothing():
+    """``while_waiting`` runs once, after the whole stream is read and while the workers still detect; what it raises
+    is logged and the track is the same (the pipeline imports the refinement there)."""
+    board = load_board("acircles_4x11_a2")
+    camera = read_recording(SAMPLE, with_events=False).camera
+    full = read_events(SAMPLE)
+    t_end = full.t_first + 3_000_000_000
+    calls = []
+
+    def streamed(while_waiting):
+        chunks = (c.slice_time(0, t_end + 1) for c in iter_event_chunks(SAMPLE, chunk_events=100_000)
+                  if c.t_first < t_end)
+        return camera_track_from_event_chunks(chunks, camera, board, kind="count", span_s=1.0, history_s=0.5,
+                                              workers=2, while_waiting=while_waiting)
+
+    def fails():
+        calls.append("fails")
+        raise RuntimeError("boom")
+
+    plain = streamed(lambda: calls.append("ok"))
+    failing = streamed(fails)
+    assert calls == ["ok", "fails"]
+    assert np.array_equal(plain.t, failing.t) and np.array_equal(plain.T_board_cam, failing.T_board_cam)
+
+
 def test_poses_solved_in_the_workers_are_those_solved_after_them():
     """With two worker processes each detection's PnP is solved in the worker that found it (streamed or in memory):
     the track is the one PnP in the calling process gives, bit for bit."""

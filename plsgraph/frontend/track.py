@@ -1134,6 +1134,7 @@ def camera_track_from_event_chunks(
     expected_span_ns: tuple[int, int] | None = None,
     progress: Callable[[int, int], None] | None = None,
     workers: int = 1,
+    while_waiting: Callable[[], None] | None = None,
     **detect_options,
 ) -> CameraTrack:
     """The front end of :func:`camera_track_from_events` on a stream of event chunks, in bounded memory.
@@ -1144,6 +1145,8 @@ def camera_track_from_event_chunks(
     not the recording's length. The grid tracking restarts at each span (a full search in its first window).
     ``expected_span_ns`` (first, last event time, e.g. from the file's summary) only sizes the progress bar.
     ``workers`` > 1 detects that many spans at once in worker processes, with the same result as one.
+    ``while_waiting()`` is called once the whole stream is read while worker processes still detect its last spans
+    (work this process can do meanwhile; what it raises is logged, not raised).
     """
     if not (span_s > 0 and history_s > 0 and rate_hz > 0):
         raise InputError("streaming front end: span_s, history_s and rate_hz must be positive")
@@ -1278,6 +1281,11 @@ def camera_track_from_event_chunks(
         if not parts:
             raise InsufficientDataError("front end: the event stream is empty; check the recording's event topic")
         detect(t_last + period)
+        if pending and while_waiting is not None:
+            try:
+                while_waiting()
+            except Exception as exc:  # noqa: BLE001 - work beside the front end must not cost it
+                log.warning("while the front end's workers finish: %s", exc)
         while pending:
             absorb(*pending.pop(0).result())
     finally:
