@@ -179,7 +179,9 @@ def fig_coverage(run: Any, out: Path, truth_T: Any = None) -> str | None:
 
 def fig_event_frames(run: Any, out: Path, truth_T: Any = None, n_frames: int = 3) -> str | None:
     """event_frames.png: the count images of a few detected windows side by side, the detected circles drawn on
-    them and joined in the board's order (the first circle red)."""
+    them and joined in the board's order (the first circle red). The windows are those the streaming front end kept
+    (Run.event_frames) nearest the first, middle and last detection; without them (tracks given to the API) the
+    first, middle and last detection's windows are read from the recording."""
     import cv2
 
     track = getattr(run, "camera_track", None)
