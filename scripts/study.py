@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import dataclasses
 import json
 import math
 import os
@@ -331,7 +332,8 @@ def run_one(args: tuple) -> dict:
         saved = None  # the tracks, pickled, when kept (none when the front end refused the recording)
         try:
             build_tracks(run)
-            saved = pickle.dumps(run) if tracks_dir is not None else None
+            # The front end's kept event frames (images for the report) are not part of the tracks.
+            saved = pickle.dumps(dataclasses.replace(run, event_frames=None)) if tracks_dir is not None else None
             solve(run, refine=True)
             result = calibration_result(run)
             row["outcome"] = "ok" if result.ok else "flagged"

@@ -193,6 +193,9 @@ def test_speculative_figures_are_kept_only_for_the_final_solution(sample_result,
         write_calibration(out, sample_result, worker)
     final = [j for j in jobs if j[3]]
     assert len(jobs) == 3 and len(final) == 1
+    # The event frames' images travel with the job that draws them only.
+    assert jobs[0][1].event_frames and jobs[1][1].event_frames is None
+    assert (final[0][1].event_frames is None) == (figure_worker.EVENT_FRAMES_FIGURE not in final[0][2])
     kept = str(out / figure_worker.SPECULATIVE_DIR) in final[0][4]
     assert kept == (rotate_deg == 0.0)
     assert set(final[0][2]) == ({3} if kept else {0, 1, 2, 3, 4, 5})
@@ -259,6 +262,80 @@ def test_the_event_frames_come_from_the_front_end_without_reading_the_recording_
 
     monkeypatch.setattr(coverage, "_window_counts", no_second_pass)
     assert coverage.fig_event_frames(figure_inputs(run), tmp_path) == "event_frames.png"
+
+
+def test_the_kept_event_frames_spread_evenly_over_a_long_recording():
+    """However many spans, the front end keeps at most EVENT_FRAMES_KEPT frames, the first and the last among them,
+    evenly spread (an earlier thinning halved the old frames again at every span and kept mostly the last few)."""
+    from plsgraph.frontend.track import EVENT_FRAMES_KEPT, _FrameSample
+
+    for total in (3, 24, 25, 100, 481, 5000):
+        sample = _FrameSample(EVENT_FRAMES_KEPT)
+        for k in range(total):
+            sample.add((k, None))
+        kept = [k for k, _ in sample.frames()]
+        assert kept[0] == 0 and kept[-1] == total - 1 and len(kept) <= EVENT_FRAMES_KEPT
+        assert len(kept) >= min(total, EVENT_FRAMES_KEPT // 2)
+        gaps = np.diff(kept[:-1])  # the last one is kept besides the even sample
+        assert gaps.size == 0 or gaps.min() == gaps.max()
+
+
+def test_event_frames_far_from_the_kept_windows_are_read_from_the_recording(sample_result, tmp_path, monkeypatch):
+    """Where the front end kept no window near a pick (a track cut at a gap keeps only part of the recording), that
+    pick's window is read from the recording: the figure still has its three tiles."""
+    from plsgraph.report import coverage
+    from plsgraph.report.figures import figure_inputs
+
+    inputs = figure_inputs(sample_result.run)
+    inputs.event_frames = inputs.event_frames[:1]  # only the first detection's window
+    read = []
+    counts = coverage._window_counts
+    monkeypatch.setattr(coverage, "_window_counts", lambda path, windows: read.append(windows) or counts(path, windows))
+    assert coverage.fig_event_frames(inputs, tmp_path) == "event_frames.png"
+    assert len(read) == 1 and len(read[0]) == 2  # the middle and the last
+    import cv2
+
+    img = cv2.imread(str(tmp_path / "event_frames.png"))
+    assert img.shape[1] == 3 * 2 * sample_result.run.camera.width + 2 * 6  # three tiles, twice the sensor's width
+
+
+def test_stopping_the_worker_stops_its_fork_too(tmp_path):
+    """The worker draws a job's figures in two processes (it forks); stopped (the calibration gave up on it), both
+    end, so nothing goes on writing into the run's folder. A stand-in worker that forks and sleeps shows it."""
+    import subprocess
+    import sys
+
+    if not Path("/proc/self/stat").exists() or not hasattr(os, "fork"):
+        pytest.skip("reads the processes from /proc")
+    worker = FigureWorker()
+    worker.proc = subprocess.Popen([sys.executable, "-c", "import os, time; os.fork(); time.sleep(60)"],
+                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE, start_new_session=True)
+    pgid = worker.proc.pid
+    deadline = time.monotonic() + 10
+    while len(_group_members(pgid)) < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert len(_group_members(pgid)) == 2  # the worker and its fork
+    worker.close()
+    deadline = time.monotonic() + 5
+    while _group_members(pgid) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert not _group_members(pgid)
+
+
+def _group_members(pgid: int) -> list[int]:
+    """Processes of the process group ``pgid`` that are not zombies (from /proc)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()  # state, ppid, pgrp, ...
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            out.append(int(d.name))
+    return out
 
 
 def test_early_figures_of_a_worker_that_died_are_removed(sample_result, tmp_path):

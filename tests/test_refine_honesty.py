@@ -900,6 +900,32 @@ def test_a_knot_second_opinion_started_before_a_direction_is_frozen_is_dropped(m
     assert res.inflation["knot_spacing_sensitivity"] is not None
 
 
+def test_a_refinement_that_fails_after_its_passes_leaves_no_second_opinion_running(monkeypatch):
+    """The knots' second opinion starts in a second process when the passes settle; if the refinement then raises
+    (here: the bookkeeping after the passes), that process is stopped, not left solving beside what comes next."""
+    from refine_cases import sim_case
+
+    import plsgraph.refine.graph as graph_module
+
+    jobs = []
+    start = graph_module._start_knot_probe
+    monkeypatch.setattr(graph_module, "_start_knot_probe", lambda *a: jobs.append(start(*a)) or jobs[-1])
+    sigma = graph_module._pixel_sigma
+
+    def fails_after_the_passes(prob, rows, opt):
+        import inspect
+
+        if jobs and inspect.currentframe().f_back.f_code.co_name == "_refine_from":
+            raise RuntimeError("after the passes")
+        return sigma(prob, rows, opt)
+
+    monkeypatch.setattr(graph_module, "_pixel_sigma", fails_after_the_passes)
+    case = sim_case("rich")
+    with pytest.raises(RuntimeError, match="after the passes"):
+        refine(case.track, case.base, case.rec.camera, case.seed_T, case.seed_td, RefinementOptions(workers=2))
+    assert len(jobs) == 1 and jobs[0].proc is None  # stopped and joined
+
+
 def test_no_knot_spacing_second_opinion_when_the_knots_sit_on_every_odometry_sample():
     """Knots on every odometry sample cannot be made denser: no second solve, nothing added, and the result says
     so by leaving the second opinion out."""

@@ -997,6 +997,32 @@ def _event_frames(stream: EventStream, t: np.ndarray, window_s: float, n: int = 
     return out
 
 
+class _FrameSample:
+    """At most ``n`` of the frames added, (mid, image) in time order, spread evenly over them in bounded memory: every
+    ``stride``-th frame added is kept (the stride doubles, and the kept ones are thinned to match, whenever more than
+    ``n`` would be kept), and the last frame added is kept besides."""
+
+    def __init__(self, n: int) -> None:
+        self.n, self.stride, self.count = max(2, int(n)), 1, 0
+        self.kept: list[tuple[int, tuple]] = []  # (index among those added, frame)
+        self.last: tuple[int, tuple] | None = None
+
+    def add(self, frame: tuple) -> None:
+        if self.count % self.stride == 0:
+            self.kept.append((self.count, frame))
+            while len(self.kept) > self.n - 1:  # one place is the last frame's
+                self.stride *= 2
+                self.kept = [(i, f) for i, f in self.kept if i % self.stride == 0]
+        self.last = (self.count, frame)
+        self.count += 1
+
+    def frames(self) -> list[tuple]:
+        out = [f for _, f in self.kept]
+        if self.last is not None and (not self.kept or self.kept[-1][0] != self.last[0]):
+            out.append(self.last[1])
+        return out
+
+
 def _keep_frames(info: dict, n: int, keep: np.ndarray) -> None:
     for key in PER_FRAME_INFO:
         if len(info.get(key, ())) == n:
@@ -1172,13 +1198,12 @@ def camera_track_from_event_chunks(
     if expected_span_ns is not None:
         total = max(1, int((expected_span_ns[1] - expected_span_ns[0]) // period))
 
-    event_frames: list[tuple] = []  # (mid, count image) of some detections' windows, for the report
+    event_frames = _FrameSample(EVENT_FRAMES_KEPT)  # some detections' windows, for the report
 
     def absorb(dets: Detections, part: dict, poses: list) -> None:
-        nonlocal info, event_frames
-        event_frames.extend(part.pop("event_frames", []))
-        if len(event_frames) > EVENT_FRAMES_KEPT:
-            event_frames = event_frames[::2] + ([event_frames[-1]] if len(event_frames) % 2 == 0 else [])
+        nonlocal info
+        for frame in part.pop("event_frames", []):
+            event_frames.add(frame)
         t_parts.append(dets.t)
         pose_parts.extend(poses)
         uv_parts.append(dets.uv)
@@ -1313,10 +1338,11 @@ def camera_track_from_event_chunks(
     info["skipped"] = dict(skipped)
     info["detected"] = int(t.size)
     info["streamed_span_s"] = span_s
-    info["event_frames"] = event_frames  # taken out by the pipeline (Run.event_frames); images, not a report item
     info["late_events"] = late_events  # arrived after their windows were detected (out-of-order packets)
     if t.size == 0:
         raise _no_board(info.get("windows", 0), skipped, board, info)
     if progress is not None:
         progress(info["windows"], info["windows"])
-    return _track_from_detections(Detections(t, uv, board.points), info, camera, max_rms_px, sigma_px, pose_parts)
+    track = _track_from_detections(Detections(t, uv, board.points), info, camera, max_rms_px, sigma_px, pose_parts)
+    track.info["event_frames"] = event_frames.frames()  # the pipeline takes them (Run.event_frames): not a report item
+    return track

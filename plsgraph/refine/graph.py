@@ -1778,14 +1778,14 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             knots_job = _start_knot_probe(camera_track, base_track, camera, opt, td_given, td_search, knot_tds,
                                           values, prob, frozen, rejected, vib_var, odo_var, planar_var,
                                           (C_anc, td_anc, R_anc), scale0, t_opt)
-        if not solution_sent:
-            solution_sent = _send_solution(on_solution, values)
-        # Check again at the solution; a direction found only now is frozen and the solve starts over.
         try:
+            if not solution_sent:
+                solution_sent = _send_solution(on_solution, values)
+            # Check again at the solution; a direction found only now is frozen and the solve starts over.
             new = _unobservable_at(graph, values, opt, frozen, warnings)[0]
         except BaseException:
             if knots_job is not None:
-                knots_job.discard()
+                knots_job.discard()  # nobody will ask for its answer
             raise
         if not new:
             settled = True
@@ -1796,65 +1796,72 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         frozen += new
         values = seed_values
         log.info("refine: %d direction(s) not observable; holding them at the seed and solving again", len(new))
-    if not settled:
-        warnings.append("outlier rejection / re-bracketing / freezing did not settle within max_passes")
-    if vib_var > 0:
-        warnings.append(
-            f"the camera sees the base rock in roll and pitch by about {np.degrees(np.sqrt(vib_var)):.2f} deg at a few "
-            "hertz, which the wheels do not report (a vibrating chassis or a bumpy floor); the base's roll and pitch "
-            "between knots were loosened to follow it")
+    try:  # the knots' second opinion, started when the passes settled, is not left running if this raises
+        if not settled:
+            warnings.append("outlier rejection / re-bracketing / freezing did not settle within max_passes")
+        if vib_var > 0:
+            warnings.append(
+                f"the camera sees the base rock in roll and pitch by about {np.degrees(np.sqrt(vib_var)):.2f} deg at "
+                "a few hertz, which the wheels do not report (a vibrating chassis or a bumpy floor); the base's roll "
+                "and pitch between knots were loosened to follow it")
 
-    if settled:
-        final_graph = graph  # same frames and brackets as the last solve
-    else:
-        final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C_anc, td_anc, R_anc,
-                                                odo_var=odo_var, planar_var=planar_var, vib_var=vib_var)
-    final_error = float(final_graph.error(values))
-    per, rms, n_pts = _frame_rms(batch, values)
-    C = values.atPose3(KEY_CAM).matrix()
-    B = values.atPose3(KEY_BOARD).matrix()
-    td = float(values.atVector(KEY_TD)[0])
-    T_knots = np.stack([values.atPose3(int(k)).matrix() for k in keys])
-    dof = max(1, 2 * n_pts - 6 * keys.size - 13)
-    sig = np.broadcast_to(np.asarray(_pixel_sigma(prob, rows, opt), dtype=float), (rows.size,))
-    chi2 = float(np.sum((np.nan_to_num(batch.evaluate_all(values, False).residual) / sig[:, None, None]) ** 2) / dof)
-    if not np.isfinite(final_error):
-        converged = False
-        warnings.append("the optimisation produced a non-finite error")
-    if not converged:
-        warnings.append(
-            f"the optimisation did not converge in {opt.max_iterations} iterations per pass; the result is not "
-            "reliable and no covariance is given (try a better seed, more iterations or a robust loss)"
-        )
-    if rms > 5 * opt.sigma_px:
-        warnings.append(
-            f"final reprojection RMS {rms:.2f} px is far above the assumed pixel noise {opt.sigma_px} px; "
-            "check intrinsics, td and outliers"
-        )
+        if settled:
+            final_graph = graph  # same frames and brackets as the last solve
+        else:
+            final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C_anc, td_anc, R_anc,
+                                                    odo_var=odo_var, planar_var=planar_var, vib_var=vib_var)
+        final_error = float(final_graph.error(values))
+        per, rms, n_pts = _frame_rms(batch, values)
+        C = values.atPose3(KEY_CAM).matrix()
+        B = values.atPose3(KEY_BOARD).matrix()
+        td = float(values.atVector(KEY_TD)[0])
+        T_knots = np.stack([values.atPose3(int(k)).matrix() for k in keys])
+        dof = max(1, 2 * n_pts - 6 * keys.size - 13)
+        sig = np.broadcast_to(np.asarray(_pixel_sigma(prob, rows, opt), dtype=float), (rows.size,))
+        res_now = np.nan_to_num(batch.evaluate_all(values, False).residual)
+        chi2 = float(np.sum((res_now / sig[:, None, None]) ** 2) / dof)
+        if not np.isfinite(final_error):
+            converged = False
+            warnings.append("the optimisation produced a non-finite error")
+        if not converged:
+            warnings.append(
+                f"the optimisation did not converge in {opt.max_iterations} iterations per pass; the result is not "
+                "reliable and no covariance is given (try a better seed, more iterations or a robust loss)"
+            )
+        if rms > 5 * opt.sigma_px:
+            warnings.append(
+                f"final reprojection RMS {rms:.2f} px is far above the assumed pixel noise {opt.sigma_px} px; "
+                "check intrinsics, td and outliers"
+            )
 
-    t1 = time.perf_counter()
-    cov = cov_base = joint = cov_plain = None
-    inflation: dict = {}
-    report: ObservabilityReport | None = None
-    if probe:
-        return RefinementResult(T_base_cam=C, td=td, T_world_board=B, knot_t=prob.knot_t.copy(), T_world_base=T_knots,
-                                converged=bool(converged), iterations=total_it, initial_error=float(initial_error),
-                                final_error=final_error, rms_px_initial=float(rms0), rms_px_final=rms,
-                                n_frames=int(rows.size), n_frames_rejected=int(rejected.sum()),
-                                n_frames_dropped=prob.n_dropped, n_points=n_pts, cov=None, cov_base_axes=None,
-                                chi2_per_dof=chi2, observability=None, warnings=tuple(warnings), priors={},
-                                timing={"total_s": time.perf_counter() - t_start}), None, values
-    if knots_job is None and converged and _wants_knot_probe(opt):
-        # Started here so that, with a second process, it is solved beside the marginals and the jackknife. Not
-        # earlier (at the noise model's adaptation, beside the passes after it: tried, 2026-11-28): its solve stops
-        # at a relative tolerance, so in a direction the data hardly fix (td) it ends near where it starts, and from
-        # the solution before the adapted passes it counted their move as the knots' (td changes of 17-24 ms on study
-        # runs where it had found under 2 ms).
-        knots_job = _start_knot_probe(camera_track, base_track, camera, opt, td_given, td_search, knot_tds, values,
-                                      prob, frozen, rejected, vib_var, odo_var, planar_var, (C_anc, td_anc, R_anc),
-                                      scale0, t_opt)
-    if not solution_sent:
-        _send_solution(on_solution, values)
+        t1 = time.perf_counter()
+        cov = cov_base = joint = cov_plain = None
+        inflation: dict = {}
+        report: ObservabilityReport | None = None
+        if probe:
+            return RefinementResult(T_base_cam=C, td=td, T_world_board=B, knot_t=prob.knot_t.copy(),
+                                    T_world_base=T_knots, converged=bool(converged), iterations=total_it,
+                                    initial_error=float(initial_error),
+                                    final_error=final_error, rms_px_initial=float(rms0), rms_px_final=rms,
+                                    n_frames=int(rows.size), n_frames_rejected=int(rejected.sum()),
+                                    n_frames_dropped=prob.n_dropped, n_points=n_pts, cov=None, cov_base_axes=None,
+                                    chi2_per_dof=chi2, observability=None, warnings=tuple(warnings), priors={},
+                                    timing={"total_s": time.perf_counter() - t_start}), None, values
+        if knots_job is None and converged and _wants_knot_probe(opt):
+            # (Usually started when the passes settled, above.) Solved beside the marginals and the jackknife. Not
+            # earlier than the final answer (at the noise model's adaptation, beside the passes after it: tried,
+            # 2026-11-28): its solve stops at a relative tolerance, so in a direction the data hardly fix (td) it
+            # ends near where it starts, and from the solution before the adapted passes it counted their move as
+            # the knots' (td changes of 17-24 ms on study runs where it had found under 2 ms).
+            knots_job = _start_knot_probe(camera_track, base_track, camera, opt, td_given, td_search, knot_tds, values,
+                                          prob, frozen, rejected, vib_var, odo_var, planar_var, (C_anc, td_anc, R_anc),
+                                          scale0, t_opt)
+        if not solution_sent:
+            _send_solution(on_solution, values)
+    except BaseException:
+        if knots_job is not None:
+            knots_job.discard()
+        raise
     try:  # until the end: a job started beside is not left running when something below raises
         if converged and opt.marginals:
             try:

@@ -195,13 +195,19 @@ def fig_event_frames(run: Any, out: Path, truth_T: Any = None, n_frames: int = 3
     shift = float(getattr(run, "clock_offset_s", 0.0) or 0.0)
     half = int(window_s * 0.5e9)
     mids = np.array([int(round((float(t) - shift) * 1e9)) for t in det.t], dtype=np.int64)
-    kept = _kept_frames(getattr(run, "event_frames", None), mids, picks)
-    if kept is not None:  # the front end kept these detections' windows: no second pass over the recording
-        picks, frames = kept
-    elif log_path is None or not Path(log_path).is_file():
+    # The windows the front end kept, each pick's nearest if near enough; the others read from the recording.
+    tol_ns = max(1_000_000_000, int(0.1 * (int(mids[-1]) - int(mids[0]))))
+    chosen = _kept_frames(getattr(run, "event_frames", None), mids, picks, tol_ns)
+    readable = log_path is not None and Path(log_path).is_file()
+    if any(c is None for c in chosen) and readable:
+        missing = [int(p) for p, c in zip(picks, chosen, strict=True) if c is None]
+        read = _window_counts(log_path, [(int(mids[i]) - half, int(mids[i]) + half) for i in missing])
+        got = dict(zip(missing, read, strict=True))
+        chosen = [c if c is not None else (p, got[int(p)]) for p, c in zip(picks, chosen, strict=True)]
+    chosen = [c for c in chosen if c is not None]
+    if not chosen:
         return None  # tracks given without their recording
-    else:
-        frames = _window_counts(log_path, [(int(mids[i]) - half, int(mids[i]) + half) for i in picks])
+    picks, frames = [c[0] for c in chosen], [c[1] for c in chosen]
     tiles = []
     for i, img in zip(picks, frames, strict=True):
         if img is None:
@@ -230,22 +236,29 @@ def fig_event_frames(run: Any, out: Path, truth_T: Any = None, n_frames: int = 3
     return "event_frames.png"
 
 
-def _kept_frames(kept: list | None, mids: np.ndarray, picks: np.ndarray) -> tuple[np.ndarray, list] | None:
-    """Of the count images the front end kept (``kept``: (mid ns, image), see Run.event_frames), those of detections
-    still in the track (``mids``: each detection's mid on the events' clock), one nearest each of ``picks`` (indices
-    into the detections): (their detections' indices, their images as float32), or None without any."""
+def _kept_frames(kept: list | None, mids: np.ndarray, picks: np.ndarray, tol_ns: int) -> list[tuple | None]:
+    """For each of ``picks`` (indices into the detections, ``mids`` their windows' mids on the events' clock), a count
+    image the front end kept (``kept``: (mid ns, image), see Run.event_frames) of a detection still in the track, the
+    one nearest the pick within ``tol_ns`` and not given to another pick: (that detection's index, its image as
+    float32); None where there is none (the pick's own window is then read from the recording)."""
     if not kept:
-        return None
+        return [None] * len(picks)
     at = {}
     for mid, img in kept:
         i = int(np.argmin(np.abs(mids - mid)))
         if abs(int(mids[i]) - mid) <= 1000:  # the same detection (to rounding: the track may have been shifted)
             at[i] = img
-    if not at:
-        return None
-    have = np.array(sorted(at))
-    chosen = np.unique([have[np.argmin(np.abs(mids[have] - mids[p]))] for p in picks])
-    return chosen, [at[int(i)].astype(np.float32) for i in chosen]
+    out: list[tuple | None] = []
+    used: set[int] = set()
+    for p in picks:
+        free = [i for i in at if i not in used and abs(int(mids[i]) - int(mids[p])) <= tol_ns]
+        if not free:
+            out.append(None)
+            continue
+        i = min(free, key=lambda i: abs(int(mids[i]) - int(mids[p])))
+        used.add(i)
+        out.append((i, at[i].astype(np.float32)))
+    return out
 
 
 def _window_counts(log_path: Any, windows: list[tuple[int, int]]) -> list[np.ndarray | None]:

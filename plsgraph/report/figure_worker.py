@@ -38,6 +38,7 @@ from __future__ import annotations
 import logging
 import os
 import pickle
+import signal
 import subprocess
 import sys
 import tempfile
@@ -60,6 +61,8 @@ _WARM = b"warm\n"
 #: show the final tracks' detections on the recording's events). The coverage strip cannot: it counts windows of a
 #: still robot with the refined time offset.
 EARLY = (6,)
+#: The index into figures.FIGURES of the event frames (the one figure that reads Run.event_frames).
+EVENT_FRAMES_FIGURE = 6
 #: The subfolder of the run's folder the early figures are drawn into.
 EARLY_DIR = ".figures-early"
 #: Indices into figures.FIGURES of the figures drawn once the refinement's solve ends (:meth:`FigureWorker.speculate`):
@@ -69,16 +72,26 @@ SPECULATIVE = (0, 1, 2, 4, 5)
 SPECULATIVE_DIR = ".figures-speculative"
 
 
+def _without_unread(inputs: Any, which: Any) -> Any:
+    """``inputs`` without the event frames' images when the figures ``which`` (None: all) do not include the event
+    frames: megabytes that would be pickled and sent for nothing."""
+    if which is not None and EVENT_FRAMES_FIGURE not in which and getattr(inputs, "event_frames", None) is not None:
+        from types import SimpleNamespace
+
+        return SimpleNamespace(**{**vars(inputs), "event_frames": None})
+    return inputs
+
+
 def _key(inputs: Any) -> bytes:
     """What the speculative figures read of ``inputs`` (figures.figure_inputs): all of it but the observability,
     pickled. Equal keys draw equal speculative figures."""
     from types import SimpleNamespace
 
     ref = inputs.refinement
+    fields = {**vars(inputs), "event_frames": None}  # the event frames' images: read by the early figure only
     if ref is not None:
-        inputs = SimpleNamespace(**{**vars(inputs), "refinement": SimpleNamespace(**{**vars(ref),
-                                                                                     "observability": None})})
-    return pickle.dumps(inputs, protocol=pickle.HIGHEST_PROTOCOL)
+        fields["refinement"] = SimpleNamespace(**{**vars(ref), "observability": None})
+    return pickle.dumps(SimpleNamespace(**fields), protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def _frame(job: tuple) -> bytes:
@@ -299,7 +312,7 @@ class FigureWorker:
         if self._thread is not None or not self.available:
             return
         try:
-            inputs = figure_inputs(run, refinement)
+            inputs = _without_unread(figure_inputs(run, refinement), which)
             job = (b"" if self._warmed else _WARM) + _frame((str(folder), inputs, which, False, ()))
             key = _key(inputs) if speculative else None
         except Exception as exc:  # something that does not pickle: they are drawn with the others
@@ -343,6 +356,7 @@ class FigureWorker:
             kept = [(folder, which) for _, folder, which, key in jobs if key is None or key == final_key]
             taken = {i for _, which in kept for i in which}
             which = None if not jobs else tuple(i for i in range(len(FIGURES)) if i not in taken)
+            inputs = _without_unread(inputs, which)
             job = (b"" if self._warmed else _WARM) + _frame((str(out), inputs, which, True,
                                                             tuple(str(folder) for folder, _ in kept)))
             self._warmed = True
@@ -410,7 +424,12 @@ class FigureWorker:
         proc, self.proc = self.proc, None
         if proc is not None:
             if proc.poll() is None:
-                proc.kill()
+                # The worker leads a session and process group of its own (start_new_session): the group holds its
+                # fork drawing half of the figures too, which would go on writing into the folder otherwise.
+                try:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                except (AttributeError, OSError):
+                    proc.kill()
             if self._thread is not None and self._thread.is_alive():
                 self._thread.join(10)  # its communicate() ends with the process
             else:
@@ -492,6 +511,7 @@ def _render_in_two(out: Path, inputs: Any, which: Any = None) -> tuple[list[tupl
     if pid == 0:  # the fork: draw its share, answer, and end without running the parent's cleanup
         code = 1
         try:
+            _end_with_parent()
             os.close(r)
             data = pickle.dumps(render_figures(out, inputs, _forked), protocol=pickle.HIGHEST_PROTOCOL)
             with os.fdopen(w, "wb") as f:
@@ -516,23 +536,46 @@ def _render_in_two(out: Path, inputs: Any, which: Any = None) -> tuple[list[tupl
     return sorted(images, key=lambda x: order[x[0]]), sorted(failures, key=lambda x: order[x[0]])
 
 
+def _end_with_parent() -> None:
+    """Have this process killed when its parent ends (Linux's PR_SET_PDEATHSIG; elsewhere nothing): a fork drawing
+    figures must not outlive a worker that died, writing into a folder the caller has given up on."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def _set_autogroup_nice(nice: int) -> bool:
+    """Set the niceness of this process's autogroup (Linux with autogroups: a process that started a session of its
+    own, as the worker does, is a group of its own, and the group's niceness is what the scheduler weighs against the
+    calibration's; unlike os.nice it can be set back). Whether it was set."""
+    try:
+        with open("/proc/sys/kernel/sched_autogroup_enabled", encoding="ascii") as f:
+            if f.read().strip() != "1":
+                return False
+        with open("/proc/self/autogroup", "w", encoding="ascii") as f:
+            f.write(str(int(nice)))
+        return True
+    except (OSError, ValueError):
+        return False
+
+
 def serve() -> None:
     """The worker process: warm up, read the jobs from stdin, draw them, answer on stdout."""
-    import signal
-
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the caller stops the worker; an interrupt is the caller's
-    try:
-        # Below the calibration's own processes: the figures drawn before the result take what processor time
-        # they leave (the refinement's second opinion solved beside lost a fifth of a second to them otherwise),
-        # and the last figures are drawn when nothing else runs.
-        os.nice(NICE)
-    except (AttributeError, OSError):
-        pass
-    try:  # on Linux with autogroups, a new session is its own group: the group's niceness is what counts
-        with open("/proc/self/autogroup", "w", encoding="ascii") as f:
-            f.write(str(NICE))
-    except OSError:
-        pass
+    # Below the calibration's own processes: the figures drawn before the result take what processor time they leave
+    # (the refinement's second opinion solved beside lost a fifth of a second to them otherwise). The final figures,
+    # which the calibration waits for, are drawn at the usual priority where it can be given back.
+    autogroup = _set_autogroup_nice(NICE)
+    if not autogroup:
+        try:
+            os.nice(NICE)  # for good: only a privileged process may raise its priority again
+        except (AttributeError, OSError):
+            pass
     reply_fd = os.dup(1)
     os.dup2(2, 1)  # anything printed while drawing goes to stderr, not into the reply
     if sys.stdin.buffer.readline() != _WARM:
@@ -559,6 +602,8 @@ def serve() -> None:
             Path(out).mkdir(parents=True, exist_ok=True)
             drawn.append((Path(out), _render_in_two(Path(out), inputs, which)))
             continue
+        if autogroup:
+            _set_autogroup_nice(0)
         images, failures = _render_in_two(Path(out), inputs, which)
         for folder, (imgs, fails) in drawn:
             if str(folder) in keep:
