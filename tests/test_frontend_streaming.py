@@ -118,6 +118,30 @@ def test_work_done_while_the_workers_finish_costs_the_front_end_nothing():
     assert np.array_equal(plain.t, failing.t) and np.array_equal(plain.T_board_cam, failing.T_board_cam)
 
 
+def test_a_span_handed_over_as_chunks_lets_them_go_once_joined():
+    """A worker joins the span's chunks and empties the list it was handed (the task holds that list until it returns:
+    otherwise every span was in the worker's memory twice); the detections are those of the joined span."""
+    import numpy as np
+
+    from plsgraph.core.events import EventStream
+    from plsgraph.frontend.track import _detect_span
+
+    board = load_board("acircles_4x11_a2")
+    camera = read_recording(SAMPLE, with_events=False).camera
+    chunks = []
+    for c in iter_event_chunks(SAMPLE, chunk_events=50_000):
+        chunks.append(c)
+        if c.t_last - chunks[0].t_first > 2_000_000_000:
+            break
+    joined = EventStream.concatenate(list(chunks))
+    q = np.arange(joined.t_first + 33_333_333, joined.t_first + 2_000_000_000, 33_333_333, dtype=np.int64)
+    handed = list(chunks)
+    a = _detect_span((handed, camera, board, 30.0, "count", q, {}, None))
+    b = _detect_span((joined, camera, board, 30.0, "count", q, {}, None))
+    assert handed == [] and len(chunks) > 1
+    assert np.array_equal(a[0].t, b[0].t) and np.array_equal(a[0].uv, b[0].uv, equal_nan=True)
+
+
 def test_poses_solved_in_the_workers_are_those_solved_after_them():
     """With two worker processes each detection's PnP is solved in the worker that found it (streamed or in memory):
     the track is the one PnP in the calling process gives, bit for bit."""

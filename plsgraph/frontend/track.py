@@ -1136,7 +1136,11 @@ def _detect_span(args: tuple) -> tuple[Detections, dict, list]:
     detection was made, in parallel with the other spans)."""
     buf, camera, board, rate_hz, kind, q, detect_options, sigma_px = args
     if isinstance(buf, list):  # the span's chunks, joined here rather than in the process that reads them
-        buf = buf[0] if len(buf) == 1 else EventStream.concatenate(buf)
+        chunks = buf
+        buf = chunks[0] if len(chunks) == 1 else EventStream.concatenate(chunks)
+        # The task holds the list until it returns: emptied, the chunks' arrays go now that they are joined (a span's
+        # worth of memory; the caller's own list of them, in this process, is another list and keeps them).
+        chunks.clear()
     dets, part = detect_in_events(buf, camera, board, rate_hz, kind, t_query_ns=q, require_detection=False,
                                   **detect_options)
     part["event_frames"] = _event_frames(buf, dets.t, float(part["window_s"]))
