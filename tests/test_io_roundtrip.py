@@ -218,3 +218,51 @@ def test_a_recording_without_camera_info_says_so_without_pointing_at_warnings_it
     msg = str(e.value)
     assert "has no sensor_msgs/CameraInfo topic" in msg and "--camera-info" in msg
     assert "see the warnings" not in msg and "odometry file" not in msg
+
+
+
+class _Recorder:
+    """A progress factory (label -> context manager that is also ``progress(done, total)``) that keeps what it is
+    told: ``calls`` [(label, [(done, total), ...]), ...]."""
+
+    def __init__(self):
+        self.calls: list = []
+
+    def __call__(self, label):
+        seen: list = []
+        self.calls.append((label, seen))
+
+        class _Bar:
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *exc):
+                pass
+
+            def __call__(self, done, total):
+                seen.append((done, total))
+
+        return _Bar()
+
+
+def test_inspect_reports_progress_against_the_files_index_and_nothing_without_one(tmp_path, monkeypatch):
+    from plsgraph.io import inspect as inspect_module
+
+    monkeypatch.setattr(inspect_module, "PROGRESS_EVERY", 8)
+    ev, js, od, cam = _sim(n=5000, seconds=0.5)
+    p = tmp_path / "i.mcap"
+    rep = write_recording(p, ev, js, od, cam, event_format="evt3")
+    total = sum(rep["messages"].values())
+    bars = _Recorder()
+    info = inspect_recording(p, progress=bars)
+    ((label, seen),) = bars.calls
+    assert label == "reading recording" and seen[-1] == (total, total) and len(seen) > 2
+    assert all(t == total for _, t in seen) and all(a < b for (a, _), (b, _) in zip(seen, seen[1:], strict=False))
+    assert info == inspect_recording(p)  # the same summary with or without a bar
+    # Cut short: no index, so no count to measure against; what is left is listed (with warnings), without a bar.
+    q = tmp_path / "cut.mcap"
+    q.write_bytes(p.read_bytes()[: p.stat().st_size * 2 // 3])
+    bars = _Recorder()
+    assert any("truncated" in w for w in inspect_recording(q, progress=bars)["warnings"])
+    ((_, seen),) = bars.calls
+    assert seen == []

@@ -219,8 +219,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
     from ..io.inspect import format_inspection, inspect_recording
+    from .progress import ProgressBar
 
-    info = inspect_recording(args.log)
+    info = inspect_recording(args.log, progress=ProgressBar)
     if not info.get("topics"):
         why = "; ".join(info.get("warnings", [])) or "no messages"
         print(f"plsgraph: error: nothing readable in {args.log}: {why}", file=sys.stderr)

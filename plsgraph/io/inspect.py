@@ -6,20 +6,34 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.progress import ProgressFactory, no_progress
 from .events_reader import EVT3_GROUP_PACKETS, _TopicDecoder
 from .messages import EVENT_TYPES
 from .source import Source, open_source
 
+#: Messages read between two calls of the progress callable.
+PROGRESS_EVERY = 64
 
-def inspect_recording(path: str | Path | Source) -> dict:
+
+def inspect_recording(path: str | Path | Source, progress: ProgressFactory = no_progress) -> dict:
     """Summary of a recording in one streaming pass.
 
     Returns ``{"path", "topics": [{"topic", "type", "messages", "t_first_ns", "t_last_ns"} ...], "warnings"}``;
     event topics also have ``events``, ``events_on``, ``events_off``, ``width``, ``height`` and ``encoding``,
     with times from the decoded events. Other topics' times are the container's log times.
+    ``progress`` (a factory, as the calibration's) reports the messages read against those the file's index lists,
+    where it lists them for every topic (a file without one, e.g. cut short, reports nothing).
     """
     src = path if hasattr(path, "iter_raw") else open_source(path)
+    with progress("reading recording") as bar:
+        return _inspect(src, bar)
+
+
+def _inspect(src: Source, bar) -> dict:
     topics = src.topics()
+    counts = [info.messages for info in topics.values()]
+    total = sum(counts) if counts and all(c is not None for c in counts) else 0
+    done = 0
     rows: dict[str, dict] = {}
     decoders: dict[str, _TopicDecoder] = {}
     for name, info in sorted(topics.items()):
@@ -45,6 +59,9 @@ def inspect_recording(path: str | Path | Source) -> dict:
             row = rows[m.topic] = {"topic": m.topic, "type": m.msgtype, "messages": 0, "t_first_ns": None,
                                    "t_last_ns": None}
         row["messages"] += 1
+        done += 1
+        if total and not done % PROGRESS_EVERY:
+            bar(min(done, total), total)
         dec = decoders.get(m.topic)
         if dec is None:
             _span(row, int(m.log_time_ns), int(m.log_time_ns))
@@ -57,6 +74,8 @@ def inspect_recording(path: str | Path | Source) -> dict:
     for name, dec in decoders.items():
         add_events(rows[name], dec.decode_many(groups[name]))
         add_events(rows[name], dec.flush())
+    if total:
+        bar(total, total)
     for name, dec in decoders.items():
         dec.finish()
         rows[name].update(width=dec.width or None, height=dec.height or None, encoding=_encoding(dec, rows[name]))
