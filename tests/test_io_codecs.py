@@ -161,6 +161,26 @@ def test_evt3_of_only_event_and_time_words_matches_slow_reference():
     assert fast.stats.outside_sensor > 0 and fast.stats.unknown_codes == 0
 
 
+@pytest.mark.parametrize("probs", [
+    [0.37, 0.37, 0.2598, 0.0002],  # as the simulator writes them: a y word per event, time high rare
+    [0.0, 0.6, 0.399, 0.001],  # no y word at all: every event at the row carried over
+    [0.5, 0.0, 0.45, 0.05],  # no event at all
+    [0.3, 0.7, 0.0, 0.0],  # no time word: the time carried over
+])
+def test_evt3_states_taken_by_runs_match_slow_reference(probs):
+    # The shorter path takes each event's row and time by runs of events between state words (a time high rare
+    # enough is placed by bisection): packets without one kind of word, or with the first valid time inside, too.
+    rng = np.random.default_rng(int(1000 * probs[0] + 10 * probs[1]))
+    fast, slow = Evt3Decoder(300, 200), SlowEvt3(300, 200)
+    first = np.array([(8 << 12) | 5, (6 << 12) | 7], dtype=np.uint16)
+    for k in range(5):
+        words = _random_words(rng, 6000, [0, 2, 6, 8], probs)
+        if k == 0:  # the first valid time comes part way into the first packet
+            words = np.concatenate([_random_words(rng, 50, [0, 2], [0.5, 0.5]), first, words])
+        _check(fast.decode(words.tobytes()), slow.decode(words.tolist()))
+    assert (fast.ey, fast.time_low, fast.time_high) == (slow.ey, slow.low, slow.high)
+
+
 class SlowEvt2:
     """EVT 2.0, one word at a time: events wait for a first time-high word; a time-high word more than half the
     range below its predecessor is a rollover, a smaller step back is counted."""

@@ -68,6 +68,38 @@ def _state_at(mask: np.ndarray, values: np.ndarray, default: int, at: np.ndarray
     return table[np.cumsum(mask, dtype=np.int32 if mask.size < 2**31 else np.int64)[at]]
 
 
+class _StateAtWords:
+    """``state_at(mask, values, default)``: :func:`_state_at` (mask, values, default, at) where ``at`` are the
+    positions of one kind of word (``is_at``; e.g. EVT3's x addresses, one per event), the same numbers with less
+    work on long packets. One running count of the ``at`` words serves every state, and each state's values are
+    repeated over the runs of ``at`` words between its state words, instead of being looked up through a running
+    count of each state's own words. ``dtype``: the values' type (small ones are copied faster)."""
+
+    def __init__(self, is_at: np.ndarray, at: np.ndarray):
+        self.is_at = is_at
+        self.at = at
+        self._count: np.ndarray | None = None  # the running count of at-words, made on first use
+
+    def __call__(self, mask: np.ndarray, values: np.ndarray, default: int, dtype=np.int64) -> np.ndarray:
+        where = np.flatnonzero(mask)
+        table = np.empty(where.size + 1, dtype)
+        table[0] = default
+        table[1:] = values
+        if where.size == 0:
+            return np.repeat(table, self.at.size)
+        if where.size * 64 < mask.size:  # a rare state word (time high): bisection over the at-words is cheaper
+            before = np.searchsorted(self.at, where)
+        else:
+            if self._count is None:
+                self._count = np.cumsum(self.is_at, dtype=np.int32 if mask.size < 2**31 else np.int64)
+            before = self._count[where]  # at-words up to each state word, i.e. before it (it is not one of them)
+        runs = np.empty(where.size + 1, np.int64)  # at-words before the first state word, between two, after the last
+        runs[0] = before[0]
+        np.subtract(before[1:], before[:-1], out=runs[1:-1])
+        runs[-1] = self.at.size - before[-1]
+        return np.repeat(table, runs)
+
+
 def _masked(w: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """``w[mask]``, the same values; np.extract is several times faster than boolean indexing on word arrays."""
     return np.extract(mask, w)
@@ -321,10 +353,14 @@ class Evt3Decoder:
         else:
             at = ix
         low_before = self.time_low
-        hi_at = self._advance_time(w, is_hi, is_lo, at)
-        t_ns = (hi_at | _state_at(is_lo, (_masked(w, is_lo) & 0xFFF).astype(np.int64), low_before, at)) * 1000
-        y_vals = (_masked(w, is_y) & 0x7FF).astype(np.int64)
-        ys = _state_at(is_y, y_vals, self.ey, at)
+        if has_vect:
+            state_at = lambda mask, values, default, dtype=np.int64: _state_at(mask, values, default, at)  # noqa: E731
+        else:  # the events are the x words: their states (time, y) come cheaper by runs (the same numbers)
+            state_at = _StateAtWords(is_x, ix)
+        hi_at = self._advance_time(w, is_hi, is_lo, at, state_at)
+        t_ns = (hi_at | state_at(is_lo, _masked(w, is_lo) & 0xFFF, low_before, np.uint16)) * 1000
+        y_vals = _masked(w, is_y) & 0x7FF
+        ys = state_at(is_y, y_vals, self.ey, np.uint16)
         if y_vals.size:
             self.ey = int(y_vals[-1])
         wx = w[ix]
@@ -336,7 +372,7 @@ class Evt3Decoder:
             if not inside.all():
                 self.stats.outside_sensor += int(inside.size - np.count_nonzero(inside))
                 t_ns, x1, ys, p1 = t_ns[inside], x1[inside], ys[inside], p1[inside]
-            return t_ns, x1.astype(np.uint16, copy=False), ys.astype(np.uint16), p1
+            return t_ns, x1.astype(np.uint16, copy=False), ys.astype(np.uint16, copy=False), p1
         x1 = (wx & 0x7FF).astype(np.int64)
         p1 = ((wx >> 11) & 1).astype(np.int64)
         return _finish(
@@ -351,8 +387,10 @@ class Evt3Decoder:
             True,
         )
 
-    def _advance_time(self, w: np.ndarray, is_hi: np.ndarray, is_lo: np.ndarray, at: np.ndarray) -> np.ndarray:
-        """High time bits (with rollovers) at positions ``at``; updates the carried time state."""
+    def _advance_time(self, w: np.ndarray, is_hi: np.ndarray, is_lo: np.ndarray, at: np.ndarray,
+                      state_at=None) -> np.ndarray:
+        """High time bits (with rollovers) at positions ``at``; updates the carried time state. ``state_at(mask,
+        values, default)``: :func:`_state_at` at ``at`` (or what gives the same)."""
         h = (_masked(w, is_hi) & 0xFFF).astype(np.int64)
         if h.size:
             prev = np.empty_like(h)
@@ -361,7 +399,8 @@ class Evt3Decoder:
             # A high time stepping back by more than 10 is a rollover; small steps back are jitter.
             rolls = (self.time_high >> 24) + np.cumsum((h < prev) & (prev - h > 10))
             full = (rolls << 24) | (h << 12)
-            hi_at = _state_at(is_hi, full, self.time_high, at)
+            hi_at = _state_at(is_hi, full, self.time_high, at) if state_at is None else \
+                state_at(is_hi, full, self.time_high)
             self.time_high = int(full[-1])
         else:
             hi_at = np.full(at.size, self.time_high, np.int64)
