@@ -80,8 +80,10 @@ class _StateAtWords:
         self.at = at
         self._count: np.ndarray | None = None  # the running count of at-words, made on first use
 
-    def __call__(self, mask: np.ndarray, values: np.ndarray, default: int, dtype=np.int64) -> np.ndarray:
-        where = np.flatnonzero(mask)
+    def __call__(self, mask: np.ndarray, values: np.ndarray, default: int, dtype=np.int64,
+                 where: np.ndarray | None = None) -> np.ndarray:
+        """The state at every at-word; ``where``: np.flatnonzero(mask), when the caller has it."""
+        where = np.flatnonzero(mask) if where is None else where
         table = np.empty(where.size + 1, dtype)
         table[0] = default
         table[1:] = values
@@ -357,10 +359,17 @@ class Evt3Decoder:
             state_at = lambda mask, values, default, dtype=np.int64: _state_at(mask, values, default, at)  # noqa: E731
         else:  # the events are the x words: their states (time, y) come cheaper by runs (the same numbers)
             state_at = _StateAtWords(is_x, ix)
-        hi_at = self._advance_time(w, is_hi, is_lo, at, state_at)
-        t_ns = (hi_at | state_at(is_lo, _masked(w, is_lo) & 0xFFF, low_before, np.uint16)) * 1000
-        y_vals = _masked(w, is_y) & 0x7FF
-        ys = state_at(is_y, y_vals, self.ey, np.uint16)
+        il = None if has_vect else np.flatnonzero(is_lo)
+        hi_at = self._advance_time(w, is_hi, is_lo, at, state_at, il)
+        if has_vect:
+            t_ns = (hi_at | state_at(is_lo, _masked(w, is_lo) & 0xFFF, low_before)) * 1000
+            y_vals = _masked(w, is_y) & 0x7FF
+            ys = state_at(is_y, y_vals, self.ey)
+        else:  # the state words' positions once, for their values and their runs
+            iy = np.flatnonzero(is_y)
+            t_ns = (hi_at | state_at(is_lo, w[il] & 0xFFF, low_before, np.uint16, where=il)) * 1000
+            y_vals = w[iy] & 0x7FF
+            ys = state_at(is_y, y_vals, self.ey, np.uint16, where=iy)
         if y_vals.size:
             self.ey = int(y_vals[-1])
         wx = w[ix]
@@ -388,9 +397,9 @@ class Evt3Decoder:
         )
 
     def _advance_time(self, w: np.ndarray, is_hi: np.ndarray, is_lo: np.ndarray, at: np.ndarray,
-                      state_at=None) -> np.ndarray:
+                      state_at=None, lo_idx: np.ndarray | None = None) -> np.ndarray:
         """High time bits (with rollovers) at positions ``at``; updates the carried time state. ``state_at(mask,
-        values, default)``: :func:`_state_at` at ``at`` (or what gives the same)."""
+        values, default)``: :func:`_state_at` at ``at`` (or what gives the same); ``lo_idx``: the time-low words' positions."""
         h = (_masked(w, is_hi) & 0xFFF).astype(np.int64)
         if h.size:
             prev = np.empty_like(h)
@@ -404,7 +413,8 @@ class Evt3Decoder:
             self.time_high = int(full[-1])
         else:
             hi_at = np.full(at.size, self.time_high, np.int64)
-        lo_idx = np.flatnonzero(is_lo)
+        if lo_idx is None:
+            lo_idx = np.flatnonzero(is_lo)
         if lo_idx.size:
             self.time_low = int(w[lo_idx[-1]] & 0xFFF)
         return hi_at
