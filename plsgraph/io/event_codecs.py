@@ -399,7 +399,8 @@ class Evt3Decoder:
     def _advance_time(self, w: np.ndarray, is_hi: np.ndarray, is_lo: np.ndarray, at: np.ndarray,
                       state_at=None, lo_idx: np.ndarray | None = None) -> np.ndarray:
         """High time bits (with rollovers) at positions ``at``; updates the carried time state. ``state_at(mask,
-        values, default)``: :func:`_state_at` at ``at`` (or what gives the same); ``lo_idx``: the time-low words' positions."""
+        values, default)``: :func:`_state_at` at ``at`` (or what gives the same); ``lo_idx``: the time-low words'
+        positions (np.flatnonzero(is_lo)) when the caller has them."""
         h = (_masked(w, is_hi) & 0xFFF).astype(np.int64)
         if h.size:
             prev = np.empty_like(h)
