@@ -94,3 +94,29 @@ def test_windows_passed_over_while_lost_are_named_after_the_detectors_reasons():
     assert line.index("grid_not_found 20") < line.index("too_few_points 5") < line.index(f"{NOT_SEARCHED} 40")
     table = coverage_table(info)
     assert table.index("missed: grid_not_found") < table.index("not searched: the board was lost")
+
+
+def test_missed_windows_the_odometry_does_not_reach_are_not_counted_as_the_moving_robots():
+    base = _stop_and_go()  # odometry over 0-10 s (its last sample at 9.98 s)
+    tq = np.arange(-3.0, 13.0, 1.0 / 30.0)  # the events run 3 s longer on either side
+    outcome = np.where((tq > 1.0) & (tq < 3.0), "rims", "grid_not_found").astype(object)
+    outcome[np.argmin(np.abs(tq + 2.0))] = "rims"  # a find outside the odometry stays a find
+    info = {"window_outcomes": {"t": tq.tolist(), "outcome": outcome.tolist()}}
+    run = SimpleNamespace(base_track=base, clock_offset_s=0.0, refinement=None, closed_form=SimpleNamespace(td=0.0))
+    got = window_outcomes(info, run)
+    outside = (tq - STILL_HALF_S < base.t[0]) | (tq + STILL_HALF_S > base.t[-1])
+    assert np.all(got[outside & (outcome != "rims")] == "no_odometry")
+    assert not np.any(got[~outside] == "no_odometry") and got[np.argmin(np.abs(tq + 2.0))] == "rims"
+    cov = coverage_summary(info, run)
+    moving = cov["windows"] - cov["robot_still"] - cov["no_odometry"]
+    assert cov["no_odometry"] == int(np.sum(got == "no_odometry")) > 0
+    assert cov["found_fraction_robot_moving"] == cov["found"] / moving
+    assert "the odometry says nothing of the robot" in coverage_table(info, run)
+    # On a clock the odometry does not share (two files not yet aligned): no window is the moving robot's, and the
+    # summary line says nothing of a moving robot.
+    from plsgraph.report.output import coverage_line
+
+    far = {"window_outcomes": {"t": (tq + 1.7e9).tolist(), "outcome": ["grid_not_found"] * tq.size}}
+    cov = coverage_summary(far, run)
+    assert cov["no_odometry"] == tq.size and cov["found_fraction_robot_moving"] is None
+    assert "moved" not in coverage_line(cov)

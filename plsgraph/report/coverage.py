@@ -37,6 +37,7 @@ _COLOURS = {
     "same_stamp": (0.5, 0.5, 0.5),
     "no_pose": (0.35, 0.35, 0.35),
     "robot_still": (0.93, 0.93, 0.75),
+    "no_odometry": (0.97, 0.97, 0.97),
 }
 
 #: A window counts as one of a still robot when, over STILL_HALF_S either side of it, the base moved less than
@@ -54,6 +55,16 @@ NOT_SEARCHED = "not_searched_while_lost"
 #: Outcomes of a board found and then refused: kept as they are while the robot stands still too.
 REFUSED = ("jumped_from_track", "inconsistent_with_neighbours", "same_stamp", "ambiguous_labels", "inconsistent_order",
            "mirrored_order", "no_pose")
+
+
+def odometry_covers(t_odometry: np.ndarray, base_track: Any) -> np.ndarray:
+    """Per time (odometry clock, s): whether the odometry's span holds it and STILL_HALF_S either side of it (what
+    :func:`robot_still` can judge)."""
+    t = np.asarray(t_odometry, dtype=float)
+    if base_track is None or len(base_track) < 2 or t.size == 0:
+        return np.zeros(t.size, dtype=bool)
+    tb = np.asarray(base_track.t, dtype=float)
+    return (t - STILL_HALF_S >= tb[0]) & (t + STILL_HALF_S <= tb[-1])
 
 
 def robot_still(t_odometry: np.ndarray, base_track: Any) -> np.ndarray:
@@ -97,9 +108,15 @@ def _odometry_offset_s(run: Any) -> float:
     return float(getattr(run, "clock_offset_s", 0.0) or 0.0) + td
 
 
+#: The outcome of a window missed where the odometry says nothing of the robot (outside its span, or on another clock
+#: not aligned yet): neither a still robot's nor one of a moving robot.
+NO_ODOMETRY = "no_odometry"
+
+
 def window_outcomes(info: dict, run: Any = None) -> np.ndarray:
     """Every window's outcome (as the front end gave it), with the windows missed while the robot stood still
-    (``run``'s odometry says so) relabelled ``robot_still``."""
+    (``run``'s odometry says so) relabelled ``robot_still``, and those missed where the odometry does not reach
+    :data:`NO_ODOMETRY`."""
     wo = info.get("window_outcomes")
     if not wo or len(wo["outcome"]) == 0:
         return np.zeros(0, dtype=str)
@@ -107,8 +124,9 @@ def window_outcomes(info: dict, run: Any = None) -> np.ndarray:
     base = getattr(run, "base_track", None)
     if base is not None:
         t = np.asarray(wo["t"], dtype=float) + _odometry_offset_s(run)
-        still = robot_still(t, base) & ~np.isin(outcome, DETECTED + REFUSED)
-        outcome[still] = "robot_still"
+        missed = ~np.isin(outcome, DETECTED + REFUSED)
+        outcome[robot_still(t, base) & missed] = "robot_still"
+        outcome[~odometry_covers(t, base) & missed] = NO_ODOMETRY
     return outcome.astype(str)
 
 
@@ -124,7 +142,8 @@ def outcome_counts(info: dict, run: Any = None) -> dict[str, int]:
 
 def coverage_summary(info: dict, run: Any = None) -> dict | None:
     """report.json's ``coverage``: windows, windows with the board found, windows missed while the robot stood
-    still, ``found_fraction_robot_moving`` = found / (windows - those missed while still), plus the counts per
+    still, windows missed where the odometry says nothing (``no_odometry``), ``found_fraction_robot_moving`` = found /
+    (windows - those missed while still - those without odometry; None when no window is left), plus the counts per
     outcome."""
     counts = outcome_counts(info, run)
     if not counts:
@@ -132,8 +151,9 @@ def coverage_summary(info: dict, run: Any = None) -> dict | None:
     windows = sum(counts.values())
     found = sum(v for k, v in counts.items() if k in DETECTED)
     still = counts.get("robot_still", 0)
-    moving = windows - still
-    return {"windows": windows, "found": found, "robot_still": still,
+    unknown = counts.get(NO_ODOMETRY, 0)
+    moving = windows - still - unknown
+    return {"windows": windows, "found": found, "robot_still": still, NO_ODOMETRY: unknown,
             "found_fraction": found / windows, "found_fraction_robot_moving": found / moving if moving else None,
             "by_outcome": dict(sorted(counts.items(), key=lambda kv: -kv[1]))}
 
@@ -292,6 +312,8 @@ def coverage_table(info: dict, run: Any = None) -> str | None:
             return f"found by {html.escape(k)}"
         if k == NOT_SEARCHED:
             return "not searched: the board was lost (only every few windows are searched then)"
+        if k == NO_ODOMETRY:
+            return "not found, where the odometry says nothing of the robot (outside its span or clock)"
         return "not found: the robot stood still" if k == "robot_still" else f"missed: {html.escape(k)}"
 
     rows = "".join(f"<tr><td>{label(k)}</td><td>{v}</td><td>{100.0 * v / total:.1f} %</td></tr>"
@@ -301,6 +323,10 @@ def coverage_table(info: dict, run: Any = None) -> str | None:
     if cov["robot_still"] and cov["found_fraction_robot_moving"] is not None:
         moving = (f" The robot stood still in {cov['robot_still']} of them (no motion, no events); of the windows "
                   f"in which it moved, {100.0 * cov['found_fraction_robot_moving']:.0f} % found the board.")
+    if cov.get(NO_ODOMETRY):
+        moving += (f" In {cov[NO_ODOMETRY]} windows without the board the odometry says nothing of the robot (they "
+                   "lie outside its span, or on a clock not yet aligned with it): they are not counted as the "
+                   "robot's.")
     return (f"<p>The board was found in {found} of {total} windows ({100.0 * found / total:.0f} %).{moving} "
             "Windows without events from the board cannot show it. The figures "
             "'detection coverage' and 'event frames' below show when and what the detector saw.</p>"
