@@ -110,6 +110,13 @@ def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
 
 
+def _sigma_text(axis: str, sigma: float) -> str:
+    """A sigma in the units a user reads: deg for rotations, ms for td, m otherwise (``sigma`` in rad, s, m)."""
+    if axis in ("roll", "pitch", "yaw"):
+        return f"{np.degrees(sigma):.2g} deg"
+    return f"{1e3 * sigma:.2g} ms" if axis == "td" else f"{sigma:.2g} m"
+
+
 def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
     if ref is None:
         return []
@@ -120,6 +127,20 @@ def _refinement_problems(cf: Any, ref: Any, base_track: Any) -> list[str]:
     if obs is not None and cf is not None:
         lost = [a.name for a in obs.axes
                 if a.name in MOTION_DIRECTIONS and cf.observable.get(a.name, False) and a.status == "unobservable"]
+        # A direction the freezing rule held although the data determined it, only too weakly to be used, is short of
+        # data, not contradicted by it (the refinement's held_directions: its sigma on the data before it was held).
+        from .refine.graph import held_weakly
+
+        held = (getattr(ref, "priors", None) or {}).get("held_directions", [])
+        weak = {n: s for n in lost if (s := held_weakly(held, n)) is not None}
+        lost = [n for n in lost if n not in weak]
+        if weak:
+            said = ", ".join(f"{n} only to about {_sigma_text(n, s)}" for n, s in weak.items())
+            problems.append(
+                f"the recording determines {said}, too weakly to be used, so the refinement held "
+                f"{'it' if len(weak) == 1 else 'them'} at the closed form's value: drive longer, with more turning "
+                "while the board is in view"
+            )
         if lost:
             problems.append(
                 f"the refinement leaves {', '.join(lost)} unobservable although the motion should determine "

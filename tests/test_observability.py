@@ -89,3 +89,33 @@ def test_degenerate_motions_name_their_lost_directions(motion, unobservable, obs
     seed = np.degrees(np.abs(rotation_error_base_axes(case.seed_T[:3, :3], case.rec.T_base_cam[:3, :3])))
     assert np.linalg.norm(err) <= np.linalg.norm(seed) + 0.5
     assert set(AXES) == {a.name for a in rep.axes}
+
+
+def test_a_direction_held_because_the_data_determine_it_too_weakly_says_so():
+    # 3 s of driving: the data determine yaw to a few degrees, more than the tenth of its prior sigma the freezing
+    # rule asks, so the refinement holds it at the seed. That is too little data, not data that contradict each
+    # other, and the report, its note and the gate's problem say so with the data's sigma.
+    import dataclasses
+    from types import SimpleNamespace
+
+    from plsgraph.gate import _refinement_problems
+    from plsgraph.refine.graph import held_weakly
+
+    case = sim_case("rich", duration=3.0)
+    res = refine(case.track, case.base, case.rec.camera, case.seed_T, case.seed_td)
+    yaw = next(a for a in res.observability.axes if a.name == "yaw")
+    assert res.converged and yaw.status == "unobservable"
+    sigma = held_weakly(res.priors["held_directions"], "yaw")
+    assert sigma is not None and 0.1 * 0.5 < sigma < 0.5 * 0.5  # between the freezing and the unobservable ratios
+    assert held_weakly(res.priors["held_directions"], "z") is None  # the height: not determined at all
+    assert "too weakly determined" in yaw.message and f"{np.degrees(sigma):.2g} deg" in yaw.message
+    assert "turning in place" not in yaw.message  # no motion advice that this drive already follows
+    cf = SimpleNamespace(observable={"yaw": True, "x": True, "y": True}, R_base_cam=None)
+    problems = _refinement_problems(cf, res, case.base)
+    said = f"the recording determines yaw only to about {np.degrees(sigma):.2g} deg"
+    assert any(p.startswith(said) for p in problems), problems
+    assert not any("contradict" in p for p in problems)
+    # A direction held although the data did not determine it at all keeps the contradiction's wording.
+    undetermined = dataclasses.replace(res, priors={**res.priors, "held_directions": [
+        {**h, "ratio": 0.9} for h in res.priors["held_directions"]]})
+    assert any("contradict each other" in p for p in _refinement_problems(cf, undetermined, case.base))

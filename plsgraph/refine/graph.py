@@ -54,6 +54,7 @@ from ..errors import InputError, InsufficientDataError, PlsgraphError
 from .observability import (
     AXES,
     OBSERVABLE_RATIO,
+    UNOBSERVABLE_RATIO,
     ObservabilityReport,
     not_converged_report,
     observability_report,
@@ -1410,6 +1411,45 @@ def _honest_covariance(cov_user: np.ndarray, opt: RefinementOptions, frozen: boo
     return cov
 
 
+def held_directions(cov_decide: np.ndarray | None, opt: RefinementOptions) -> list[dict]:
+    """What the data said of each direction the freezing rule holds at the seed (those :func:`_honest_covariance`
+    resets to the prior): per direction, ``ratio`` (its posterior / prior sigma on the data and the regulariser alone,
+    at or above ``freeze_ratio``) and ``shares`` (axis -> its share of the direction in prior sigmas, those of 5 % or
+    more). A direction held at a ratio well below UNOBSERVABLE_RATIO was determined, only too weakly to be used; one
+    near 1 not at all. :func:`held_weakly` reads them per axis."""
+    import scipy.linalg
+
+    if cov_decide is None or not opt.freeze_unobservable:
+        return []
+    Lp = _prior_information(opt, user_priors=False)
+    S = 1.0 / np.sqrt(np.diag(Lp))  # prior sigmas
+    dec = 0.5 * (cov_decide + cov_decide.T)
+    lam, V = scipy.linalg.eigh(np.linalg.inv(dec), Lp)  # as in _honest_covariance
+    out = []
+    for j in np.argsort(lam):
+        ratio = 1.0 / np.sqrt(max(float(lam[j]), 1e-300))
+        if ratio < opt.freeze_ratio:
+            break
+        share = (V[:, j] / S) ** 2
+        share /= share.sum()
+        keep = [k for k in range(7) if share[k] >= 0.05]
+        out.append({"ratio": ratio, "shares": {AXES[k]: float(share[k]) for k in keep},
+                    "data_sigma": {AXES[k]: float(min(ratio, 1.0) * S[k]) for k in keep}})
+    return out
+
+
+def held_weakly(held: list[dict], axis: str) -> float | None:
+    """The data's sigma along ``axis`` (rad, m or s) when every direction held at the seed that ``axis`` takes part
+    in (a fifth or more of it) was determined, only too weakly to be used (ratio below UNOBSERVABLE_RATIO): the
+    posterior sigma along ``axis`` of the one it takes the largest part in, on the data and the regulariser alone.
+    None when one of them was not determined at all, or none holds ``axis``. From the directions of
+    :func:`held_directions` (report.json: the refinement's ``priors.held_directions``)."""
+    touching = [h for h in held if h["shares"].get(axis, 0.0) >= 0.2]
+    if not touching or max(h["ratio"] for h in touching) >= UNOBSERVABLE_RATIO:
+        return None
+    return max(touching, key=lambda h: h["shares"][axis])["data_sigma"][axis]
+
+
 def _unobservable_at(graph, values: gtsam.Values, opt: RefinementOptions, frozen: list[np.ndarray],
                      warnings: list[str]) -> tuple[list[np.ndarray], np.ndarray | None]:
     """New directions (user-axes functionals) that only the regulariser holds at ``values``, and the
@@ -1924,6 +1964,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         t_in = time.perf_counter()
         warnings = list(warnings)
         knot_sensitivity = knot_spacing = sigma_before_knots = None
+        held: list[dict] = []  # what the data said of the directions held at the seed (held_directions)
         t_knots = time.perf_counter()
         if job is not None:
             if cov_base is not None:
@@ -1961,8 +2002,10 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                 joint = odometry_given_calibration(joint, k_all, opt.td_model_sigma)
             Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
             cov = Ji @ cov_base @ Ji.T
+            held = held_directions(cov_plain, opt) if frozen else []
             report = observability_report(cov_base, prior_info, converged=True, regularized=True,
-                                          planar_motion=opt.planar, prior_notes=_prior_notes(opt, frozen))
+                                          planar_motion=opt.planar, prior_notes=_prior_notes(opt, frozen, held),
+                                          held_weak=tuple(a for a in AXES if held_weakly(held, a) is not None))
         elif opt.marginals:
             report = not_converged_report("the optimisation did not converge" if not converged else "marginals failed")
         scale_jk = turn_jk = None
@@ -2000,6 +2043,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             "planar": opt.planar,
             "frozen_directions": [dict(zip(AXES, np.round(f / np.linalg.norm(f), 4).tolist(), strict=True))
                                   for f in frozen],
+            # What the data said of each direction held at the seed (see held_directions).
+            "held_directions": held,
         }
         def score(v: gtsam.Values) -> float:
             """This solve's final model (frames, noise) on the values ``v``, bracketed at their own td. The weak
@@ -2709,7 +2754,7 @@ def odometry_report(values: gtsam.Values, joint: np.ndarray | None, info: dict, 
     return out
 
 
-def _prior_notes(opt: RefinementOptions, frozen: list[np.ndarray]) -> dict[str, str]:
+def _prior_notes(opt: RefinementOptions, frozen: list[np.ndarray], held: list[dict] | None = None) -> dict[str, str]:
     notes: dict[str, str] = {}
     if opt.camera_height is not None:
         notes["z"] = f"Camera height is held by the measured-height prior ({opt.camera_height:.3f} m)."
@@ -2720,9 +2765,20 @@ def _prior_notes(opt: RefinementOptions, frozen: list[np.ndarray]) -> dict[str, 
         for ax in ("roll", "pitch", "yaw"):
             deg = np.degrees(opt.rotation_prior_sigma)
             notes[ax] = f"A closed-form rotation prior (sigma {deg:.2g} deg) is active."
+    from ..gate import _sigma_text
+
     for f in frozen:
         share = (f / np.linalg.norm(f)) ** 2
         ax = AXES[int(np.argmax(share))]
+        sigma = held_weakly(held or [], ax)
+        if sigma is not None:
+            # Determined, but too weakly to be used: say how well, so that "more data" reads as the remedy.
+            notes[ax] = (notes.get(ax, "") + " Held at the seed value during the solve: the data determine it only "
+                         f"to about {_sigma_text(ax, sigma)} (a direction the data determine worse than "
+                         f"{opt.freeze_ratio:g} of the prior's sigma is held). A longer drive with more turning in "
+                         "front of the board determines it better"
+                         + (" (a calibration writes z as 0: unknown)." if ax == "z" else ".")).strip()
+            continue
         notes[ax] = (notes.get(ax, "") + " Not observable: held at the seed value during the solve"
                      + (" (a calibration writes z as 0: unknown)." if ax == "z" else ".")).strip()
     return notes

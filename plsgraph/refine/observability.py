@@ -185,6 +185,7 @@ def observability_report(
     regularized: bool = True,
     planar_motion: bool = True,
     prior_notes: dict[str, str] | None = None,
+    held_weak: tuple[str, ...] = (),
 ) -> ObservabilityReport:
     """Classify the 7 user axes and the eigen-directions of a posterior covariance against the priors.
 
@@ -192,7 +193,10 @@ def observability_report(
     ``prior_information_user`` (7, 7): information the priors alone put on the same axes (must be positive
     definite: the regularising priors guarantee it). ``prior_notes`` maps an axis name to a sentence about a
     user prior that informs it (e.g. a measured camera height); such an axis is reported as coming from
-    that prior even when the classification calls it observable.
+    that prior even when the classification calls it observable. ``held_weak``: unobservable axes that the data did
+    determine, too weakly to be used (held at the seed by the refinement's freezing rule): their message says so
+    instead of naming a motion that would not excite them (the note in ``prior_notes`` says how well they were
+    determined).
     """
     if not converged:
         return not_converged_report("the optimisation did not converge")
@@ -215,8 +219,12 @@ def observability_report(
             why = _WHY.get(name, "")
             if name == "z" and not planar_motion:
                 why = ""
-            msg = f"{DESCRIPTIONS[name]} is not observable from this recording; its value comes from the prior"
-            msg += f" ({why})." if why else "."
+            if name in held_weak:
+                msg = (f"{DESCRIPTIONS[name]} is too weakly determined by this recording to be used; its value is the "
+                       "seed's.")
+            else:
+                msg = f"{DESCRIPTIONS[name]} is not observable from this recording; its value comes from the prior"
+                msg += f" ({why})." if why else "."
         elif st == "weak":
             why = _WHY.get(name, "") if (name != "z" or planar_motion) else ""
             msg = (
