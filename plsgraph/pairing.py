@@ -49,6 +49,35 @@ def read_events_file(path: Path, topics: dict[str, str] | None) -> Any:
     return read_recording(src, topics=topics, with_events=False)
 
 
+def _kinds(topics: dict) -> tuple[bool, bool]:
+    """Whether ``topics`` (name -> TopicInfo) hold events, and whether they hold wheel odometry."""
+    from .io.messages import EVENT_FILE_TYPES
+
+    names = [(i.msgtype or "").split("/")[-1] for i in topics.values()]
+    events = any(n in ("EventArray", "EventPacket") for n in names) or any(
+        i.msgtype in EVENT_FILE_TYPES for i in topics.values())
+    return events, any(n in ("JointState", "Odometry") for n in names)
+
+
+def _refuse_swapped_files(run: Any, rec: Any, path: Path) -> None:
+    """An InputError when the recording and the --odometry file are given the wrong way round: the events are in the
+    odometry file, the recording has none (and the odometry file no wheel odometry)."""
+    from .io.source import open_source
+
+    try:
+        there = open_source(path).topics()
+    except Exception:  # noqa: BLE001 - an unreadable file is read_recording's to report, with its own words
+        return
+    events_here, _ = _kinds(rec.topics or {})
+    events_there, wheels_there = _kinds(there)
+    if events_there and not events_here and not wheels_there:
+        _, wheels_here = _kinds(rec.topics or {})
+        raise InputError(
+            f"the two files are given the wrong way round: the events are in {path.name} (given with --odometry) and "
+            f"{Path(run.log_path).name} has none{' but has the wheel odometry' if wheels_here else ''}; swap them: "
+            f"plsgraph calibrate {path} --odometry {run.log_path} ...")
+
+
 def merge_odometry_file(run: Any, rec: Any) -> Any:
     """The recording with joints, odometry and IMU from ``--odometry`` (and its CameraInfo if ``rec`` has none)."""
     from .io.recording import read_recording
@@ -60,6 +89,7 @@ def merge_odometry_file(run: Any, rec: Any) -> Any:
     if path.resolve() == Path(run.log_path).resolve():
         raise InputError(f"--odometry names the recording itself ({path}); leave --odometry out: a recording's own "
                          "odometry is read from it, on its own clock")
+    _refuse_swapped_files(run, rec, path)
     own = rec.joints is not None or rec.odometry is not None
     if own:
         run.warn(f"{Path(run.log_path).name} has wheel odometry of its own; the odometry of {path.name} (--odometry) "

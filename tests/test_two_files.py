@@ -165,3 +165,22 @@ def test_the_recording_given_as_its_own_odometry_file_is_refused_and_a_second_od
     merge_odometry_file(run, read_events_file(run.log_path, None))
     assert any("has wheel odometry of its own; the odometry of odometry.mcap (--odometry) is used instead" in w
                for w in run.warnings), run.warnings
+
+
+def test_the_two_files_given_the_wrong_way_round_are_told_to_be_swapped(pair):
+    # Before: "odometry file events.mcap holds neither sensor_msgs/JointState nor nav_msgs/Odometry ...; name the topic
+    # with --joints-topic/--odom-topic", advice that cannot help.
+    from plsgraph.errors import InputError
+    from plsgraph.pairing import merge_odometry_file, read_events_file
+    from plsgraph.pipeline import Run
+
+    run = Run(pair / "odometry.mcap", CalibrationOptions.build(board="acircles_4x11_a2",
+                                                               odometry_file=pair / "events.mcap"))
+    with pytest.raises(InputError, match=r"wrong way round: the events are in events\.mcap .* odometry\.mcap has none "
+                                         r"but has the wheel odometry; swap them"):
+        merge_odometry_file(run, read_events_file(run.log_path, None))
+    # Events in both files (the recording's own and the second's): not a swap; the second file's lack of odometry is
+    # what is said.
+    run = Run(SAMPLE, CalibrationOptions.build(board="acircles_4x11_a2", odometry_file=pair / "events.mcap"))
+    with pytest.raises(Exception, match="holds neither"):
+        merge_odometry_file(run, read_events_file(run.log_path, None))
