@@ -266,3 +266,20 @@ def test_inspect_reports_progress_against_the_files_index_and_nothing_without_on
     assert any("truncated" in w for w in inspect_recording(q, progress=bars)["warnings"])
     ((_, seen),) = bars.calls
     assert seen == []
+
+
+def test_nan_joint_positions_are_said_not_filled_in_silently(tmp_path):
+    ev, js, od, cam = _sim(n=2000, seconds=1.0)
+    pos = js.position.copy()
+    pos[[3, 7, 8], 0] = np.nan  # front_left_wheel: three messages with a NaN angle
+    pos[12, 2] = np.inf
+    p = tmp_path / "nan.mcap"
+    write_recording(p, None, JointStates(js.t, js.names, pos, js.velocity), None, cam)
+    rec = read_recording(p, with_events=False)
+    (w,) = [w for w in rec.warnings if "NaN or infinite" in w]
+    assert "'front_left_wheel' in 3" in w and "'rear_left_wheel' in 1" in w and f"of {js.t.size} messages" in w
+    # The values themselves stay what the messages said (the wheel track fills them in).
+    assert np.isnan(rec.joints.position[3, 0]) and np.isinf(rec.joints.position[12, 2])
+    clean = tmp_path / "clean.mcap"
+    write_recording(clean, None, js, None, cam)
+    assert not any("NaN" in w for w in read_recording(clean, with_events=False).warnings)

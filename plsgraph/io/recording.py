@@ -262,10 +262,14 @@ class _Collector:
         pos = np.full((n, k), np.nan)
         vel = np.full((n, k), np.nan)
         short = 0
+        bad: dict[str, int] = {}  # joint -> messages that name it with a NaN or infinite position
         for i, (nm, p, v) in enumerate(self.rows):
             idx = [col[j] for j in nm]
             if p.size == len(nm):
                 pos[i, idx] = p
+                if not np.all(np.isfinite(p)):
+                    for j in np.flatnonzero(~np.isfinite(p)):
+                        bad[nm[j]] = bad.get(nm[j], 0) + 1
             elif p.size:
                 short += 1
             if v.size == len(nm):
@@ -274,6 +278,10 @@ class _Collector:
                 short += 1
         if short:
             warn(f"{self.topic}: {short} messages have position/velocity arrays not matching their joint names")
+        if bad:
+            said = ", ".join(f"{j!r} in {c}" for j, c in sorted(bad.items(), key=lambda kv: -kv[1])[:4])
+            warn(f"{self.topic}: joint positions that are NaN or infinite ({said} of {n} messages); a wheel's are "
+                 "taken as missing and filled in from the messages around them")
         return JointStates(t[order], tuple(names), pos[order], vel[order])
 
     def _camera(self, warn) -> CameraModel | None:
