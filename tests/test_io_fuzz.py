@@ -166,3 +166,21 @@ def test_cut_real_mcap_keeps_readable_start_of_last_chunk(tmp_path, caplog):
     np.testing.assert_array_equal(rec.events.y, full.y[:n])
     assert any("damaged chunk's readable start" in w for w in rec.warnings)
     assert rec.lost == {"/event_camera/events": None}
+
+
+@pytest.mark.parametrize("name", ["run.mcap", "run.bag", "run.db3", "run.raw", "run.aedat4", "run.unknown"])
+def test_an_empty_file_is_said_to_be_empty_whatever_its_name(tmp_path, name):
+    # Before: "bad magic", "not a ROS 1 bag", "an sqlite file but not a ROS 2 bag", ... for a file of 0 bytes.
+    p = tmp_path / name
+    p.write_bytes(b"")
+    with pytest.raises(RecordingError, match=r"is empty \(0 bytes\)"):
+        inspect_recording(p)
+    with pytest.raises(RecordingError, match=r"is empty \(0 bytes\)"):
+        read_recording(p)
+
+
+def test_an_empty_folder_is_said_to_be_empty(tmp_path):
+    d = tmp_path / "bag"
+    d.mkdir()
+    with pytest.raises(RecordingError, match="is an empty folder, not a ROS 2 bag"):
+        inspect_recording(d)

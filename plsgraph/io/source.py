@@ -20,6 +20,12 @@ def open_source(path: str | Path) -> Source:
     p = Path(path)
     if not p.exists():
         raise RecordingError(f"recording {p} does not exist")
+    if p.is_file() and p.stat().st_size == 0:
+        raise RecordingError(f"{p} is empty (0 bytes): nothing was recorded into it, or it was cut off at the start; "
+                             "use the complete file")
+    if p.is_dir() and not any(p.iterdir()):
+        raise RecordingError(f"{p} is an empty folder, not a ROS 2 bag (a bag folder holds metadata.yaml and its "
+                             ".db3 or .mcap files)")
     if p.is_dir() or p.suffix in (".bag", ".db3"):
         from .db3_reader import Db3Source, bare_db3_files
 
