@@ -350,7 +350,15 @@ def simulate(
         raise InputError(f"--out must end in .mcap, got {out}")
     if not overwrite and (out.exists() or truth_path(out).exists()):
         raise InputError(f"{out} (or its truth file) exists; choose another path or pass --force")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:  # before the simulation, which takes a while: a folder nothing can be written into fails now
+        import tempfile
+
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out.parent):
+            pass
+    except OSError as exc:
+        raise InputError(f"cannot write {out}: {exc.strerror or exc} in {out.parent}; choose an --out on a writable "
+                         "disk") from None
     rec = simulate_recording(motion, duration, seed, td, board, contrast, realism, progress)
     write_recording(out, rec.events, rec.joints, None, rec.sim.camera, truth=None, event_format=event_format,
                     overwrite=overwrite)

@@ -773,3 +773,30 @@ def test_batch_says_a_damaged_files_reader_warnings_once(tmp_path, caplog):
     assert said and len(said) == len(set(said))  # each pass over the file used to repeat them
     assert all(m.startswith("cut.mcap: ") for m in said)
     assert row["status"] in ("ok", "flagged") and any("truncated" in w for w in row["warnings"])
+
+
+def test_an_output_folder_nothing_can_be_written_into_is_a_clear_error(tmp_path, monkeypatch):
+    # Before: "[Errno 2] No such file or directory: '/proc/.x.plsgraph-lock'" (--out /proc/x), or a raw read-only
+    # file-system error.
+    import errno
+
+    def refuse(path, *args, **kwargs):
+        raise OSError(errno.EROFS, "Read-only file system", str(path))
+
+    monkeypatch.setattr(os, "open", refuse)
+    with pytest.raises(InputError, match=r"cannot write the output folder .*out: Read-only file system in .*; choose "
+                                         r"an --out on a writable disk"), OutputLock(tmp_path / "out"):
+        pass
+
+
+def test_simulate_into_a_folder_nothing_can_be_written_into_fails_before_simulating(tmp_path, monkeypatch):
+    import errno
+    import tempfile
+
+    def refuse(*args, **kwargs):
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(tempfile, "TemporaryFile", refuse)
+    monkeypatch.setattr("plsgraph.api.simulate_recording", lambda *a, **k: pytest.fail("simulated before the check"))
+    with pytest.raises(InputError, match=r"cannot write .*s\.mcap: Read-only file system"):
+        plsgraph.simulate(tmp_path / "s.mcap", duration=3.0)

@@ -235,9 +235,13 @@ class OutputLock:
     def __enter__(self) -> OutputLock:
         import fcntl
 
-        self.out.absolute().parent.mkdir(parents=True, exist_ok=True)
         while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                self.out.absolute().parent.mkdir(parents=True, exist_ok=True)
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+            except OSError as exc:  # a folder nothing can be written into (read-only, /proc, no permission)
+                raise InputError(f"cannot write the output folder {self.out}: {exc.strerror or exc} in "
+                                 f"{self.path.parent}; choose an --out on a writable disk") from None
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
