@@ -130,6 +130,8 @@ def read_inputs(run: Run) -> Any:
 
         info_topics = [t for t, i in rec.topics.items() if i.msgtype == CAMERA_INFO_TYPE]
         said = [w for w in rec.warnings if any(t in w for t in info_topics)]
+        # The reader's warnings start with their topic, which the message below names already.
+        said = [next((w[len(t) + 2:] for t in info_topics if w.startswith(f"{t}: ")), w) for w in said]
         why = ("no sensor_msgs/CameraInfo topic" if not info_topics else
                f"no usable sensor_msgs/CameraInfo ({', '.join(info_topics)}: "
                + ("; ".join(said) if said else "none of its messages makes a camera") + ")")

@@ -218,6 +218,16 @@ def test_a_recording_without_camera_info_says_so_without_pointing_at_warnings_it
     msg = str(e.value)
     assert "has no sensor_msgs/CameraInfo topic" in msg and "--camera-info" in msg
     assert "see the warnings" not in msg and "odometry file" not in msg
+    # A topic whose every message is unusable: named once, with what the reader said of it (it said
+    # "/event_camera/camera_info: /event_camera/camera_info: none of ...").
+    bad = CameraModel(346, 260, np.array([[320.5, 0, 171.2], [0, 321.0, 129.9], [0, 0, 1]]), [0, 0, 0, 0, 0])
+    object.__setattr__(bad, "K", np.array([[np.nan, 0, 171.2], [0, 321.0, 129.9], [0, 0, 1]]))  # past its checks
+    q = tmp_path / "nancam.mcap"
+    write_recording(q, ev, js, None, bad, event_format="dvs")
+    with pytest.raises(InputError) as e:
+        read_inputs(Run(q, CalibrationOptions(board="acircles_4x11")))
+    msg = str(e.value)
+    assert msg.count("/event_camera/camera_info") == 1 and "none of its" in msg, msg
 
 
 
