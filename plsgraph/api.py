@@ -114,8 +114,8 @@ def diagnose(
         from .pipeline import _damaged
         from .report.output import DAMAGED_ADVICE, FRONTEND_ADVICE
 
-        advice = (DAMAGED_ADVICE if _damaged(run) else
-                  FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else MOTION_ADVICE_DEFAULT)
+        advice = (DAMAGED_ADVICE if _damaged(run) else getattr(exc, "advice", None) or
+                  (FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else MOTION_ADVICE_DEFAULT))
         counts = {"camera_frames": len(run.camera_track) if run.camera_track is not None else 0,
                   "odometry_samples": len(run.base_track) if run.base_track is not None else 0}
         return Diagnosis(str(recording), False, (str(exc),), (advice,), **counts, warnings=tuple(run.warnings))
@@ -220,8 +220,8 @@ def calibrate_to_dir(
                                                           solution_known=solution_known))
             except (DegenerateMotionError, InsufficientDataError) as exc:
                 # Too little motion or too little data: a diagnosis, not a number. No calibration.yaml is written.
-                advice = (DAMAGED_ADVICE if getattr(exc, "damaged", False) else
-                          FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else DIAGNOSIS_ADVICE)
+                advice = (DAMAGED_ADVICE if getattr(exc, "damaged", False) else getattr(exc, "advice", None) or
+                          (FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else DIAGNOSIS_ADVICE))
                 return write_diagnosis_only(stage, recording, str(exc), advice, getattr(exc, "coverage", None),
                                             getattr(exc, "warnings", None), earlier=out)
             written = write_calibration(stage, result, figures, earlier=out)

@@ -28,6 +28,11 @@ from .options import CalibrationOptions
 log = logging.getLogger(__name__)
 
 MIN_CAMERA_FRAMES = 10  # fewer board detections than this: no calibration is attempted
+#: Events (by the file's index) spanning less than this (s) are refused before the front end: no drive that short
+#: determines the extrinsic, and a search for the board in it would only end in reasons that do not apply.
+MIN_EVENT_SPAN_S = 2.0
+SHORT_EVENTS_ADVICE = ("record longer: 20 s or more of driving forwards and backwards while turning (arcs, "
+                       "S-curves), with the board in view, the event camera and the odometry recording all the while")
 
 
 @dataclass
@@ -286,6 +291,22 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
             yield ch
 
     span = None if info.t_first_ns is None or info.t_last_ns is None else (info.t_first_ns, info.t_last_ns)
+
+    def too_short(first: int, last: int) -> InsufficientDataError | None:
+        if (last - first) * 1e-9 >= MIN_EVENT_SPAN_S:
+            return None
+        damaged = _damaged(run) or any("truncated or corrupt" in w or "cut short" in w for w in src.log.warnings)
+        exc = InsufficientDataError(
+            f"the events ({topic}) span only {(last - first) * 1e-9:.2f} s; a calibration needs the robot driving "
+            f"and turning in front of the board for longer than that (at least {MIN_EVENT_SPAN_S:g} s; the accuracy "
+            "docs/validation.md quotes is for 20 s drives)"
+            + ("; the file is cut short or damaged (see the warnings)" if damaged else ""))
+        if not damaged:
+            exc.advice = SHORT_EVENTS_ADVICE  # neither the board's nor the intrinsics' fault: what the diagnosis says
+        return exc
+
+    if span is not None and (exc := too_short(*span)) is not None:  # the file's index knows: before the search
+        raise exc
     with progress("detecting board") as bar:
         try:
             track = camera_track_from_event_chunks(
@@ -294,6 +315,13 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
                 workers=opts.frontend.frontend_workers or min(2, os.cpu_count() or 1),
                 while_waiting=_load_the_rest,
             )
+        except InsufficientDataError as exc:
+            # A search that found (too) little in events too short to calibrate from: the shortness is the reason.
+            short = None if counts["first"] is None else too_short(counts["first"], counts["last"])
+            if short is None:
+                raise
+            short.frontend_info = getattr(exc, "frontend_info", None)
+            raise short from exc
         finally:
             run.warn(*src.log.warnings)
     run.event_frames = track.info.pop("event_frames", None)
@@ -314,6 +342,10 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
             run.discarded[f"frontend_{k}"] = to_jsonable(track.info[k])
     if len(track) < MIN_CAMERA_FRAMES:
         windows = int(track.info.get("windows") or 0)
+        short = None if counts["first"] is None else too_short(counts["first"], counts["last"])
+        if short is not None:
+            short.frontend_info = track.info
+            raise short
         if windows < MIN_CAMERA_FRAMES:  # the events are too short to hold that many windows
             why = (f"the events span only {windows} detection windows ({counts['events']:,} events), fewer than the "
                    f"{MIN_CAMERA_FRAMES} board detections a calibration needs"

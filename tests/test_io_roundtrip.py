@@ -293,3 +293,24 @@ def test_nan_joint_positions_are_said_not_filled_in_silently(tmp_path):
     clean = tmp_path / "clean.mcap"
     write_recording(clean, None, js, None, cam)
     assert not any("NaN" in w for w in read_recording(clean, with_events=False).warnings)
+
+
+def test_events_too_short_to_calibrate_are_said_to_be_so_with_advice_to_record_longer(tmp_path):
+    # Before: a 1 s event file was searched for the board and refused with "no board detected ... try another surface
+    # kind", advice that cannot help.
+    from plsgraph.api import diagnose
+    from plsgraph.errors import InsufficientDataError
+    from plsgraph.options import CalibrationOptions
+    from plsgraph.pipeline import Run, build_tracks
+
+    ev, js, _, cam = _sim(n=20_000, seconds=1.2)
+    tj = (js.t - js.t[0]) * 1e-9
+    wheels = np.column_stack([2.0 * tj, 2.5 * tj, 2.0 * tj, 2.5 * tj])  # a robot driving an arc
+    p = tmp_path / "short.mcap"
+    write_recording(p, ev, JointStates(js.t, js.names, wheels, np.zeros_like(wheels)), None, cam, event_format="evt3")
+    with pytest.raises(InsufficientDataError, match=r"the events \(/event_camera/events\) span only 1\.\d\d s; a "
+                                                    r"calibration needs .*at least 2 s") as e:
+        build_tracks(Run(p, CalibrationOptions(board="acircles_4x11")))
+    assert e.value.advice.startswith("record longer")
+    d = diagnose(p, board="acircles_4x11")
+    assert not d.ok and "span only" in d.problems[0] and d.advice[0].startswith("record longer")
