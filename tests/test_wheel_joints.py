@@ -115,3 +115,22 @@ def test_wheel_positions_that_jump_every_step_are_refused_with_both_likely_cause
                      np.full_like(pos, np.nan))
     with pytest.raises(InputError, match="implausibly large.*encoder ticks.*stamps are wrong"):
         wheel_track_from_joints(js, *run)
+
+
+def test_joint_stamps_in_another_unit_than_nanoseconds_are_named_as_the_cause():
+    """Before: stamps divided by 1000 (microseconds read as nanoseconds) were blamed on the angles: encoder ticks?"""
+    import pytest
+
+    from plsgraph.errors import InputError
+
+    sim, _, run = _reference_and_run()
+    pos = np.stack([sim.wheel_left, sim.wheel_right], axis=1)
+    t_ns = (sim.wheel_t * 1e9).astype(np.int64)
+    js = JointStates(t_ns[0] + (t_ns - t_ns[0]) // 1000, ("left_wheel", "right_wheel"), pos, np.full_like(pos, np.nan))
+    with pytest.raises(InputError, match=r"stamped \d+(\.\d+)? us apart \(median\).*likely in another unit than "
+                                         r"nanoseconds"):
+        wheel_track_from_joints(js, *run)
+    # The same angles on their true stamps make a track.
+    track, _ = wheel_track_from_joints(JointStates(t_ns, ("left_wheel", "right_wheel"), pos, np.full_like(pos, np.nan)),
+                                       *run)
+    assert len(track) == t_ns.size

@@ -26,6 +26,10 @@ class JointCleaning:
     signals: Any = None
 
 
+#: Joint states stamped closer than this (s, median) come at a rate (10 kHz) no wheel driver publishes at.
+MIN_JOINT_INTERVAL_S = 1e-4
+
+
 def fill_unwrapped(t: np.ndarray, x: np.ndarray, unwrap: bool) -> np.ndarray:
     """One joint's values on every stamp: its finite samples (unwrapped if asked), linearly interpolated in
     between; NaN outside its own first and last sample."""
@@ -111,6 +115,16 @@ def wheel_track_from_joints(
                                    kind=kind, quiet=quiet, wrapped=any_wrapped)
     n_jumps = len(track.info.get("jumps", []))
     if kind == "position" and n_jumps > 0.5 * max(1, ok.sum() - 1):
+        dt = float(np.median(np.diff(t[ok]))) if ok.sum() > 1 else 0.0
+        if 0.0 < dt < MIN_JOINT_INTERVAL_S:
+            # The angles may be fine: steps that are ordinary per message look fast when the messages are stamped
+            # microseconds apart, the stamps in another unit than the nanoseconds they are read as.
+            raise InputError(
+                f"the joint states are stamped {1e6 * dt:.3g} us apart (median), {1.0 / dt:,.0f} messages per second, "
+                f"which no wheel driver publishes, and {n_jumps} of {ok.sum() - 1} wheel steps are implausibly fast "
+                "at that rate: the header stamps are likely in another unit than nanoseconds (milliseconds or "
+                "microseconds), or scaled; fix the stamps"
+            )
         raise InputError(
             f"{n_jumps} of {ok.sum() - 1} wheel steps are implausibly large: the joint positions do not look like "
             "wheel angles in radians (encoder ticks?); convert them or check --wheel-radius. If a warning says the "
