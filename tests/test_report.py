@@ -195,3 +195,23 @@ def test_the_demos_folder_with_its_paper_tables_is_an_earlier_result(tmp_path):
     for name in ("calibration.yaml", "report.json", "paper_tables/paper_tables.md", "paper_tables/paper_tables.json"):
         (out / name).write_text("x")
     assert prepare_output_dir(out, force=True, create=False) == out
+
+
+def test_diagnosis_text_gives_each_directions_sigma_and_its_note_without_naming_it_twice():
+    # Before: "unobservable  camera height (translation z)   camera height (translation z) is not observable ...",
+    # and no sigma, which diagnose --json has.
+    from plsgraph.report.text import diagnosis_text
+    from plsgraph.result import Diagnosis
+
+    rows = ({"direction": "camera position forward (translation x)", "name": "x", "status": "observable",
+             "sigma": 0.0237, "unit": "m", "note": ""},
+            {"direction": "camera height (translation z)", "name": "z", "status": "unobservable", "sigma": 1.0,
+             "unit": "m", "note": "camera height (translation z) is not observable from this recording; give it."})
+    text = diagnosis_text(Diagnosis("r.mcap", True, (), (), observability=rows))
+    lines = text.splitlines()
+    i = lines.index("observability after refinement:")
+    assert lines[i + 1].split() == ["observable", "camera", "position", "forward", "(translation", "x)", "sigma",
+                                    "0.0237", "m"]
+    assert lines[i + 2].endswith("sigma 1 m")
+    assert lines[i + 3].strip() == "is not observable from this recording; give it."
+    assert text.count("camera height (translation z)") == 1

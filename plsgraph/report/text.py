@@ -97,7 +97,14 @@ def diagnosis_text(d: Any) -> str:
                      + ", ".join(f"{k}={'yes' if v else 'NO'}" for k, v in d.observable_closed_form.items()))
     if d.observability:
         lines.append("observability after refinement:")
-        lines += [f"  {o['status']:<13} {o['direction']:<40} {o['note']}" for o in d.observability]
+        for o in d.observability:
+            sig = "-" if o.get("sigma") is None else f"{o['sigma']:.3g} {o.get('unit', '')}".rstrip()
+            lines.append(f"  {o['status']:<13} {o['direction']:<40} sigma {sig}")
+            note = o.get("note") or ""
+            if note.startswith(o["direction"]):  # the line above names it
+                note = note[len(o["direction"]):].lstrip()
+            if note:
+                lines.append(f"{'':16}{note}")
     lines += [f"problem: {p}" for p in d.problems]
     lines += [f"warning: {w}" for w in getattr(d, "warnings", ())[:12]]
     lines.append("verdict: " + ("good enough" if d.ok else "NOT good enough"))
