@@ -314,3 +314,37 @@ def test_events_too_short_to_calibrate_are_said_to_be_so_with_advice_to_record_l
     assert e.value.advice.startswith("record longer")
     d = diagnose(p, board="acircles_4x11")
     assert not d.ok and "span only" in d.problems[0] and d.advice[0].startswith("record longer")
+
+
+@pytest.mark.parametrize("fmt", ["evt3", "dvs"])
+def test_event_messages_recorded_twice_are_read_once_and_said(tmp_path, fmt):
+    # Before: a recording holding each event message twice gave every event twice (evt3's stateful decoding read
+    # the copy on) and "N messages start before the previous one ended (overlapping packets)".
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    ev, js, _, cam = _sim(n=20_000, seconds=0.5)
+    p = tmp_path / "once.mcap"
+    write_recording(p, ev, js, None, cam, event_format=fmt)
+    twice = tmp_path / "twice.mcap"
+    with open(p, "rb") as f_in, open(twice, "wb") as f_out:
+        reader = make_reader(f_in)
+        summary = reader.get_summary()
+        w = Writer(f_out)
+        w.start()
+        schemas = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
+        chans = {cid: w.register_channel(c.topic, c.message_encoding, schemas[c.schema_id], c.metadata)
+                 for cid, c in summary.channels.items()}
+        for _s, channel, msg in reader.iter_messages():
+            for _ in range(2 if channel.topic.endswith("events") else 1):
+                w.add_message(chans[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
+        w.finish()
+    once, again = read_recording(p), read_recording(twice)
+    np.testing.assert_array_equal(again.events.t, once.events.t)
+    np.testing.assert_array_equal(again.events.x, once.events.x)
+    (said,) = [w for w in again.warnings if "byte for byte" in w]
+    (row,) = [r for r in inspect_recording(p)["topics"] if "events" in r]
+    assert f"{row['messages']} event messages were byte for byte" in said
+    assert not any("overlapping" in w for w in again.warnings) and not once.warnings
+    (row,) = [r for r in inspect_recording(twice)["topics"] if "events" in r]
+    assert row["events"] == len(ev)

@@ -78,6 +78,8 @@ class _TopicDecoder:
     good_messages: int = 0
     backwards: int = 0  # messages that started before the previous one ended (stream not time-ordered)
     group_fallbacks: int = 0  # groups of evt3 packets decoded again one by one (their time stepped back)
+    repeats: int = 0  # messages that were byte for byte the message before them (recorded twice): read once
+    _last: object = None  # the previous message's bytes
     _pending: list = field(default_factory=list)  # evt3 packets waiting for the clock offset
     stats: DecodeStats = field(default_factory=DecodeStats)
 
@@ -106,6 +108,8 @@ class _TopicDecoder:
         out: list[tuple[np.ndarray, ...]] = []
         group: list = []
         for m in msgs:
+            if self._repeat(m):
+                continue
             blob = self._groupable(m)
             if blob is None:
                 if group:
@@ -117,6 +121,18 @@ class _TopicDecoder:
         if group:
             out += self._decode_group(group)
         return out
+
+    def _repeat(self, m: RawMessage) -> bool:
+        """Whether ``m`` is byte for byte the message before it (a recorder that wrote each message twice, a bag
+        merged with itself): its events are in the stream already, and a stateful codec must not read them again."""
+        data = m.data
+        if isinstance(data, DecodedEvents):
+            return False
+        same = self._last is not None and len(data) == len(self._last) and data == self._last
+        self._last = data
+        if same:
+            self.repeats += 1
+        return same
 
     def _groupable(self, m: RawMessage):
         """The event words of an evt3 packet that can join a group, else None (decoded on its own)."""
@@ -235,6 +251,9 @@ class _TopicDecoder:
             self.src_log.warn(f"{self.name}: {s.odd_bytes} trailing bytes did not form a whole event word")
         if self.bad_messages:
             self.src_log.warn(f"{self.name}: {self.bad_messages} event messages could not be read at all")
+        if self.repeats:
+            self.src_log.warn(f"{self.name}: {self.repeats} event messages were byte for byte the message before them "
+                              "(the recording holds them twice); each was read once")
 
 
 def _iter_chunks(
