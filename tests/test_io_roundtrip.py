@@ -348,3 +348,22 @@ def test_event_messages_recorded_twice_are_read_once_and_said(tmp_path, fmt):
     assert not any("overlapping" in w for w in again.warnings) and not once.warnings
     (row,) = [r for r in inspect_recording(twice)["topics"] if "events" in r]
     assert row["events"] == len(ev)
+
+
+def test_quick_inspect_lists_the_same_topics_and_messages_without_decoding_the_events(tmp_path, monkeypatch, capsys):
+    from plsgraph.cli.main import main
+    from plsgraph.io import event_codecs
+
+    ev, js, od, cam = _sim(n=5000, seconds=0.5)
+    p = tmp_path / "q.mcap"
+    write_recording(p, ev, js, od, cam, event_format="evt3")
+    full = inspect_recording(p)
+    monkeypatch.setattr(event_codecs.Evt3Decoder, "decode", lambda *a, **k: pytest.fail("decoded"))
+    quick = inspect_recording(p, count_events=False)
+    f, q = ({r["topic"]: r for r in x["topics"]} for x in (full, quick))
+    assert f.keys() == q.keys() and all(f[k]["messages"] == q[k]["messages"] for k in f)
+    e = q["/event_camera/events"]
+    assert e["events"] is None and e["events_on"] is None and e["t_first_ns"] is not None
+    assert q["/odom"] == f["/odom"]  # the other topics as before
+    assert main(["inspect", "--quick", str(p)]) == 0
+    assert "not counted" in capsys.readouterr().out

@@ -137,6 +137,8 @@ def _build_parser() -> argparse.ArgumentParser:
     s.add_argument("log", type=Path, help="recording: .mcap, ROS 2 .db3 folder/file, ROS 1 .bag, .aedat4 or "
                    "Prophesee .raw")
     s.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    s.add_argument("--quick", action="store_true", help="do not decode the events (several times faster on a big "
+                   "recording): topics, message counts and time spans only")
     s.set_defaults(func=_cmd_inspect)
 
     s = sub.add_parser("simulate", help="write a simulated recording (MCAP) with its truth beside it")
@@ -221,7 +223,7 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
     from ..io.inspect import format_inspection, inspect_recording
     from .progress import ProgressBar
 
-    info = inspect_recording(args.log, progress=ProgressBar)
+    info = inspect_recording(args.log, progress=ProgressBar, count_events=not args.quick)
     if not info.get("topics"):
         why = "; ".join(info.get("warnings", [])) or "no messages"
         print(f"plsgraph: error: nothing readable in {args.log}: {why}", file=sys.stderr)
