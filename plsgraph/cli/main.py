@@ -40,13 +40,20 @@ class _Parser(argparse.ArgumentParser):
         sys.exit(2)
 
 
+def _bundled_boards() -> list[str]:
+    """The bundled boards' names (plsgraph/data/boards), for the help."""
+    from ..core.resources import bundled_names
+
+    return bundled_names("boards")
+
+
 def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
     p.add_argument("log", type=Path, help="recording: .mcap, ROS 2 .db3 folder/file, ROS 1 .bag, or an events-only "
                    ".aedat4 / Prophesee .raw (then with --odometry)")
     p.add_argument(
         "--board", required=True,
-        help="the target: a board YAML or a bundled name (acircles_4x11, acircles_4x11_a2, aprilgrid_6x6); its "
-        "size must match the print, or every distance is scaled",
+        help=f"the target: a board YAML or a bundled name ({', '.join(_bundled_boards())}); its size must match the "
+        "print, or every distance is scaled",
     )
     p.add_argument(
         "--camera-info",
