@@ -59,15 +59,10 @@ def _kinds(topics: dict) -> tuple[bool, bool]:
     return events, any(n in ("JointState", "Odometry") for n in names)
 
 
-def _refuse_swapped_files(run: Any, rec: Any, path: Path) -> None:
-    """An InputError when the recording and the --odometry file are given the wrong way round: the events are in the
-    odometry file, the recording has none (and the odometry file no wheel odometry)."""
-    from .io.source import open_source
-
-    try:
-        there = open_source(path).topics()
-    except Exception:  # noqa: BLE001 - an unreadable file is read_recording's to report, with its own words
-        return
+def _refuse_swapped_files(run: Any, rec: Any, path: Path, there: dict) -> None:
+    """An InputError when the recording and the --odometry file (``path``, its topics ``there``) are given the wrong
+    way round: the events are in the odometry file, the recording has none (and the odometry file no wheel
+    odometry)."""
     events_here, _ = _kinds(rec.topics or {})
     events_there, wheels_there = _kinds(there)
     if events_there and not events_here and not wheels_there:
@@ -89,13 +84,16 @@ def merge_odometry_file(run: Any, rec: Any) -> Any:
     if path.resolve() == Path(run.log_path).resolve():
         raise InputError(f"--odometry names the recording itself ({path}); leave --odometry out: a recording's own "
                          "odometry is read from it, on its own clock")
-    _refuse_swapped_files(run, rec, path)
+    from .io.source import open_source
+
+    odo_src = open_source(path)  # opened once: its topics for the check below, then read
+    _refuse_swapped_files(run, rec, path, odo_src.topics())
     own = rec.joints is not None or rec.odometry is not None
     if own:
         run.warn(f"{Path(run.log_path).name} has wheel odometry of its own; the odometry of {path.name} (--odometry) "
                  "is used instead")
     topics = {k: v for k, v in opts.topics.items() if k in ("joints", "odometry")} or None
-    odo = read_recording(path, topics=topics, with_events=False)
+    odo = read_recording(odo_src, topics=topics, with_events=False)
     run.warn(*(f"{path.name}: {w}" for w in odo.warnings))
     have = (odo.joints is not None and len(odo.joints) > 1) or (odo.odometry is not None and len(odo.odometry.t) > 1)
     if not have:

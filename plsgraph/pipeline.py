@@ -28,8 +28,10 @@ from .options import CalibrationOptions
 log = logging.getLogger(__name__)
 
 MIN_CAMERA_FRAMES = 10  # fewer board detections than this: no calibration is attempted
-#: Events (by the file's index) spanning less than this (s) are refused before the front end: no drive that short
-#: determines the extrinsic, and a search for the board in it would only end in reasons that do not apply.
+#: Events spanning less than this (s, by the decoded events' times) are refused as too short when the front end finds
+#: too little in them: no drive that short determines the extrinsic, and the search's own reasons (the board, the
+#: surface kind) would not apply. (Not judged on a file's index: a .db3 lists its messages' times, which for events in
+#: long packets fall short of the events' span.)
 MIN_EVENT_SPAN_S = 2.0
 SHORT_EVENTS_ADVICE = ("record longer: 20 s or more of driving forwards and backwards while turning (arcs, "
                        "S-curves), with the board in view, the event camera and the odometry recording all the while")
@@ -305,8 +307,6 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
             exc.advice = SHORT_EVENTS_ADVICE  # neither the board's nor the intrinsics' fault: what the diagnosis says
         return exc
 
-    if span is not None and (exc := too_short(*span)) is not None:  # the file's index knows: before the search
-        raise exc
     with progress("detecting board") as bar:
         try:
             track = camera_track_from_event_chunks(

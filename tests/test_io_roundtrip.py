@@ -283,11 +283,13 @@ def test_nan_joint_positions_are_said_not_filled_in_silently(tmp_path):
     pos = js.position.copy()
     pos[[3, 7, 8], 0] = np.nan  # front_left_wheel: three messages with a NaN angle
     pos[12, 2] = np.inf
+    pos[:, 3] = np.nan  # rear_right_wheel: no position at all (a joint without a position interface), not damage
     p = tmp_path / "nan.mcap"
     write_recording(p, None, JointStates(js.t, js.names, pos, js.velocity), None, cam)
     rec = read_recording(p, with_events=False)
     (w,) = [w for w in rec.warnings if "NaN or infinite" in w]
     assert "'front_left_wheel' in 3" in w and "'rear_left_wheel' in 1" in w and f"of {js.t.size} messages" in w
+    assert "rear_right_wheel" not in w
     # The values themselves stay what the messages said (the wheel track fills them in).
     assert np.isnan(rec.joints.position[3, 0]) and np.isinf(rec.joints.position[12, 2])
     clean = tmp_path / "clean.mcap"
@@ -367,3 +369,38 @@ def test_quick_inspect_lists_the_same_topics_and_messages_without_decoding_the_e
     assert q["/odom"] == f["/odom"]  # the other topics as before
     assert main(["inspect", "--quick", str(p)]) == 0
     assert "not counted" in capsys.readouterr().out
+
+
+def test_events_long_enough_in_few_packets_are_not_refused_as_short(tmp_path):
+    # A review found a check on the file's index (a bare ROS 2 .db3 lists its messages' first and last times) refusing
+    # 3.0 s of events in 1.5 s packets as "span only 1.50 s": the span is judged on the decoded events' times only.
+    import sqlite3
+
+    from plsgraph.errors import InsufficientDataError
+    from plsgraph.io.source import open_source
+    from plsgraph.options import CalibrationOptions
+    from plsgraph.pipeline import Run, build_tracks
+
+    ev, js, _, cam = _sim(n=20_000, seconds=3.0)
+    tj = (js.t - js.t[0]) * 1e-9
+    wheels = np.column_stack([2.0 * tj, 2.5 * tj, 2.0 * tj, 2.5 * tj])
+    p = tmp_path / "packets.mcap"
+    write_recording(p, ev, JointStates(js.t, js.names, wheels, np.zeros_like(wheels)), None, cam, event_format="evt3",
+                    packet_ns=1_500_000_000)
+    db = tmp_path / "packets.db3"
+    src = open_source(p)
+    con = sqlite3.connect(db)
+    con.execute("CREATE TABLE topics(id INTEGER PRIMARY KEY, name TEXT, type TEXT, serialization_format TEXT, "
+                "offered_qos_profiles TEXT)")
+    con.execute("CREATE TABLE messages(id INTEGER PRIMARY KEY, topic_id INTEGER, timestamp INTEGER, data BLOB)")
+    ids = {name: k + 1 for k, name in enumerate(src.topics())}
+    for name, info in src.topics().items():
+        con.execute("INSERT INTO topics VALUES (?,?,?,?,?)", (ids[name], name, info.msgtype, "cdr", ""))
+    for m in src.iter_raw(None):
+        con.execute("INSERT INTO messages(topic_id,timestamp,data) VALUES (?,?,?)",
+                    (ids[m.topic], m.log_time_ns, bytes(m.data)))
+    con.commit()
+    con.close()
+    with pytest.raises(InsufficientDataError) as e:  # random events: no board, but not "too short"
+        build_tracks(Run(db, CalibrationOptions.build(board="acircles_4x11", frontend_workers=1)))
+    assert "span only" not in str(e.value) and "no board detected" in str(e.value)

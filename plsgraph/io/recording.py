@@ -278,6 +278,9 @@ class _Collector:
                 short += 1
         if short:
             warn(f"{self.topic}: {short} messages have position/velocity arrays not matching their joint names")
+        # A joint with no finite position at all is one whose driver reports none (ros2_control gives NaN for a joint
+        # without a position interface; its velocities are used then): not a damaged value.
+        bad = {j: c for j, c in bad.items() if np.any(np.isfinite(pos[:, col[j]]))}
         if bad:
             said = ", ".join(f"{j!r} in {c}" for j, c in sorted(bad.items(), key=lambda kv: -kv[1])[:4])
             warn(f"{self.topic}: joint positions that are NaN or infinite ({said} of {n} messages); a wheel's are "

@@ -1973,6 +1973,9 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                 job.discard()
         t_knots = time.perf_counter() - t_knots
         if cov_base is not None:
+            # Which directions are held is decided on the covariance before the second opinions' inflation
+            # (cov_plain, as _honest_covariance decides; without it, on this one).
+            held = held_directions(cov_plain if cov_plain is not None else cov_base, opt) if frozen else []
             cov_base = _honest_covariance(cov_base, opt, bool(frozen), cov_plain)
             k_all = np.ones(7)
             if sensitivity is not None and opt.add_noise_model_sensitivity:
@@ -2002,7 +2005,6 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                 joint = odometry_given_calibration(joint, k_all, opt.td_model_sigma)
             Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
             cov = Ji @ cov_base @ Ji.T
-            held = held_directions(cov_plain, opt) if frozen else []
             report = observability_report(cov_base, prior_info, converged=True, regularized=True,
                                           planar_motion=opt.planar, prior_notes=_prior_notes(opt, frozen, held),
                                           held_weak=tuple(a for a in AXES if held_weakly(held, a) is not None))

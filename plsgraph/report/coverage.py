@@ -58,13 +58,12 @@ REFUSED = ("jumped_from_track", "inconsistent_with_neighbours", "same_stamp", "a
 
 
 def odometry_covers(t_odometry: np.ndarray, base_track: Any) -> np.ndarray:
-    """Per time (odometry clock, s): whether the odometry's span holds it and STILL_HALF_S either side of it (what
-    :func:`robot_still` can judge)."""
+    """Per time (odometry clock, s): whether it lies inside the odometry's span."""
     t = np.asarray(t_odometry, dtype=float)
     if base_track is None or len(base_track) < 2 or t.size == 0:
         return np.zeros(t.size, dtype=bool)
     tb = np.asarray(base_track.t, dtype=float)
-    return (t - STILL_HALF_S >= tb[0]) & (t + STILL_HALF_S <= tb[-1])
+    return (t >= tb[0]) & (t <= tb[-1])
 
 
 def robot_still(t_odometry: np.ndarray, base_track: Any) -> np.ndarray:
@@ -320,13 +319,14 @@ def coverage_table(info: dict, run: Any = None) -> str | None:
                    for k, v in sorted(counts.items(), key=lambda kv: (kv[0] not in DETECTED, kv[0] == NOT_SEARCHED,
                                                                       -kv[1])))
     moving = ""
-    if cov["robot_still"] and cov["found_fraction_robot_moving"] is not None:
-        moving = (f" The robot stood still in {cov['robot_still']} of them (no motion, no events); of the windows "
-                  f"in which it moved, {100.0 * cov['found_fraction_robot_moving']:.0f} % found the board.")
+    if cov["robot_still"]:
+        moving = f" The robot stood still in {cov['robot_still']} of them (no motion, no events)."
     if cov.get(NO_ODOMETRY):
         moving += (f" In {cov[NO_ODOMETRY]} windows without the board the odometry says nothing of the robot (they "
-                   "lie outside its span, or on a clock not yet aligned with it): they are not counted as the "
-                   "robot's.")
+                   "lie outside its span, or on a clock not yet aligned with it).")
+    if moving and cov["found_fraction_robot_moving"] is not None:
+        moving += (f" Of the windows in which it moved, {100.0 * cov['found_fraction_robot_moving']:.0f} % found the "
+                   "board.")
     return (f"<p>The board was found in {found} of {total} windows ({100.0 * found / total:.0f} %).{moving} "
             "Windows without events from the board cannot show it. The figures "
             "'detection coverage' and 'event frames' below show when and what the detector saw.</p>"
