@@ -50,3 +50,23 @@ def damaged_copies(tmp_path, data: bytes, seed: int, n: int, suffix: str):
         p = tmp_path / f"bad{i}{suffix}"
         p.write_bytes(bad)
         yield p, how
+
+
+def copy_mcap(src, dst, copies=lambda topic: 1) -> None:
+    """Write the MCAP ``src`` again as ``dst`` with each message of a topic written ``copies(topic)`` times (0 leaves
+    the topic's messages out; its channel stays registered only if some message is kept)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as f_in, open(dst, "wb") as f_out:
+        reader = make_reader(f_in)
+        summary = reader.get_summary()
+        w = Writer(f_out)
+        w.start()
+        schemas = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
+        chans = {cid: w.register_channel(c.topic, c.message_encoding, schemas[c.schema_id], c.metadata)
+                 for cid, c in summary.channels.items() if copies(c.topic) > 0}
+        for _s, channel, msg in reader.iter_messages():
+            for _ in range(copies(channel.topic) if channel.id in chans else 0):
+                w.add_message(chans[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
+        w.finish()

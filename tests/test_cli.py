@@ -232,22 +232,10 @@ def test_diagnose_and_compare_answer_a_recording_too_short_to_calibrate_as_calib
 
 def test_a_recording_with_events_alone_is_said_to_lack_the_odometry(tmp_path, capsys):
     """Before: 'nothing plsgraph can use; the file has: /event_camera/events', of a file whose events are usable."""
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
+    from recordings import copy_mcap
 
     only = tmp_path / "events_only.mcap"
-    with open(SAMPLE, "rb") as f_in, open(only, "wb") as f_out:
-        reader = make_reader(f_in)
-        summary = reader.get_summary()
-        w = Writer(f_out)
-        w.start()
-        schemas = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
-        chans = {cid: w.register_channel(c.topic, c.message_encoding, schemas[c.schema_id], c.metadata)
-                 for cid, c in summary.channels.items() if c.topic.endswith("events")}
-        for _s, channel, msg in reader.iter_messages():
-            if channel.id in chans:
-                w.add_message(chans[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
-        w.finish()
+    copy_mcap(SAMPLE, only, lambda topic: 1 if topic.endswith("events") else 0)
     assert main(["calibrate", str(only), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "c")]) == 2
     err = capsys.readouterr().err
     assert "has events but no odometry" in err and "--odometry" in err and "nothing plsgraph can use" not in err

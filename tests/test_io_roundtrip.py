@@ -322,25 +322,13 @@ def test_events_too_short_to_calibrate_are_said_to_be_so_with_advice_to_record_l
 def test_event_messages_recorded_twice_are_read_once_and_said(tmp_path, fmt):
     # Before: a recording holding each event message twice gave every event twice (evt3's stateful decoding read
     # the copy on) and "N messages start before the previous one ended (overlapping packets)".
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
+    from recordings import copy_mcap
 
     ev, js, _, cam = _sim(n=20_000, seconds=0.5)
     p = tmp_path / "once.mcap"
     write_recording(p, ev, js, None, cam, event_format=fmt)
     twice = tmp_path / "twice.mcap"
-    with open(p, "rb") as f_in, open(twice, "wb") as f_out:
-        reader = make_reader(f_in)
-        summary = reader.get_summary()
-        w = Writer(f_out)
-        w.start()
-        schemas = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
-        chans = {cid: w.register_channel(c.topic, c.message_encoding, schemas[c.schema_id], c.metadata)
-                 for cid, c in summary.channels.items()}
-        for _s, channel, msg in reader.iter_messages():
-            for _ in range(2 if channel.topic.endswith("events") else 1):
-                w.add_message(chans[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
-        w.finish()
+    copy_mcap(p, twice, lambda topic: 2 if topic.endswith("events") else 1)
     once, again = read_recording(p), read_recording(twice)
     np.testing.assert_array_equal(again.events.t, once.events.t)
     np.testing.assert_array_equal(again.events.x, once.events.x)
