@@ -134,6 +134,19 @@ def test_libcaer_cmp_matches_slow_reference(seed):
     assert fast.stats.outside_sensor > 0  # random addresses beyond 346 x 260 are dropped, not wrapped
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_libcaer_cmp_with_rare_vectors_as_a_davis_sends_them_matches_slow_reference(seed):
+    # A real DAVIS346's packets hold a vector word or two among tens of thousands: their states are found by
+    # bisection, the events' by runs between state words (the same numbers as word by word).
+    rng = np.random.default_rng(50 + seed)
+    w, h = 346, 260
+    fast, slow = LibcaerCmpDecoder(w, h), SlowCmp(w, h)
+    for k in range(4):
+        words = _random_words(rng, 20_000, [0, 1, 2, 3, 4, 5], [0.0005, 0.26, 0.37, 0.3685, 0.0005, 0.0005])
+        tb = 1_700_000_000_000_000_000 + k * 10_000_000
+        _check(fast.decode(words.tobytes(), tb), slow.decode(words.tolist(), tb))
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_evt3_matches_slow_reference(seed):
     rng = np.random.default_rng(100 + seed)

@@ -65,6 +65,8 @@ def _state_at(mask: np.ndarray, values: np.ndarray, default: int, at: np.ndarray
     table = np.empty(values.size + 1, np.int64)
     table[0] = default
     table[1:] = values
+    if at.size * 8 < mask.size:  # few positions (vector words): the count by bisection, not over every word
+        return table[np.searchsorted(np.flatnonzero(mask), at, side="right")]
     return table[np.cumsum(mask, dtype=np.int32 if mask.size < 2**31 else np.int64)[at]]
 
 
@@ -224,19 +226,30 @@ class LibcaerCmpDecoder:
         ex0 = self.ex
         if x_vals.size:
             self.ex = int(x_vals[-1])
-        iy = np.flatnonzero(code == 3)
+        is_y = code == 3
+        iy = np.flatnonzero(is_y)
         has_vect = counts[4] or counts[5]
         if has_vect:
             vi, vy, vp, self.base_y, self.pol = _vector_events(w, code, 4, {5: 8}, self.base_y, self.pol, None)
-            at = np.concatenate([iy, vi])
+            # The states at every word that makes events (y addresses and vectors, in word order) by runs, then
+            # split into the y words' and the vectors' (the order the events are put in below).
+            is_ev = is_y | (code == 5)
+            ev_at = np.flatnonzero(is_ev)
+            state_at = _StateAtWords(is_ev, ev_at)
+            of_y = is_y[ev_at]
         else:
-            at = iy
+            state_at = _StateAtWords(is_y, iy)
         # The time state restarts at zero in every packet; x carries over from the previous one.
-        t_us = _state_at(is_hi, (_masked(w, is_hi) & 0xFFF).astype(np.int64) << 12, 0, at) | _state_at(
-            is_lo, (_masked(w, is_lo) & 0xFFF).astype(np.int64), 0, at
+        t_us = state_at(is_hi, (_masked(w, is_hi) & 0xFFF).astype(np.int64) << 12, 0) | state_at(
+            is_lo, _masked(w, is_lo) & 0xFFF, 0, np.uint16
         )
+        xs = state_at(is_x, x_vals, ex0)
+        if has_vect:
+            # A vector word makes one event per set bit (vi holds its word index once for each, in word order).
+            k = np.searchsorted(ev_at[~of_y], vi)
+            t_us = np.concatenate([t_us[of_y], t_us[~of_y][k]])
+            xs = np.concatenate([xs[of_y], xs[~of_y][k]])
         t_ns = int(time_base_ns) + t_us * 1000
-        xs = _state_at(is_x, x_vals, ex0, at)
         wy = w[iy]
         y1 = (wy & 0x7FF).astype(np.int64)
         p1 = ((wy >> 11) & 1).astype(np.int64)
