@@ -227,6 +227,14 @@ def build_base_track(run: Run, rec: Any) -> BaseTrack:
     if use_joints and have_odom and odo.left_joint is None and not any("wheel" in j.lower() for j in rec.joints.names):
         use_joints = False  # joints without a wheel among them (an arm, a gripper): the odometry is the base
         run.warn(f"no wheel among the joints {', '.join(rec.joints.names)}; used nav_msgs/Odometry")
+    scrambled = (rec.joints if use_joints else rec.odometry if have_odom else None)
+    ratio = getattr(scrambled, "stamps_rougher", None)
+    if ratio is not None:
+        source, values = ("joint states'", "joint angles") if use_joints else ("odometry messages'", "positions")
+        run.input_problems.append(
+            f"the {source} header stamps go backwards, and put in their order the {values} move back and forth "
+            f"{ratio:.1f}x more than in the order the messages were recorded: the stamps are likely wrong (not the "
+            "order), and the robot's motion is timed by them; fix the driver's stamps")
     if use_joints:
         track, cleaning = wheel_track_from_joints(rec.joints, odo.wheel_radius, odo.track_width,
                                                   odo.left_joint, odo.right_joint, quiet=True)

@@ -134,3 +134,54 @@ def test_joint_stamps_in_another_unit_than_nanoseconds_are_named_as_the_cause():
     track, _ = wheel_track_from_joints(JointStates(t_ns, ("left_wheel", "right_wheel"), pos, np.full_like(pos, np.nan)),
                                        *run)
     assert len(track) == t_ns.size
+
+
+def _joint_mcap(path, stamps, pos, names=("left_wheel", "right_wheel")):
+    """An MCAP of JointState messages written in the given order (log times increasing), with the given stamps."""
+    from mcap.writer import Writer
+
+    from plsgraph.io.writer import _joint_bytes, message_definition
+
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="ros2", library="test")
+        sid = w.register_schema("sensor_msgs/msg/JointState", "ros2msg",
+                                message_definition("sensor_msgs/msg/JointState").encode())
+        cid = w.register_channel("/joint_states", "cdr", sid)
+        t0 = int(min(stamps))
+        for k, (t, p) in enumerate(zip(stamps, pos, strict=True)):
+            w.add_message(cid, log_time=t0 + k * 20_000_000, publish_time=t0 + k * 20_000_000,
+                          data=_joint_bytes(int(t), names, np.asarray(p, float), np.zeros(len(names))), sequence=k)
+        w.finish()
+
+
+def test_wrong_stamps_are_told_from_messages_recorded_out_of_order(tmp_path):
+    """A review's recording with neighbouring JointState stamps swapped passed (ok, weak sigmas) after "header stamps
+    go backwards 250 times; sorted by stamp". Stamps that are wrong make the angles jump back and forth in their order;
+    messages that only arrived out of order are smoother in stamp order. The first is an input problem (flagged)."""
+    from plsgraph.io.recording import read_recording
+    from plsgraph.options import CalibrationOptions
+    from plsgraph.pipeline import Run, build_base_track
+
+    sim, _, _ = _reference_and_run()
+    pos = np.stack([sim.wheel_left, sim.wheel_right], axis=1)[:300]
+    t = (sim.wheel_t[:300] * 1e9).astype(np.int64) + 1_700_000_000_000_000_000
+    swapped = t.copy()
+    swapped[0:-1:2], swapped[1::2] = t[1::2], t[0:-1:2]  # neighbours' stamps exchanged, the messages in order
+    _joint_mcap(tmp_path / "wrong.mcap", swapped, pos)
+    order = np.arange(t.size)
+    for i in range(0, t.size - 1, 7):  # every seventh pair arrived the wrong way round, stamps right
+        order[[i, i + 1]] = order[[i + 1, i]]
+    _joint_mcap(tmp_path / "late.mcap", t[order], pos[order])
+    wrong, late = read_recording(tmp_path / "wrong.mcap"), read_recording(tmp_path / "late.mcap")
+    assert any("go backwards" in w for w in wrong.warnings) and any("go backwards" in w for w in late.warnings)
+    assert wrong.joints.stamps_rougher is not None and wrong.joints.stamps_rougher > 10
+    assert late.joints.stamps_rougher is None
+    np.testing.assert_array_equal(late.joints.position, pos)  # sorted back into place
+    opts = CalibrationOptions(board="acircles_4x11_a2")
+    run = Run(tmp_path / "wrong.mcap", opts)
+    build_base_track(run, wrong)
+    assert any("the stamps are likely wrong" in p for p in run.input_problems), run.input_problems
+    run = Run(tmp_path / "late.mcap", opts)
+    build_base_track(run, late)
+    assert run.input_problems == []

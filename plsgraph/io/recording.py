@@ -7,7 +7,7 @@ its log time and the fallback is reported in the warnings.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +41,10 @@ class JointStates:
     names: tuple[str, ...]
     position: np.ndarray
     velocity: np.ndarray
+    #: When the messages' header stamps went backwards and, put in their order, the positions move back and forth
+    #: more than in the order the messages were recorded: how many times more (the stamps are then likely wrong, not
+    #: the order; see :func:`stamp_order_roughness`). None otherwise.
+    stamps_rougher: float | None = None
 
     def __post_init__(self) -> None:
         n, k = len(self.t), len(self.names)
@@ -103,6 +107,7 @@ class OdometryMsgs:
     angular: np.ndarray
     frame_id: str = "odom"
     child_frame_id: str = "base_link"
+    stamps_rougher: float | None = None  # as JointStates.stamps_rougher, of the positions
 
     def __post_init__(self) -> None:
         n = len(self.t)
@@ -177,6 +182,29 @@ def _xyz(v) -> tuple[float, float, float]:
     return (v.x, v.y, v.z)
 
 
+#: Header stamps are taken for wrong (not the recorded order) when, put in their order, the values move back and forth
+#: this many times more (summed absolute second differences) than in the order the messages were recorded.
+STAMPS_ROUGHER = 2.0
+
+
+def stamp_order_roughness(values: np.ndarray, order: np.ndarray) -> float | None:
+    """How many times rougher the columns of ``values`` (n, k; rows in recorded order, NaN allowed) are in the order
+    ``order`` (the stamps') than as recorded: the summed absolute second differences of each column's finite values.
+    Messages that arrived out of order with right stamps are smoother in stamp order (ratio below 1); stamps that are
+    wrong (swapped, scrambled) make the values jump back and forth in their order. None when the recorded order has
+    no roughness to compare with (a still robot)."""
+    v = np.asarray(values, dtype=float)
+    if v.ndim == 1:
+        v = v[:, None]
+    rough = [0.0, 0.0]
+    for j, rows in enumerate((v, v[order])):
+        for c in range(rows.shape[1]):
+            x = rows[:, c][np.isfinite(rows[:, c])]
+            if x.size > 2:
+                rough[j] += float(np.abs(np.diff(x, 2)).sum())
+    return rough[1] / rough[0] if rough[0] > 0 else None
+
+
 class _Collector:
     """Accumulates one non-event topic's messages as rows, then builds the array container."""
 
@@ -234,10 +262,16 @@ class _Collector:
             return None
         t = self.times(warn)
         order = np.argsort(t, kind="stable")
-        if np.any(np.diff(t) < 0):
-            warn(f"{self.topic}: header stamps go backwards {int(np.sum(np.diff(t) < 0))} times; sorted by stamp")
+        back = int(np.sum(np.diff(t) < 0))
+        if back:
+            warn(f"{self.topic}: header stamps go backwards {back} times; sorted by stamp")
         if self.role == "joints":
-            return self._joints(t, order, warn)
+            js = self._joints(t, order, warn)
+            if back:
+                ratio = stamp_order_roughness(js.position[np.argsort(order)], order)  # rows back in recorded order
+                if ratio is not None and ratio > STAMPS_ROUGHER:
+                    js = replace(js, stamps_rougher=ratio)
+            return js
         if self.role in ("odometry", "imu"):
             a = np.asarray(self.rows, float)[order]
             if not np.all(np.isfinite(a)):
@@ -247,7 +281,9 @@ class _Collector:
                 warn(f"{self.topic}: frame ids change during the recording: {frames}")
             fr = frames[0] if frames else ("", "")
             if self.role == "odometry":
-                return OdometryMsgs(t[order], a[:, 0:3], a[:, 3:7], a[:, 7:10], a[:, 10:13], fr[0], fr[1])
+                ratio = stamp_order_roughness(np.asarray(self.rows, float)[:, 0:3], order) if back else None
+                return OdometryMsgs(t[order], a[:, 0:3], a[:, 3:7], a[:, 7:10], a[:, 10:13], fr[0], fr[1],
+                                    stamps_rougher=ratio if ratio is not None and ratio > STAMPS_ROUGHER else None)
             return ImuMsgs(t[order], a[:, 0:3], a[:, 3:6], fr[0])
         return self._camera(warn)
 
