@@ -185,3 +185,42 @@ def test_wrong_stamps_are_told_from_messages_recorded_out_of_order(tmp_path):
     run = Run(tmp_path / "late.mcap", opts)
     build_base_track(run, late)
     assert run.input_problems == []
+
+
+def test_wrong_odometry_stamps_are_told_from_messages_recorded_out_of_order(tmp_path):
+    from mcap.writer import Writer
+
+    from plsgraph.io.recording import OdometryMsgs, read_recording
+    from plsgraph.io.writer import _odom_bytes, message_definition
+
+    sim, ref, _ = _reference_and_run()
+    n = 300
+    t = (sim.wheel_t[:n] * 1e9).astype(np.int64) + 1_700_000_000_000_000_000
+    q = np.zeros((n, 4))
+    q[:, 3] = 1.0
+    odo = OdometryMsgs(t, ref.T_world_base[:n, :3, 3], q, np.zeros((n, 3)), np.zeros((n, 3)))
+
+    def write(path, stamps, rows):
+        msgs = OdometryMsgs(stamps, odo.position[rows], q, np.zeros((n, 3)), np.zeros((n, 3)))
+        with open(path, "wb") as f:
+            w = Writer(f)
+            w.start(profile="ros2", library="test")
+            sid = w.register_schema("nav_msgs/msg/Odometry", "ros2msg",
+                                    message_definition("nav_msgs/msg/Odometry").encode())
+            cid = w.register_channel("/odom", "cdr", sid)
+            for k in range(n):
+                w.add_message(cid, log_time=int(t[0]) + k * 20_000_000, publish_time=int(t[0]) + k * 20_000_000,
+                              data=_odom_bytes(msgs, k), sequence=k)
+            w.finish()
+
+    swapped = t.copy()
+    swapped[0:-1:2], swapped[1::2] = t[1::2], t[0:-1:2]
+    write(tmp_path / "wrong.mcap", swapped, np.arange(n))
+    order = np.arange(n)
+    for i in range(0, n - 1, 7):
+        order[[i, i + 1]] = order[[i + 1, i]]
+    write(tmp_path / "late.mcap", t[order], order)
+    wrong, late = read_recording(tmp_path / "wrong.mcap"), read_recording(tmp_path / "late.mcap")
+    assert wrong.odometry.stamps_rougher is not None and wrong.odometry.stamps_rougher > 10
+    assert late.odometry.stamps_rougher is None
+    np.testing.assert_allclose(late.odometry.position, odo.position)
