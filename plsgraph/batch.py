@@ -65,21 +65,40 @@ def _calibrate_item(item: tuple[str, str, CalibrationOptions, bool]) -> dict:
         res = calibrate_to_dir(log_path, out_dir, opts, force=force, figure_worker=False)
         rep = res["report"]
         c = rep["calibration"] or {}  # None when the motion only allowed a diagnosis
-        row = {"recording": log_path, "status": "ok" if res["ok"] else "flagged", "source": c.get("source"),
-               "rpy_deg": c.get("rpy_deg"), "translation_m": c.get("translation_m"),
-               "time_offset_s": c.get("time_offset_s"), "problems": rep["problems"],
-               "warnings": rep.get("warnings", [])}
+        row = _row(log_path, out_dir, "ok" if res["ok"] else "flagged", c, rep["problems"], rep.get("warnings", []))
         if "truth_errors" in rep:
             row["truth_errors"] = rep["truth_errors"]
+        if rep.get("previous_calibration"):
+            row["previous_calibration"] = str(Path(out_dir) / rep["previous_calibration"])
     except PlsgraphError as exc:
-        row = {"recording": log_path, "status": "failed", "error": f"{type(exc).__name__}: {exc}"}
+        row = _failed_row(log_path, out_dir, f"{type(exc).__name__}: {exc}")
         _replace_with_failure(log_path, out_dir, force, row["error"])
     except Exception as exc:  # a bug must not stop the other recordings; it is reported in the summary
         log.exception("unexpected failure on %s", log_path)
-        row = {"recording": log_path, "status": "failed", "error": f"internal error {type(exc).__name__}: {exc}"}
+        row = _failed_row(log_path, out_dir, f"internal error {type(exc).__name__}: {exc}")
         _replace_with_failure(log_path, out_dir, force, row["error"])
     row["seconds"] = round(time.perf_counter() - t0, 2)
     return row
+
+
+def _row(log_path: str, out_dir: str, status: str, c: dict, problems: list, warnings: list,
+         error: str | None = None) -> dict:
+    """A summary row, with the same keys whatever the outcome (None where there is no value): the recording (its
+    absolute path), its result folder, the status (ok, flagged, failed), the extrinsic and its sigmas (``sigma``:
+    name -> value in the unit of the observability list, deg, m or ms), the problems (a failure's error among them) and
+    the warnings."""
+    obs = c.get("observability") or []
+    return {"recording": str(Path(log_path).absolute()), "folder": str(Path(out_dir).absolute()), "status": status,
+            "source": c.get("source"), "rpy_deg": c.get("rpy_deg"), "translation_m": c.get("translation_m"),
+            "time_offset_s": c.get("time_offset_s"),
+            "sigma": {o["name"]: o.get("sigma") for o in obs if isinstance(o, dict) and "name" in o} or None,
+            "sigma_units": {o["name"]: o.get("unit") for o in obs if isinstance(o, dict) and "name" in o} or None,
+            "translation_z_status": c.get("translation_z_status"), "problems": list(problems),
+            "warnings": list(warnings), "error": error}
+
+
+def _failed_row(log_path: str, out_dir: str, error: str) -> dict:
+    return _row(log_path, out_dir, "failed", {}, [error], [], error)
 
 
 def _replace_with_failure(log_path: str, out_dir: str, force: bool, error: str) -> None:
@@ -101,7 +120,7 @@ def _as_row(result: Any, item: tuple) -> dict:
     """refine_many's per-item outcome -> summary row (an exception it caught becomes a failed row)."""
     if result.ok and isinstance(result.value, dict):
         return result.value
-    return {"recording": item[0], "status": "failed", "error": f"{result.error_type}: {result.error}",
+    return {**_failed_row(item[0], item[1], f"{result.error_type}: {result.error}"),
             "seconds": round(result.seconds, 2)}
 
 
@@ -143,9 +162,14 @@ def run_batch(
     force: bool = False,
     jobs: int | None = None,
     executor: Executor | None = None,
+    prune: bool = False,
 ) -> dict:
     """Calibrate every recording in ``inputs`` into ``out_dir/<name>/``; a ``<name>.truth.yaml`` beside a
-    recording is used as its truth. Returns ``{ok, text, rows}`` and writes summary.json / summary.md."""
+    recording is used as its truth. Returns ``{ok, text, rows}`` and writes summary.json / summary.md.
+
+    With ``force`` into a folder of an earlier batch, the results of its recordings that this batch does not calibrate
+    again stay, and so do their rows in the summary (``earlier_run``: true), so that one recording can be calibrated
+    again alone; ``prune`` removes them instead. ``ok`` is about this batch's recordings."""
     from dataclasses import replace
 
     from .refine.batch import default_executor, refine_many
@@ -156,7 +180,7 @@ def run_batch(
     logs = find_recordings(inputs)
     _check_shared_inputs(options)
     out = prepare_output_dir(out_dir, force=force, whole=False)  # written into; each recording's folder replaced
-    earlier = _earlier_batch_folders(out)  # read before this batch's summary replaces the earlier one
+    earlier = _earlier_batch_rows(out)  # read before this batch's summary replaces the earlier one
     for name in ("summary.json", "summary.md"):
         # From now on the folders are this batch's: an earlier summary would describe folders being replaced (and,
         # if this batch is interrupted, a mix of the two runs). This batch's summary is written when it completes.
@@ -182,24 +206,37 @@ def run_batch(
         if own:
             executor.shutdown(wait=True, cancel_futures=True)  # after an interrupt: the rest never start
     rows = [_as_row(r, item) for r, item in zip(results, items, strict=True)]
+    ok = all(r["status"] == "ok" for r in rows)
+    others = {name: row for name, row in earlier.items() if name not in {Path(item[1]).name for item in items}}
+    notes = []
+    if force and prune:
+        stale = _remove_stale_results(out, set(others))
+        if stale:
+            notes.append(f"removed the earlier results of recordings not in this batch (--prune): {', '.join(stale)}")
+    elif others:
+        kept = [name for name in sorted(others) if (out / name / "report.json").is_file()]
+        rows += [{**others[name], "earlier_run": True} for name in kept]
+        if kept:
+            notes.append(f"kept the earlier results of recordings not in this batch (listed as earlier runs; --prune "
+                         f"removes them): {', '.join(kept)}")
+    for r in rows:
+        if r.get("previous_calibration") and not r.get("earlier_run"):
+            notes.append(f"kept the calibration {Path(r['folder']).name}'s folder held before in "
+                         f"{r['previous_calibration']} (this run's result is {r['status']})")
     write_json(out / "summary.json", {"recordings": rows})
     table = markdown_table(
-        [{"recording": Path(r["recording"]).name, "status": r["status"], "seconds": r.get("seconds"),
+        [{"recording": Path(r["recording"]).name,
+          "status": r["status"] + (" (earlier run)" if r.get("earlier_run") else ""), "seconds": r.get("seconds"),
           "roll": (r.get("rpy_deg") or [None] * 3)[0], "pitch": (r.get("rpy_deg") or [None] * 3)[1],
           "yaw": (r.get("rpy_deg") or [None] * 3)[2], "td_ms": None if r.get("time_offset_s") is None
           else 1e3 * r["time_offset_s"], "warnings": len(r.get("warnings", [])),
-          "error": r.get("error", "; ".join(r.get("problems", [])))} for r in rows],
+          "error": r.get("error") or "; ".join(r.get("problems", []))} for r in rows],
         ["recording", "status", "roll", "pitch", "yaw", "td_ms", "seconds", "warnings", "error"],
     )
     write_text(out / "summary.md", table + "\n")
-    ok = all(r["status"] == "ok" for r in rows)
     text = table + f"\n\nwritten: {out / 'summary.json'}, {out / 'summary.md'}"
-    for note in skipped_in_folders(inputs):
+    for note in [*skipped_in_folders(inputs), *notes]:
         text += "\n" + note
-    if force:
-        stale = _remove_stale_results(out, earlier - {Path(item[1]).name for item in items})
-        if stale:
-            text += f"\nremoved the earlier results of recordings not in this batch: {', '.join(stale)}"
     return {"ok": ok, "text": text, "rows": rows}
 
 
@@ -211,16 +248,16 @@ def _written_since(folder: Path, t0: float) -> bool:
         return False
 
 
-def _earlier_batch_folders(out: Path) -> set[str]:
-    """The recordings' folders an earlier batch's summary.json in ``out`` lists (empty when there is none, or it
-    cannot be read): only those are a batch's to remove."""
+def _earlier_batch_rows(out: Path) -> dict[str, dict]:
+    """The rows of an earlier batch's summary.json in ``out`` by their recording's folder name (empty when there is
+    none, or it cannot be read): only those folders are a batch's to keep listing, or to remove."""
     import json
 
     try:
         rows = json.loads((out / "summary.json").read_text()).get("recordings", [])
-        return {Path(str(r["recording"])).stem for r in rows if isinstance(r, dict) and r.get("recording")}
+        return {Path(str(r["recording"])).stem: r for r in rows if isinstance(r, dict) and r.get("recording")}
     except (OSError, ValueError, AttributeError, TypeError):
-        return set()
+        return {}
 
 
 def _remove_stale_results(out: Path, stale_names: set[str]) -> list[str]:

@@ -241,22 +241,37 @@ def test_a_recording_with_events_alone_is_said_to_lack_the_odometry(tmp_path, ca
     assert "has events but no odometry" in err and "--odometry" in err and "nothing plsgraph can use" not in err
 
 
-def test_batch_force_leaves_no_result_of_a_recording_no_longer_given(tmp_path, capsys):
-    """Before: a recording's folder from an earlier batch stayed beside the new summary, which no longer listed it."""
+def test_batch_force_keeps_the_results_of_recordings_not_given_unless_pruned(tmp_path, capsys):
+    """A recording's folder from an earlier batch once stayed beside a new summary that no longer listed it; then
+    --force removed it, and so calibrating one recording again removed every other's good result (a review). It now
+    stays and is listed as an earlier run; --prune removes it."""
     (tmp_path / "in").mkdir()
     (tmp_path / "in" / "a.mcap").write_bytes(b"not a recording")
     out = tmp_path / "out"
     (out / "gone").mkdir(parents=True)
-    (out / "gone" / "report.json").write_text('{"ok": false}')
+    (out / "gone" / "report.json").write_text('{"ok": true}')
     (out / "mine").mkdir()
     (out / "mine" / "notes.txt").write_text("kept")
     # A calibration's folder put beside the batch's by hand (no earlier summary lists it): not the batch's to remove.
     (out / "robotA_final").mkdir()
     (out / "robotA_final" / "calibration.yaml").write_text("ok: true\n")
-    (out / "summary.json").write_text(json.dumps({"recordings": [{"recording": "/somewhere/gone.mcap"}]}))
+    earlier = {"recordings": [{"recording": "/somewhere/gone.mcap", "status": "ok", "rpy_deg": [1.0, 2.0, 3.0]}]}
+    (out / "summary.json").write_text(json.dumps(earlier))
     assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11_a2", "--out", str(out), "--force",
-                 "--jobs", "1"]) == 1
-    assert "removed the earlier results of recordings not in this batch: gone" in capsys.readouterr().out
+                 "--jobs", "1"]) == 1  # this batch's one recording failed
+    text = capsys.readouterr().out
+    assert "kept the earlier results of recordings not in this batch" in text and "gone" in text
+    assert (out / "gone" / "report.json").exists()
+    rows = {Path(r["recording"]).stem: r for r in json.loads((out / "summary.json").read_text())["recordings"]}
+    assert rows["gone"]["earlier_run"] is True and rows["gone"]["rpy_deg"] == [1.0, 2.0, 3.0]
+    assert rows["a"]["status"] == "failed" and rows["a"]["problems"] == [rows["a"]["error"]]
+    assert set(rows["a"]) >= {"folder", "sigma", "warnings", "translation_m", "rpy_deg", "time_offset_s"}
+    # --prune (with --force) removes them; --prune alone is refused.
+    assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11_a2", "--out", str(out), "--prune"]) == 2
+    capsys.readouterr()
+    assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11_a2", "--out", str(out), "--force",
+                 "--prune", "--jobs", "1"]) == 1
+    assert "removed the earlier results of recordings not in this batch (--prune): gone" in capsys.readouterr().out
     assert not (out / "gone").exists() and (out / "mine" / "notes.txt").read_text() == "kept"
     assert (out / "robotA_final" / "calibration.yaml").read_text() == "ok: true\n"
     # Without an earlier summary nothing but this batch's own folders is touched (before: every result folder went).

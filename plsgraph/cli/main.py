@@ -199,8 +199,11 @@ def _build_parser() -> argparse.ArgumentParser:
     s.add_argument("--jobs", type=int, default=None, help="local worker processes (default: CPU count)")
     s.add_argument("--scheduler", help="Dask scheduler address (tcp://host:port) instead of local processes")
     s.add_argument("--force", action="store_true",
-                   help="replace earlier results in --out (a recording whose result is now flagged or fails keeps "
-                   "its earlier calibration in previous_calibration/)")
+                   help="replace the earlier results of the recordings given (one whose result is now flagged or "
+                   "fails keeps its earlier calibration in previous_calibration/); an earlier batch's results of "
+                   "recordings not given stay, listed in the summary as earlier runs")
+    s.add_argument("--prune", action="store_true",
+                   help="with --force: remove the earlier batch's results of recordings not given this time")
     s.set_defaults(func=_cmd_batch)
     return p
 
@@ -317,8 +320,10 @@ def _cmd_batch(args: argparse.Namespace) -> int:
 
     if args.jobs is not None and args.jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {args.jobs}")
+    if args.prune and not args.force:
+        raise InputError("--prune goes with --force (it removes earlier results, which only --force replaces)")
     if not args.scheduler:
-        res = run_batch(args.inputs, args.out, _options(args), force=args.force, jobs=args.jobs)
+        res = run_batch(args.inputs, args.out, _options(args), force=args.force, jobs=args.jobs, prune=args.prune)
         return _emit(args, res["text"], 0 if res["ok"] else 1)
     try:
         from dask.distributed import Client
@@ -329,7 +334,8 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     except (OSError, TimeoutError) as exc:
         raise InputError(f"cannot reach the Dask scheduler at {args.scheduler}: {exc}") from exc
     try:
-        res = run_batch(args.inputs, args.out, _options(args), force=args.force, executor=client.get_executor())
+        res = run_batch(args.inputs, args.out, _options(args), force=args.force, executor=client.get_executor(),
+                        prune=args.prune)
     finally:
         client.close()
     return _emit(args, res["text"], 0 if res["ok"] else 1)
