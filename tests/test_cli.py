@@ -330,3 +330,17 @@ def test_intrinsics_missing_from_both_files_names_both(tmp_path, capsys):
     assert main(["diagnose", str(DAVIS), "--odometry", str(jackal), "--board", "aprilgrid_4x3_tagboard"]) == 2
     err = capsys.readouterr().err
     assert "has no sensor_msgs/CameraInfo topic (nor does the odometry file" in err and "--camera-info" in err
+
+
+def test_json_commands_answer_an_input_error_in_json_too(tmp_path, capsys):
+    # Before: `diagnose notes.mcap --json` exited 2 with nothing on stdout, so a script's json.loads failed.
+    notes = tmp_path / "notes.mcap"
+    notes.write_text("not a recording")
+    for argv in (["diagnose", str(notes), "--board", "acircles_4x11_a2", "--json"], ["inspect", str(notes), "--json"],
+                 ["compare", str(notes), "--board", "acircles_4x11_a2", "--json"]):
+        assert main(argv) == 2
+        out = capsys.readouterr()
+        d = json.loads(out.out)
+        assert d["ok"] is False and d["exit_code"] == 2 and d["error"] in out.err
+    assert main(["diagnose", str(notes), "--board", "acircles_4x11_a2"]) == 2
+    assert capsys.readouterr().out == ""  # without --json the terminal output stays as it was

@@ -237,6 +237,7 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
     if not info.get("topics"):
         why = "; ".join(info.get("warnings", [])) or "no messages"
         print(f"plsgraph: error: nothing readable in {args.log}: {why}", file=sys.stderr)
+        _json_error(args, f"nothing readable in {args.log}: {why}", 2)
         return 2
     # The reader's warnings are in the listing (or the JSON) and were logged on stderr as they came: not again.
     print(json.dumps(info, indent=2) if args.json else format_inspection(info))
@@ -351,11 +352,19 @@ def main(argv: list[str] | None = None) -> int:
         return _run_command(args)
 
 
+def _json_error(args: argparse.Namespace, message: str, code: int) -> None:
+    """With --json, an error is also JSON on stdout (``ok`` false, ``error``, ``exit_code``): a script that parses
+    the output gets an answer, not an empty string."""
+    if getattr(args, "json", False):
+        print(json.dumps({"ok": False, "error": message, "exit_code": code}))
+
+
 def _run_command(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except PlsgraphError as exc:
         print(f"plsgraph: error: {exc}", file=sys.stderr)
+        _json_error(args, str(exc), 2)
         return 2
     except BrokenPipeError:  # the reader of our output went away (| head): not an error of ours
         devnull = os.open(os.devnull, os.O_WRONLY)
@@ -363,6 +372,7 @@ def _run_command(args: argparse.Namespace) -> int:
         return getattr(args, "exit_code", 0)
     except OSError as exc:  # unwritable output folder, a file where a folder should be, a full disk
         print(f"plsgraph: error: {exc}", file=sys.stderr)
+        _json_error(args, str(exc), 2)
         return 2
     except KeyboardInterrupt:
         print("plsgraph: interrupted", file=sys.stderr)
@@ -372,6 +382,7 @@ def _run_command(args: argparse.Namespace) -> int:
             traceback.print_exc()
         print(f"plsgraph: internal error ({type(exc).__name__}: {exc}); please report it with the command line "
               "and, if possible, the recording (run with -v for the traceback)", file=sys.stderr)
+        _json_error(args, f"internal error ({type(exc).__name__}: {exc})", 3)
         return 3
 
 
