@@ -223,7 +223,8 @@ def calibrate_to_dir(
                 advice = (DAMAGED_ADVICE if getattr(exc, "damaged", False) else getattr(exc, "advice", None) or
                           (FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else DIAGNOSIS_ADVICE))
                 return write_diagnosis_only(stage, recording, str(exc), advice, getattr(exc, "coverage", None),
-                                            getattr(exc, "warnings", None), earlier=out)
+                                            getattr(exc, "warnings", None), earlier=out,
+                                            run_report=getattr(exc, "run_report", None))
             written = write_calibration(stage, result, figures, earlier=out)
         text = calibration_text(result.report) + "\n\nwritten: " + ", ".join(str(out / p.name) for p in written)
         if result.report.get("previous_calibration"):

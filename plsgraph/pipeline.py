@@ -490,12 +490,28 @@ def run_recording(
     except (DegenerateMotionError, InsufficientDataError) as exc:
         exc.warnings = list(run.warnings)  # the diagnosis keeps them: a file cut short says so there
         exc.damaged = _damaged(run)
+        exc.run_report = run_report_keys(run)  # and the keys every report.json has
         try:
             exc.coverage = diagnosis_coverage(run, exc)
         except Exception as cov_exc:  # noqa: BLE001 - the diagnosis matters, its coverage is extra
             log.warning("the diagnosis's coverage could not be computed: %s", cov_exc)
             exc.coverage = None
         raise
+
+
+def run_report_keys(run: Run) -> dict:
+    """What every report.json holds of a run besides its result (a diagnosis-only one too): the options, what was
+    read, the counts, what was set aside and the stages' times."""
+    from .report.files import to_jsonable
+
+    return to_jsonable({
+        "options": run.options.to_dict(),
+        "recording_info": run.recording_info,
+        "counts": {"camera_frames": len(run.camera_track) if run.camera_track is not None else 0,
+                   "odometry_samples": len(run.base_track) if run.base_track is not None else 0},
+        "discarded": run.discarded,
+        "timing_s": run.timing_s,
+    })
 
 
 def diagnosis_coverage(run: Run, exc: Exception) -> dict | None:

@@ -219,6 +219,9 @@ def test_diagnose_and_compare_answer_a_recording_too_short_to_calibrate_as_calib
     capsys.readouterr()
     rep = json.loads((tmp_path / "c" / "report.json").read_text())  # before: the board blamed, no warning kept
     assert "cut short or damaged" in rep["problems"][0] and "cut short or damaged" in rep["advice"][0]
+    # The keys every report.json has (a review: a diagnosis had only a few of them).
+    assert {"created_utc", "options", "recording_info", "counts", "discarded", "timing_s", "coverage"} <= rep.keys()
+    assert rep["options"]["board"] == "acircles_4x11_a2" and rep["counts"]["odometry_samples"] > 0
     assert any("truncated or corrupt" in w for w in rep["warnings"]) and "--board" not in rep["advice"][0]
     assert main(["diagnose", *args, "--json"]) == 1
     d = json.loads(capsys.readouterr().out)

@@ -140,11 +140,15 @@ def _calibration_ok(path: Path) -> bool:
 
 def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: str = DIAGNOSIS_ADVICE,
                          coverage: dict | None = None, warnings: list[str] | None = None,
-                         earlier: Path | None = None) -> dict:
+                         earlier: Path | None = None, run_report: dict | None = None) -> dict:
     """A run that could not calibrate: report.json with the reason and advice (and the front end's ``coverage``
     when it ran, and the run's ``warnings``: a file cut short says so), no calibration.yaml. ``earlier``: the folder
     this one replaces; a calibration in it is kept in the subfolder ``previous_calibration``
-    (:func:`keep_earlier_calibration`)."""
+    (:func:`keep_earlier_calibration`). ``run_report``: the keys every report.json has of its run
+    (:func:`plsgraph.pipeline.run_report_keys`: options, recording_info, counts, discarded, timing_s), when a run
+    got that far; null otherwise, so that the keys are there whatever the outcome."""
+    import time
+
     from .. import __version__
 
     out.mkdir(parents=True, exist_ok=True)
@@ -152,14 +156,15 @@ def write_diagnosis_only(out: Path, log_path: str | Path, reason: str, advice: s
     report = {
         "plsgraph_version": __version__,
         "recording": str(Path(log_path).absolute()),
+        "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "ok": False,
         "calibration": None,
         "problems": [reason],
         "advice": [advice] if advice else [],
         "warnings": list(warnings or []),
+        **{k: (run_report or {}).get(k) for k in ("options", "recording_info", "counts", "discarded", "timing_s")},
     }
-    if coverage is not None:
-        report["coverage"] = coverage
+    report["coverage"] = coverage  # null when the front end did not run
     if kept is not None:
         report["previous_calibration"] = PREVIOUS_CALIBRATION
     write_json(out / "report.json", report)
