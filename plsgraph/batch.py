@@ -179,6 +179,8 @@ def run_batch(
         raise InputError(f"--jobs must be at least 1, got {jobs}")
     logs = find_recordings(inputs)
     _check_shared_inputs(options)
+    for p in logs:  # every recording's own settings checked before any work: a wrong one is the user's to fix
+        recording_options(p, options)
     out = prepare_output_dir(out_dir, force=force, whole=False)  # written into; each recording's folder replaced
     earlier = _earlier_batch_rows(out)  # read before this batch's summary replaces the earlier one
     for name in ("summary.json", "summary.md"):
@@ -188,7 +190,8 @@ def run_batch(
     items = []
     for p in logs:
         truth = p.with_name(p.stem + ".truth.yaml")
-        items.append((str(p), str(out / p.stem), replace(options, truth=truth if truth.exists() else None), force))
+        items.append((str(p), str(out / p.stem), replace(recording_options(p, options),
+                                                        truth=truth if truth.exists() else None), force))
     own = executor is None
     if own:
         executor = default_executor(len(items), jobs)
@@ -206,6 +209,9 @@ def run_batch(
         if own:
             executor.shutdown(wait=True, cancel_futures=True)  # after an interrupt: the rest never start
     rows = [_as_row(r, item) for r, item in zip(results, items, strict=True)]
+    for row, item in zip(rows, items, strict=True):
+        own = Path(item[0]).with_name(Path(item[0]).stem + OPTIONS_SUFFIX)
+        row["options_file"] = str(own.absolute()) if own.is_file() else None
     ok = all(r["status"] == "ok" for r in rows)
     others = {name: row for name, row in earlier.items() if name not in {Path(item[1]).name for item in items}}
     notes = []
@@ -238,6 +244,31 @@ def run_batch(
     for note in [*skipped_in_folders(inputs), *notes]:
         text += "\n" + note
     return {"ok": ok, "text": text, "rows": rows}
+
+
+#: A recording's own settings: ``NAME.options.yaml`` beside ``NAME.mcap`` (a mapping of calibrate's settings by their
+#: option names: wheel_radius, track_width, camera_height, camera_info, left_joint, topics, ...).
+OPTIONS_SUFFIX = ".options.yaml"
+
+
+def recording_options(recording: Path, options: CalibrationOptions) -> CalibrationOptions:
+    """``options`` with the settings of the recording's ``NAME.options.yaml`` (beside it) over them, if there is one:
+    a fleet's robots differ in wheels, camera height and topics. A relative ``camera_info`` path there is relative to
+    that file's folder. An unknown name or a bad value is an :class:`InputError` naming the file."""
+    from .core.resources import read_yaml_mapping
+
+    f = Path(recording).with_name(Path(recording).stem + OPTIONS_SUFFIX)
+    if not f.is_file():
+        return options
+    settings = read_yaml_mapping(f, "recording options file")
+    if isinstance(settings.get("camera_info"), str) and not Path(settings["camera_info"].split(":")[0]).is_absolute():
+        settings["camera_info"] = str(f.parent / settings["camera_info"])
+    if "board" in settings:
+        raise InputError(f"{f}: the board is the batch's (--board), not a recording's")
+    try:
+        return CalibrationOptions.build(options, **settings)
+    except (InputError, TypeError, ValueError) as exc:
+        raise InputError(f"{f}: {exc}") from None
 
 
 def _written_since(folder: Path, t0: float) -> bool:

@@ -347,3 +347,27 @@ def test_json_commands_answer_an_input_error_in_json_too(tmp_path, capsys):
         assert d["ok"] is False and d["exit_code"] == 2 and d["error"] in out.err
     assert main(["diagnose", str(notes), "--board", "acircles_4x11_a2"]) == 2
     assert capsys.readouterr().out == ""  # without --json the terminal output stays as it was
+
+
+def test_batch_takes_each_recordings_own_settings_from_its_options_file(tmp_path, capsys):
+    """A review: a fleet batch could not give robots their own wheels, camera height or topics. NAME.options.yaml
+    beside NAME.mcap holds them (checked before any work)."""
+    from plsgraph.batch import recording_options
+    from plsgraph.options import CalibrationOptions
+
+    base = CalibrationOptions.build(board="acircles_4x11_a2", wheel_radius=0.098)
+    rec = tmp_path / "robot2.mcap"
+    rec.write_bytes(b"")
+    assert recording_options(rec, base) is base  # no file: the batch's options
+    (tmp_path / "cam.yaml").write_text("x: 1\n")
+    (tmp_path / "robot2.options.yaml").write_text("wheel_radius: 0.11\ncamera_height: 0.31\ncamera_info: cam.yaml\n")
+    mine = recording_options(rec, base).to_dict()
+    flat = {k: v for sec in mine.values() if isinstance(sec, dict) for k, v in sec.items()}
+    assert flat["wheel_radius"] == 0.11 and flat["camera_height"] == 0.31
+    assert flat["camera_info"] == str(tmp_path / "cam.yaml")  # relative to the options file
+    # A wrong name is refused before any recording is calibrated, naming the file.
+    (tmp_path / "robot2.options.yaml").write_text("wheel_radus: 0.11\n")
+    rec.write_bytes(b"not a recording")
+    assert main(["batch", str(rec), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert "robot2.options.yaml" in err and "wheel_radus" in err and not (tmp_path / "b").exists()
