@@ -371,3 +371,29 @@ def test_batch_takes_each_recordings_own_settings_from_its_options_file(tmp_path
     assert main(["batch", str(rec), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err
     assert "robot2.options.yaml" in err and "wheel_radus" in err and not (tmp_path / "b").exists()
+
+
+def test_batch_says_when_a_recordings_earlier_calibration_was_kept(tmp_path, monkeypatch):
+    # A review: the folder kept its earlier calibration in previous_calibration/, and neither the terminal nor the
+    # summary said so.
+    from concurrent.futures import ThreadPoolExecutor
+
+    import plsgraph.api as api
+    from plsgraph.batch import run_batch
+    from plsgraph.options import CalibrationOptions
+
+    rec = tmp_path / "rec1.mcap"
+    rec.write_bytes(b"stand-in")
+
+    def flagged(log_path, out_dir, opts, force=False, figure_worker=None):
+        return {"ok": False, "report": {"calibration": None, "problems": ["spun in place"], "warnings": [],
+                                        "previous_calibration": "previous_calibration"}}
+
+    monkeypatch.setattr(api, "calibrate_to_dir", flagged)
+    with ThreadPoolExecutor(1) as pool:  # threads: the stand-in calibration is this process's
+        res = run_batch([rec], tmp_path / "out", CalibrationOptions.build(board="acircles_4x11_a2"), executor=pool)
+    (row,) = res["rows"]
+    assert row["status"] == "flagged" and row["previous_calibration"].endswith("rec1/previous_calibration")
+    assert "kept the calibration rec1's folder held before in" in res["text"]
+    saved = json.loads((tmp_path / "out" / "summary.json").read_text())["recordings"][0]
+    assert saved["previous_calibration"] == row["previous_calibration"] and saved["problems"] == ["spun in place"]
