@@ -136,23 +136,30 @@ def test_joint_stamps_in_another_unit_than_nanoseconds_are_named_as_the_cause():
     assert len(track) == t_ns.size
 
 
-def _joint_mcap(path, stamps, pos, names=("left_wheel", "right_wheel")):
-    """An MCAP of JointState messages written in the given order (log times increasing), with the given stamps."""
+def _topic_mcap(path, topic, msgtype, payloads, t0):
+    """An MCAP of one topic's messages (CDR ``payloads``) written in the given order, log times increasing from
+    ``t0`` every 20 ms, whatever the stamps inside them say."""
     from mcap.writer import Writer
 
-    from plsgraph.io.writer import _joint_bytes, message_definition
+    from plsgraph.io.writer import message_definition
 
     with open(path, "wb") as f:
         w = Writer(f)
         w.start(profile="ros2", library="test")
-        sid = w.register_schema("sensor_msgs/msg/JointState", "ros2msg",
-                                message_definition("sensor_msgs/msg/JointState").encode())
-        cid = w.register_channel("/joint_states", "cdr", sid)
-        t0 = int(min(stamps))
-        for k, (t, p) in enumerate(zip(stamps, pos, strict=True)):
-            w.add_message(cid, log_time=t0 + k * 20_000_000, publish_time=t0 + k * 20_000_000,
-                          data=_joint_bytes(int(t), names, np.asarray(p, float), np.zeros(len(names))), sequence=k)
+        sid = w.register_schema(msgtype, "ros2msg", message_definition(msgtype).encode())
+        cid = w.register_channel(topic, "cdr", sid)
+        for k, data in enumerate(payloads):
+            w.add_message(cid, log_time=t0 + k * 20_000_000, publish_time=t0 + k * 20_000_000, data=data, sequence=k)
         w.finish()
+
+
+def _joint_mcap(path, stamps, pos, names=("left_wheel", "right_wheel")):
+    """An MCAP of JointState messages written in the given order (log times increasing), with the given stamps."""
+    from plsgraph.io.writer import _joint_bytes
+
+    payloads = [_joint_bytes(int(t), names, np.asarray(p, float), np.zeros(len(names)))
+                for t, p in zip(stamps, pos, strict=True)]
+    _topic_mcap(path, "/joint_states", "sensor_msgs/msg/JointState", payloads, int(min(stamps)))
 
 
 def test_wrong_stamps_are_told_from_messages_recorded_out_of_order(tmp_path):
@@ -188,10 +195,8 @@ def test_wrong_stamps_are_told_from_messages_recorded_out_of_order(tmp_path):
 
 
 def test_wrong_odometry_stamps_are_told_from_messages_recorded_out_of_order(tmp_path):
-    from mcap.writer import Writer
-
     from plsgraph.io.recording import OdometryMsgs, read_recording
-    from plsgraph.io.writer import _odom_bytes, message_definition
+    from plsgraph.io.writer import _odom_bytes
 
     sim, ref, _ = _reference_and_run()
     n = 300
@@ -202,16 +207,7 @@ def test_wrong_odometry_stamps_are_told_from_messages_recorded_out_of_order(tmp_
 
     def write(path, stamps, rows):
         msgs = OdometryMsgs(stamps, odo.position[rows], q, np.zeros((n, 3)), np.zeros((n, 3)))
-        with open(path, "wb") as f:
-            w = Writer(f)
-            w.start(profile="ros2", library="test")
-            sid = w.register_schema("nav_msgs/msg/Odometry", "ros2msg",
-                                    message_definition("nav_msgs/msg/Odometry").encode())
-            cid = w.register_channel("/odom", "cdr", sid)
-            for k in range(n):
-                w.add_message(cid, log_time=int(t[0]) + k * 20_000_000, publish_time=int(t[0]) + k * 20_000_000,
-                              data=_odom_bytes(msgs, k), sequence=k)
-            w.finish()
+        _topic_mcap(path, "/odom", "nav_msgs/msg/Odometry", [_odom_bytes(msgs, k) for k in range(n)], int(t[0]))
 
     swapped = t.copy()
     swapped[0:-1:2], swapped[1::2] = t[1::2], t[0:-1:2]
