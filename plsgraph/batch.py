@@ -69,16 +69,29 @@ def _calibrate_item(item: tuple[str, str, CalibrationOptions, bool]) -> dict:
         if "truth_errors" in rep:
             row["truth_errors"] = rep["truth_errors"]
         if rep.get("previous_calibration"):
-            row["previous_calibration"] = str(Path(out_dir) / rep["previous_calibration"])
+            row["previous_calibration"] = str((Path(out_dir) / rep["previous_calibration"]).absolute())
     except PlsgraphError as exc:
         row = _failed_row(log_path, out_dir, f"{type(exc).__name__}: {exc}")
         _replace_with_failure(log_path, out_dir, force, row["error"])
+        row["previous_calibration"] = _kept_calibration(out_dir)
     except Exception as exc:  # a bug must not stop the other recordings; it is reported in the summary
         log.exception("unexpected failure on %s", log_path)
         row = _failed_row(log_path, out_dir, f"internal error {type(exc).__name__}: {exc}")
         _replace_with_failure(log_path, out_dir, force, row["error"])
+        row["previous_calibration"] = _kept_calibration(out_dir)
     row["seconds"] = round(time.perf_counter() - t0, 2)
     return row
+
+
+def _kept_calibration(out_dir: str) -> str | None:
+    """The earlier calibration a failed recording's folder kept (its report.json names it), as an absolute path."""
+    import json
+
+    try:
+        kept = json.loads((Path(out_dir) / "report.json").read_text()).get("previous_calibration")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return str((Path(out_dir) / kept).absolute()) if kept else None
 
 
 def _row(log_path: str, out_dir: str, status: str, c: dict, problems: list, warnings: list,
@@ -94,7 +107,7 @@ def _row(log_path: str, out_dir: str, status: str, c: dict, problems: list, warn
             "sigma": {o["name"]: o.get("sigma") for o in obs if isinstance(o, dict) and "name" in o} or None,
             "sigma_units": {o["name"]: o.get("unit") for o in obs if isinstance(o, dict) and "name" in o} or None,
             "translation_z_status": c.get("translation_z_status"), "problems": list(problems),
-            "warnings": list(warnings), "error": error}
+            "warnings": list(warnings), "error": error, "previous_calibration": None, "options_file": None}
 
 
 def _failed_row(log_path: str, out_dir: str, error: str) -> dict:
@@ -183,15 +196,20 @@ def run_batch(
         recording_options(p, options)
     out = prepare_output_dir(out_dir, force=force, whole=False)  # written into; each recording's folder replaced
     earlier = _earlier_batch_rows(out)  # read before this batch's summary replaces the earlier one
-    for name in ("summary.json", "summary.md"):
-        # From now on the folders are this batch's: an earlier summary would describe folders being replaced (and,
-        # if this batch is interrupted, a mix of the two runs). This batch's summary is written when it completes.
-        (out / name).unlink(missing_ok=True)
+    if (out / "summary.json").is_file():
+        # Set aside, not deleted: if this batch is interrupted, the next one still finds which folders an earlier
+        # batch made (to list them, or to --prune them). Removed once this batch's summary is written.
+        (out / "summary.json").replace(out / EARLIER_SUMMARY)
+    # From now on the folders are this batch's: an earlier summary would describe folders being replaced (and, if
+    # this batch is interrupted, a mix of the two runs). This batch's summary is written when it completes.
+    (out / "summary.md").unlink(missing_ok=True)
     items = []
     for p in logs:
         truth = p.with_name(p.stem + ".truth.yaml")
-        items.append((str(p), str(out / p.stem), replace(recording_options(p, options),
-                                                        truth=truth if truth.exists() else None), force))
+        own = recording_options(p, options)
+        if own.truth is None or own is options:  # a truth its options file names stands; else NAME.truth.yaml
+            own = replace(own, truth=truth if truth.exists() else None)
+        items.append((str(p), str(out / p.stem), own, force))
     own = executor is None
     if own:
         executor = default_executor(len(items), jobs)
@@ -230,13 +248,14 @@ def run_batch(
             notes.append(f"kept the calibration {Path(r['folder']).name}'s folder held before in "
                          f"{r['previous_calibration']} (this run's result is {r['status']})")
     write_json(out / "summary.json", {"recordings": rows})
+    (out / EARLIER_SUMMARY).unlink(missing_ok=True)
     table = markdown_table(
         [{"recording": Path(r["recording"]).name,
           "status": r["status"] + (" (earlier run)" if r.get("earlier_run") else ""), "seconds": r.get("seconds"),
           "roll": (r.get("rpy_deg") or [None] * 3)[0], "pitch": (r.get("rpy_deg") or [None] * 3)[1],
           "yaw": (r.get("rpy_deg") or [None] * 3)[2], "td_ms": None if r.get("time_offset_s") is None
-          else 1e3 * r["time_offset_s"], "warnings": len(r.get("warnings", [])),
-          "error": r.get("error") or "; ".join(r.get("problems", []))} for r in rows],
+          else 1e3 * r["time_offset_s"], "warnings": len(r.get("warnings") or []),
+          "error": r.get("error") or "; ".join(r.get("problems") or [])} for r in rows],
         ["recording", "status", "roll", "pitch", "yaw", "td_ms", "seconds", "warnings", "error"],
     )
     write_text(out / "summary.md", table + "\n")
@@ -249,6 +268,8 @@ def run_batch(
 #: A recording's own settings: ``NAME.options.yaml`` beside ``NAME.mcap`` (a mapping of calibrate's settings by their
 #: option names: wheel_radius, track_width, camera_height, camera_info, left_joint, topics, ...).
 OPTIONS_SUFFIX = ".options.yaml"
+#: Settings of an options file that name files: relative to that file's folder.
+PATH_SETTINGS = ("camera_info", "truth", "odometry_file")
 
 
 def recording_options(recording: Path, options: CalibrationOptions) -> CalibrationOptions:
@@ -261,14 +282,21 @@ def recording_options(recording: Path, options: CalibrationOptions) -> Calibrati
     if not f.is_file():
         return options
     settings = read_yaml_mapping(f, "recording options file")
-    if isinstance(settings.get("camera_info"), str) and not Path(settings["camera_info"].split(":")[0]).is_absolute():
-        settings["camera_info"] = str(f.parent / settings["camera_info"])
     if "board" in settings:
         raise InputError(f"{f}: the board is the batch's (--board), not a recording's")
+    for key in PATH_SETTINGS:  # relative to the options file's folder, made absolute (a Dask worker's folder differs)
+        if isinstance(settings.get(key), str):
+            settings[key] = str((f.parent / settings[key]).absolute())
+    topics = settings.get("topics")
+    if topics is not None and not (isinstance(topics, dict) and all(isinstance(k, str) and isinstance(v, str)
+                                                                     for k, v in topics.items())):
+        raise InputError(f"{f}: topics must map roles (events, joints, odometry) to topic names, got {topics!r}")
     try:
-        return CalibrationOptions.build(options, **settings)
+        merged = CalibrationOptions.build(options, **settings)
+        _check_shared_inputs(merged)  # an intrinsics file named there must exist too
     except (InputError, TypeError, ValueError) as exc:
         raise InputError(f"{f}: {exc}") from None
+    return merged
 
 
 def _written_since(folder: Path, t0: float) -> bool:
@@ -279,16 +307,28 @@ def _written_since(folder: Path, t0: float) -> bool:
         return False
 
 
+#: An earlier batch's summary.json while a batch runs (an interrupted batch leaves it for the next).
+EARLIER_SUMMARY = ".summary-earlier.json"
+
+
 def _earlier_batch_rows(out: Path) -> dict[str, dict]:
-    """The rows of an earlier batch's summary.json in ``out`` by their recording's folder name (empty when there is
-    none, or it cannot be read): only those folders are a batch's to keep listing, or to remove."""
+    """The rows of an earlier batch's summary.json in ``out`` (or of the one an interrupted batch set aside) by their
+    recording's folder name, with every key a row has (None where an older version wrote none); empty when there is
+    none, or it cannot be read. Only those folders are a batch's to keep listing, or to remove."""
     import json
 
-    try:
-        rows = json.loads((out / "summary.json").read_text()).get("recordings", [])
-        return {Path(str(r["recording"])).stem: r for r in rows if isinstance(r, dict) and r.get("recording")}
-    except (OSError, ValueError, AttributeError, TypeError):
-        return {}
+    blank = {**dict.fromkeys(_failed_row("", "", "")), "problems": [], "warnings": []}
+    for name in ("summary.json", EARLIER_SUMMARY):
+        try:
+            rows = json.loads((out / name).read_text()).get("recordings", [])
+        except (OSError, ValueError, AttributeError, TypeError):
+            continue
+        try:
+            return {Path(str(r["recording"])).stem: {**blank, **r} for r in rows
+                    if isinstance(r, dict) and r.get("recording")}
+        except (TypeError, AttributeError):
+            return {}
+    return {}
 
 
 def _remove_stale_results(out: Path, stale_names: set[str]) -> list[str]:

@@ -397,3 +397,40 @@ def test_batch_says_when_a_recordings_earlier_calibration_was_kept(tmp_path, mon
     assert "kept the calibration rec1's folder held before in" in res["text"]
     saved = json.loads((tmp_path / "out" / "summary.json").read_text())["recordings"][0]
     assert saved["previous_calibration"] == row["previous_calibration"] and saved["problems"] == ["spun in place"]
+
+
+def test_batch_options_files_paths_and_checks_and_an_interrupted_batchs_earlier_rows(tmp_path, capsys):
+    # A review of the batch changes: an intrinsics file named in NAME.options.yaml was not checked before work, a
+    # truth named there was dropped, paths stayed relative to the working folder, and an interrupted batch's next run
+    # no longer listed the earlier batch's folders.
+    from plsgraph.batch import EARLIER_SUMMARY, _earlier_batch_rows, _kept_calibration, recording_options
+    from plsgraph.errors import InputError
+    from plsgraph.options import CalibrationOptions
+
+    base = CalibrationOptions.build(board="acircles_4x11_a2")
+    (tmp_path / "sub").mkdir()
+    rec = tmp_path / "run.2024.mcap"
+    rec.write_bytes(b"not a recording")
+    opts_file = tmp_path / "run.2024.options.yaml"
+    opts_file.write_text("camera_info: sub/none.yaml:cam1\n")
+    with pytest.raises(InputError, match=r"run\.2024\.options\.yaml: camera file .*none\.yaml(:cam1)? does not exist"):
+        recording_options(rec, base)
+    assert main(["batch", str(rec), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "o")]) == 2
+    assert not (tmp_path / "o").exists()
+    capsys.readouterr()
+    opts_file.write_text("truth: sub/t.yaml\nodometry_file: sub/odo.mcap\n")
+    got = recording_options(rec, base)
+    assert Path(got.truth) == tmp_path / "sub" / "t.yaml" and got.inputs.odometry_file == tmp_path / "sub" / "odo.mcap"
+    opts_file.write_text("topics: {joints: 5}\n")
+    with pytest.raises(InputError, match="topics must map roles"):
+        recording_options(rec, base)
+    # An interrupted batch set the earlier summary aside; the next batch still finds its rows (with every key).
+    out = tmp_path / "b"
+    out.mkdir()
+    (out / EARLIER_SUMMARY).write_text(json.dumps({"recordings": [{"recording": "/x/old.mcap", "status": "ok"}]}))
+    rows = _earlier_batch_rows(out)
+    assert rows["old"]["status"] == "ok" and rows["old"]["warnings"] == [] and "sigma" in rows["old"]
+    # A failed recording's folder that kept its earlier calibration says so in its row, as an absolute path.
+    (out / "old").mkdir()
+    (out / "old" / "report.json").write_text(json.dumps({"previous_calibration": "previous_calibration"}))
+    assert _kept_calibration(str(out / "old")) == str((out / "old" / "previous_calibration").absolute())

@@ -189,10 +189,15 @@ def _build_parser() -> argparse.ArgumentParser:
     s.add_argument("--force", action="store_true", help="overwrite existing tables")
     s.set_defaults(func=_cmd_reproduce)
 
-    s = sub.add_parser("batch", help="calibrate many recordings in parallel; one summary table")
+    s = sub.add_parser(
+        "batch", help="calibrate many recordings in parallel; one summary table",
+        description="Calibrate many recordings in parallel, each into OUT/NAME/, with summary.json and summary.md. "
+        "Beside NAME.mcap, a NAME.truth.yaml is used as its --truth and a NAME.options.yaml holds its own settings "
+        "over these flags (calibrate's option names: wheel_radius, track_width, camera_height, camera_info, "
+        "left_joint, topics, ...; paths relative to that file).")
     s.add_argument("inputs", nargs="+", type=Path, help="recordings, or folders holding them")
     s.add_argument("--out", type=Path, required=True, help="output folder (one sub-folder per recording)")
-    s.add_argument("--board", required=True, help="board YAML or bundled name, as for calibrate")
+    s.add_argument("--board", required=True, help=f"board YAML or bundled name ({', '.join(_bundled_boards())})")
     s.add_argument("--camera-info", type=Path, metavar="FILE[:camN]", help="camera intrinsics file, as for calibrate")
     s.add_argument("--wheel-radius", type=float, default=0.098, help="wheel radius r in m (default: %(default)s)")
     s.add_argument("--track-width", type=float, default=0.37, help="wheel separation b in m (default: %(default)s)")
@@ -356,7 +361,10 @@ def _json_error(args: argparse.Namespace, message: str, code: int) -> None:
     """With --json, an error is also JSON on stdout (``ok`` false, ``error``, ``exit_code``): a script that parses
     the output gets an answer, not an empty string."""
     if getattr(args, "json", False):
-        print(json.dumps({"ok": False, "error": message, "exit_code": code}))
+        try:
+            print(json.dumps({"ok": False, "error": message, "exit_code": code}))
+        except (OSError, ValueError):  # stdout itself failed (a full disk, a closed pipe): stderr has the message
+            pass
 
 
 def _run_command(args: argparse.Namespace) -> int:

@@ -183,8 +183,11 @@ def _xyz(v) -> tuple[float, float, float]:
 
 
 #: Header stamps are taken for wrong (not the recorded order) when, put in their order, the values move back and forth
-#: this many times more (summed absolute second differences) than in the order the messages were recorded.
+#: this many times more (summed absolute second differences) than in the order the messages were recorded ...
 STAMPS_ROUGHER = 2.0
+#: ... and at least this share of the messages steps back: a few stamps of a fast driver that jitter past their
+#: neighbour (3 of 10,000 at 1 kHz) are jitter, not wrong stamps, though they roughen smooth data many times.
+STAMPS_BACK_SHARE = 0.05
 
 
 def stamp_order_roughness(values: np.ndarray, order: np.ndarray) -> float | None:
@@ -267,7 +270,7 @@ class _Collector:
             warn(f"{self.topic}: header stamps go backwards {back} times; sorted by stamp")
         if self.role == "joints":
             js = self._joints(t, order, warn)
-            if back:
+            if back >= STAMPS_BACK_SHARE * t.size:
                 ratio = stamp_order_roughness(js.position[np.argsort(order)], order)  # rows back in recorded order
                 if ratio is not None and ratio > STAMPS_ROUGHER:
                     js = replace(js, stamps_rougher=ratio)
@@ -281,7 +284,8 @@ class _Collector:
                 warn(f"{self.topic}: frame ids change during the recording: {frames}")
             fr = frames[0] if frames else ("", "")
             if self.role == "odometry":
-                ratio = stamp_order_roughness(np.asarray(self.rows, float)[:, 0:3], order) if back else None
+                ratio = (stamp_order_roughness(np.asarray(self.rows, float)[:, 0:3], order)
+                         if back >= STAMPS_BACK_SHARE * t.size else None)
                 return OdometryMsgs(t[order], a[:, 0:3], a[:, 3:7], a[:, 7:10], a[:, 10:13], fr[0], fr[1],
                                     stamps_rougher=ratio if ratio is not None and ratio > STAMPS_ROUGHER else None)
             return ImuMsgs(t[order], a[:, 0:3], a[:, 3:6], fr[0])
