@@ -111,6 +111,10 @@ class FrontendOptions:
     rate_hz: float = 30.0
     #: processes detecting streamed spans side by side (same result as one); 0: one per processor, at most 2
     frontend_workers: int = 0
+    #: each window's look-back (s); None: one period of rate_hz (5 tau for the decaying surfaces)
+    window_s: float | None = None
+    #: the decaying surfaces' time constant (s; classic time surface and leaky only); None: their default
+    tau_s: float | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.frontend_workers, bool) or not isinstance(self.frontend_workers, int) \
@@ -125,6 +129,18 @@ class FrontendOptions:
         if self.rate_hz > 1000:
             raise InputError(f"rate_hz (--rate) {self.rate_hz:g} Hz is above 1000 Hz: windows that short hold too "
                              "few events to show the board; use 10-100 Hz")
+        if self.window_s is not None:
+            _positive("--window", "window_s", self.window_s)
+            if not 1e-3 <= self.window_s <= 5.0:
+                raise InputError(f"window_s (--window) {self.window_s:g} s is outside 0.001 .. 5 s: windows are "
+                                 "seconds long at most (the board moves)")
+        if self.tau_s is not None:
+            _positive("--tau", "tau_s", self.tau_s)
+            if self.surface not in ("classic", "leaky"):
+                raise InputError(f"tau_s (--tau) is the decaying surfaces' time constant (--surface classic or "
+                                 f"leaky); the {self.surface} surface has none")
+            if self.tau_s > 5.0:
+                raise InputError(f"tau_s (--tau) {self.tau_s:g} s is above 5 s")
 
 
 @dataclass(frozen=True)

@@ -320,6 +320,8 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
             track = camera_track_from_event_chunks(
                 checked(iter_event_chunks(src, topic)), run.camera, run.board, rate_hz=opts.frontend.rate_hz,
                 kind=opts.frontend.surface, expected_span_ns=span, progress=bar,
+                **({"window_s": opts.frontend.window_s} if opts.frontend.window_s is not None else {}),
+                **({"surface_params": {"tau_s": opts.frontend.tau_s}} if opts.frontend.tau_s is not None else {}),
                 workers=opts.frontend.frontend_workers or min(2, os.cpu_count() or 1),
                 while_waiting=_load_the_rest,
             )

@@ -434,3 +434,31 @@ def test_batch_options_files_paths_and_checks_and_an_interrupted_batchs_earlier_
     (out / "old").mkdir()
     (out / "old" / "report.json").write_text(json.dumps({"previous_calibration": "previous_calibration"}))
     assert _kept_calibration(str(out / "old")) == str((out / "old" / "previous_calibration").absolute())
+
+
+def test_window_and_tau_reach_the_front_end_and_are_checked(tmp_path, monkeypatch, capsys):
+    # A review: the bundled board of the real DAVIS346 recording is found only with a leaky surface of tau 0.3 s over
+    # 0.9 s windows (tests/test_real_tagboard.py), which the command line could not set.
+    import plsgraph.frontend.track as track
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def capture(*args, **kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(track, "camera_track_from_event_chunks", capture)
+    args = ["calibrate", str(SAMPLE), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "o")]
+    assert main([*args, "--surface", "leaky", "--tau", "0.3", "--window", "0.9"]) == 3  # stopped at the front end
+    assert seen["kind"] == "leaky" and seen["window_s"] == 0.9 and seen["surface_params"] == {"tau_s": 0.3}
+    seen.clear()
+    main(args)
+    assert "window_s" not in seen and "surface_params" not in seen  # the defaults: as before
+    capsys.readouterr()
+    assert main([*args, "--tau", "0.3"]) == 2  # the count surface has no time constant
+    assert "has none" in capsys.readouterr().err
+    assert main([*args, "--window", "9"]) == 2
+    assert "outside 0.001 .. 5 s" in capsys.readouterr().err

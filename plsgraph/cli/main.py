@@ -80,6 +80,12 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
         "surface), classic (exponential time surface), leaky (leaky polarity integrator)",
     )
     p.add_argument("--rate", type=float, default=30.0, help="detection rate in Hz (default: %(default)s)")
+    p.add_argument("--window", type=float, default=None, metavar="SECONDS",
+                   help="each detection window's look-back in s (default: one period of --rate; 5 tau for the "
+                   "decaying surfaces)")
+    p.add_argument("--tau", type=float, default=None, metavar="SECONDS",
+                   help="time constant of the decaying surfaces (--surface classic or leaky) in s (default: 0.03 "
+                   "classic, 0.05 leaky); a slow, hand-held board may need 0.3 with --window 0.9")
     p.add_argument(
         "--td-range", type=float, default=0.5,
         help="search the time offset in +-this many seconds, at most 10 (default: 0.5; clocks further apart: "
@@ -274,7 +280,8 @@ def _options(args: argparse.Namespace):
                     track_width=args.track_width)
     if hasattr(args, "surface"):  # calibrate, diagnose, compare (batch takes the defaults)
         settings.update(topics=topics, left_joint=args.left_joint, right_joint=args.right_joint,
-                        surface=args.surface, rate_hz=args.rate, td_range=args.td_range, method=args.method,
+                        surface=args.surface, rate_hz=args.rate, window_s=args.window, tau_s=args.tau,
+                        td_range=args.td_range, method=args.method,
                         truth=args.truth, camera_height=args.camera_height, board_height=args.board_height,
                         odometry_file=args.odometry, clock_align=args.clock_align, clock_offset=args.clock_offset,
                         wheel_order=args.wheel_order, upside_down_camera=args.upside_down_camera,
