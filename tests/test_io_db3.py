@@ -144,3 +144,18 @@ def test_not_a_bag_sqlite_file(tmp_path):
     q.write_text("hello")
     with pytest.raises(RecordingError, match="cannot be read as a ROS 2 sqlite bag"):
         inspect_recording(q)
+
+
+@pytest.mark.parametrize("damage", ["", "garbage: [\x00", "rosbag2_bagfile_information:\n  version: 5\n  relative_"])
+def test_a_bag_folder_with_a_damaged_metadata_file_is_read_from_its_db3_files(tmp_path, damage):
+    # A review: an empty, garbled or cut metadata.yaml refused the bag ("run `ros2 bag reindex`", which needs ROS 2),
+    # though plsgraph reads a bag folder without one from its .db3 files.
+    mcap = _mcap(tmp_path)
+    (db3,) = _to_db3(mcap, tmp_path)
+    (db3.parent / "metadata.yaml").write_text(damage)
+    for given in (db3.parent, db3):
+        src = open_source(given)
+        assert isinstance(src, Db3Source)
+        rec = read_recording(given)
+        assert any("metadata.yaml could not be used" in w and "\n" not in w for w in rec.warnings)
+        _same_recording(rec, read_recording(mcap))

@@ -57,7 +57,7 @@ class RosbagsSource:
             self._reader.open()
         except Exception as exc:  # noqa: BLE001 - rosbags raises its own error types plus OS/struct errors
             hint = ("if it is a ROS 1 bag that was cut short, run `rosbag reindex` on a copy first"
-                    if self.path.is_file() else
+                    if self.path.is_file() and self.path.suffix != ".db3" else
                     f"if its metadata.yaml is missing or damaged, run `ros2 bag reindex {self.path}` on a copy first")
             raise RecordingError(
                 f"{self.path} cannot be opened as a ROS bag ({type(exc).__name__}: {exc}); {hint}"

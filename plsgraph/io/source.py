@@ -34,7 +34,20 @@ def open_source(path: str | Path) -> Source:
             return Db3Source(bare, name=p)
         from .rosbags_reader import open_bag
 
-        return open_bag(p)
+        try:
+            return open_bag(p)
+        except RecordingError as exc:
+            # A ROS 2 bag folder whose metadata.yaml is damaged (cut, empty, naming files that are not there): its
+            # .db3 files are read directly, as when it has none, rather than refused.
+            folder = p if p.is_dir() else p.parent
+            files = sorted(folder.glob("*.db3")) if (folder / "metadata.yaml").exists() else []
+            if not files:
+                raise
+            src = Db3Source(files, name=p)
+            why = (str(exc.__cause__ or exc).strip().splitlines() or ["unreadable"])[0]
+            src.log.warn(f"{folder.name}/metadata.yaml could not be used ({why}); read its .db3 files directly "
+                         "(topics and types from their own tables)")
+            return src
     head = _head(p)
     if p.suffix == ".mcap" or head.startswith(b"\x89MCAP0\r\n"):
         from .mcap_reader import McapSource
