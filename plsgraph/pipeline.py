@@ -188,9 +188,17 @@ def _require_streams(run: Run, rec: Any) -> None:
     missing = [w for w, ok in (("no events (an event camera topic)", has_events),
                                ("no odometry (sensor_msgs/JointState or nav_msgs/Odometry)", has_odometry)) if not ok]
     if missing:
+        # A topic named like events whose type plsgraph does not read (a driver's own message): named, so that the
+        # advice to pass it with --events-topic is not followed into a second refusal.
+        unread = sorted(f"{t} ({i.msgtype})" for t, i in rec.topics.items()
+                        if "event" in t.lower() and i.msgtype not in EVENT_TYPES and "camera_info" not in t.lower())
+        also = (f"; {', '.join(unread)} {'is' if len(unread) == 1 else 'are'} named like events but of a type "
+                "plsgraph does not read (it reads event_camera_msgs/EventPacket, event_array_msgs/EventArray, "
+                "dvs_msgs/EventArray, AEDAT4 and Metavision .raw): convert the events to one of those"
+                if not has_events and unread else "")
         raise RecordingError(
             f"{run.log_path} has {' and '.join(missing)}; a calibration needs both, recorded together "
-            "(name a topic with --events-topic/--joints-topic/--odom-topic if plsgraph did not recognise it)"
+            "(name a topic with --events-topic/--joints-topic/--odom-topic if plsgraph did not recognise it)" + also
         )
 
 

@@ -392,3 +392,38 @@ def test_events_long_enough_in_few_packets_are_not_refused_as_short(tmp_path):
     with pytest.raises(InsufficientDataError) as e:  # random events: no board, but not "too short"
         build_tracks(Run(db, CalibrationOptions.build(board="acircles_4x11", frontend_workers=1)))
     assert "span only" not in str(e.value) and "no board detected" in str(e.value)
+
+
+def test_an_event_topic_of_a_type_plsgraph_does_not_read_is_named(tmp_path):
+    # A review: a ROS 1 Prophesee driver's prophesee_event_msgs/EventArray topic gave "has no events ... name a topic
+    # with --events-topic if plsgraph did not recognise it", and doing so "has type ..., not event (...)".
+    from mcap.writer import Writer
+
+    from plsgraph.errors import RecordingError
+    from plsgraph.io.events_reader import pick_topic
+    from plsgraph.io.messages import EVENT_TYPES
+    from plsgraph.io.source import open_source
+    from plsgraph.io.writer import _joint_bytes, message_definition
+    from plsgraph.options import CalibrationOptions
+    from plsgraph.pipeline import Run, read_inputs
+
+    p = tmp_path / "foreign.mcap"
+    with open(p, "wb") as f:
+        w = Writer(f)
+        w.start(profile="ros2", library="test")
+        js = w.register_schema("sensor_msgs/msg/JointState", "ros2msg",
+                               message_definition("sensor_msgs/msg/JointState").encode())
+        ev = w.register_schema("my_msgs/msg/Events", "ros2msg", b"uint8[] data")
+        cj, ce = w.register_channel("/joint_states", "cdr", js), w.register_channel("/camera/events", "cdr", ev)
+        for k in range(20):
+            t = T0 + k * 20_000_000
+            w.add_message(cj, log_time=t, publish_time=t, sequence=k,
+                          data=_joint_bytes(t, ("left_wheel", "right_wheel"), np.array([0.1 * k, 0.1 * k]),
+                                            np.zeros(2)))
+            w.add_message(ce, log_time=t, publish_time=t, sequence=k, data=b"\x00\x01\x00\x00" + bytes(8))
+        w.finish()
+    with pytest.raises(RecordingError, match=r"/camera/events \(my_msgs/msg/Events\) is named like events but of a "
+                                             r"type plsgraph does not read"):
+        read_inputs(Run(p, CalibrationOptions(board="acircles_4x11")))
+    with pytest.raises(RecordingError, match=r"has type my_msgs/msg/Events, not an event type plsgraph reads"):
+        pick_topic(open_source(p), EVENT_TYPES, "/camera/events", "event")

@@ -47,8 +47,11 @@ def pick_topic(src: Source, wanted_types: tuple[str, ...], topic: str | None, wh
             raise RecordingError(f"{src.path.name}: no topic {topic!r}; {describe_topics(topics)}")
         if topics[topic].msgtype not in wanted_types:
             raise RecordingError(
-                f"{src.path.name}: topic {topic} has type {topics[topic].msgtype or 'unknown'}, not {what} "
-                f"({', '.join(wanted_types)}); {describe_topics(topics)}"
+                f"{src.path.name}: topic {topic} has type {topics[topic].msgtype or 'unknown'}, not an {what} type "
+                f"plsgraph reads ({', '.join(wanted_types)}); {describe_topics(topics)}"
+                if what[:1] in "aeiou" else
+                f"{src.path.name}: topic {topic} has type {topics[topic].msgtype or 'unknown'}, not a {what} type "
+                f"plsgraph reads ({', '.join(wanted_types)}); {describe_topics(topics)}"
             )
         return topic
     cands = sorted(t for t, i in topics.items() if i.msgtype in wanted_types)
