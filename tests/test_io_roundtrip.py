@@ -144,7 +144,7 @@ def test_topic_errors_list_the_file(tmp_path):
     write_recording(p, ev, js, None, None)
     with pytest.raises(RecordingError, match="/joint_states"):
         read_events(p, topic="/nope")
-    with pytest.raises(RecordingError, match="not event"):
+    with pytest.raises(RecordingError, match="not an event type plsgraph reads"):
         read_events(p, topic="/joint_states")
     with pytest.raises(RecordingError, match="/dvs/events"):
         read_recording(p, topics={"odometry": "/odom"})
