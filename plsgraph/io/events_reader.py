@@ -49,7 +49,7 @@ def pick_topic(src: Source, wanted_types: tuple[str, ...], topic: str | None, wh
             raise RecordingError(
                 f"{src.path.name}: topic {topic} has type {topics[topic].msgtype or 'unknown'}, not an {what} type "
                 f"plsgraph reads ({', '.join(wanted_types)}); {describe_topics(topics)}"
-                if what[:1] in "aeiou" else
+                if what[:1].lower() in "aeiou" else
                 f"{src.path.name}: topic {topic} has type {topics[topic].msgtype or 'unknown'}, not a {what} type "
                 f"plsgraph reads ({', '.join(wanted_types)}); {describe_topics(topics)}"
             )
