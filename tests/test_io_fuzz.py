@@ -184,3 +184,12 @@ def test_an_empty_folder_is_said_to_be_empty(tmp_path):
     d.mkdir()
     with pytest.raises(RecordingError, match="is an empty folder, not a ROS 2 bag"):
         inspect_recording(d)
+
+
+@pytest.mark.parametrize("name", ["bag.db3.zstd", "run.mcap.gz", "x.bag.bz2"])
+def test_a_compressed_recording_file_is_said_to_be_compressed(tmp_path, name):
+    # A review: a ROS 2 bag's file-compressed .db3.zstd without its metadata.yaml gave "cannot tell the container type".
+    p = tmp_path / name
+    p.write_bytes(b"\x28\xb5\x2f\xfd" + bytes(64))
+    with pytest.raises(RecordingError, match="is a compressed file .*decompress it first"):
+        inspect_recording(p)

@@ -61,6 +61,11 @@ def open_source(path: str | Path) -> Source:
         from .prophesee import RawEventSource
 
         return RawEventSource(p)
+    if p.suffix in (".zstd", ".zst", ".lz4", ".bz2", ".gz", ".xz"):
+        raise RecordingError(
+            f"{p} is a compressed file ({p.suffix[1:]}): decompress it first (e.g. `zstd -d {p.name}` for a ROS 2 bag "
+            "written with file compression, or pass the bag's folder with its metadata.yaml, which rosbags reads "
+            "compressed)")
     if p.suffix in (".hdf5", ".h5"):
         raise RecordingError(
             f"{p}: Metavision HDF5 event files are not supported (their ECF compression plugin has no maintained "
