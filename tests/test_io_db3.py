@@ -159,3 +159,18 @@ def test_a_bag_folder_with_a_damaged_metadata_file_is_read_from_its_db3_files(tm
         rec = read_recording(given)
         assert any("metadata.yaml could not be used" in w and "\n" not in w for w in rec.warnings)
         _same_recording(rec, read_recording(mcap))
+
+
+def test_a_metadata_file_that_names_a_topics_type_otherwise_than_the_db3_is_not_trusted(tmp_path):
+    # A review: metadata.yaml edited to call /joint_states sensor_msgs/msg/Imu hid its 601 messages without a word
+    # ("has no odometry"). The .db3's own tables are read then, with a warning naming the disagreement.
+    mcap = _mcap(tmp_path)
+    (db3,) = _to_db3(mcap, tmp_path)
+    meta = db3.parent / "metadata.yaml"
+    assert not isinstance(open_source(db3.parent), Db3Source)  # metadata that agrees: read through it, as before
+    meta.write_text(meta.read_text().replace("sensor_msgs/msg/JointState", "sensor_msgs/msg/Imu"))
+    src = open_source(db3.parent)
+    assert isinstance(src, Db3Source)
+    rec = read_recording(db3.parent)
+    assert any("names the type of /joint_states otherwise than the bag's .db3" in w for w in rec.warnings)
+    _same_recording(rec, read_recording(mcap))

@@ -35,7 +35,7 @@ def open_source(path: str | Path) -> Source:
         from .rosbags_reader import open_bag
 
         try:
-            return open_bag(p)
+            src = open_bag(p)
         except RecordingError as exc:
             # A ROS 2 bag folder whose metadata.yaml is damaged (cut, empty, naming files that are not there): its
             # .db3 files are read directly, as when it has none, rather than refused.
@@ -48,6 +48,7 @@ def open_source(path: str | Path) -> Source:
             src.log.warn(f"{folder.name}/metadata.yaml could not be used ({why}); read its .db3 files directly "
                          "(topics and types from their own tables)")
             return src
+        return _db3_if_metadata_disagrees(p, src)
     head = _head(p)
     if p.suffix == ".mcap" or head.startswith(b"\x89MCAP0\r\n"):
         from .mcap_reader import McapSource
@@ -76,6 +77,38 @@ def open_source(path: str | Path) -> Source:
         f"cannot tell the container type of {p}: expected a .mcap file, a ROS 1 .bag, a ROS 2 .db3 "
         "or a ROS 2 bag directory, an AEDAT4 file (.aedat4) or a Prophesee .raw file"
     )
+
+
+def _db3_if_metadata_disagrees(p: Path, src: Source) -> Source:
+    """``src`` (a ROS 2 bag opened through its metadata.yaml), or, when the metadata names a topic's type otherwise
+    than the bag's own .db3 tables do (an edited or mixed-up metadata.yaml: the topic's messages would be read as the
+    wrong type, or not at all), the .db3 files read directly, with a warning naming the disagreement."""
+    import sqlite3
+
+    from .db3_reader import Db3Source
+    from .messages import normalize_type
+
+    folder = p if p.is_dir() else p.parent
+    files = sorted(folder.glob("*.db3")) if (folder / "metadata.yaml").exists() else []
+    theirs: dict[str, str] = {}
+    for f in files:  # only the small topics table: the messages are not counted here
+        try:
+            con = sqlite3.connect(f"file:{f}?mode=ro", uri=True)
+            try:
+                theirs.update({str(n): normalize_type(str(t)) for n, t in con.execute("SELECT name, type FROM topics")})
+            finally:
+                con.close()
+        except sqlite3.Error:
+            return src  # the tables are what rosbags could not read either way: keep its reading
+    said = src.topics()
+    differ = sorted(t for t, i in said.items() if theirs.get(t) and i.msgtype != theirs[t])
+    if not differ:
+        return src
+    own = Db3Source(files, name=p)
+    own.log.warn(f"{folder.name}/metadata.yaml names the type of {', '.join(differ)} otherwise than the bag's .db3 "
+                 f"(e.g. {said[differ[0]].msgtype} against {theirs[differ[0]]}); read the .db3 files directly, with "
+                 "their own types")
+    return own
 
 
 def _head(p: Path) -> bytes:
