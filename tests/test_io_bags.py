@@ -256,15 +256,17 @@ def test_ros2_robot_topics_serialized_by_rosbags(tmp_path):
     assert any("zero header stamp" in w for w in rec.warnings)
 
 
-def _chunked_bag(path, n_msgs: int = 400):
-    """A ROS 1 bag of odometry-sized messages (std_msgs/String of 200 bytes) in bz2 chunks of about 8 kB."""
+def _chunked_bag(path, n_msgs: int = 400, compression: str = "bz2", chunk_bytes: int = 8 * 1024):
+    """A ROS 1 bag of odometry-sized messages (std_msgs/String of 200 bytes) in chunks of about ``chunk_bytes``,
+    ``compression`` "bz2", "lz4" or "none"."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_typestore
 
     ts = get_typestore(Stores.ROS1_NOETIC)
     w = Writer(path)
-    w.set_compression(Writer.CompressionFormat.BZ2)
-    w.chunk_threshold = 8 * 1024
+    if compression != "none":
+        w.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
+    w.chunk_threshold = chunk_bytes
     with w:
         c = w.add_connection("/odom_text", "std_msgs/msg/String", typestore=ts)
         for k in range(n_msgs):
@@ -298,3 +300,33 @@ def test_a_ros1_bag_with_one_damaged_chunk_keeps_the_chunks_after_it(tmp_path):
         assert times[-1] == last, name  # the chunks after the damaged one are read
         assert n // 2 < len(times) < n and len(set(times)) == len(times), name  # one chunk lost, nothing twice
         assert any("chunk" in w for w in src.log.warnings), name
+
+
+@pytest.mark.parametrize("compression", ["none", "lz4"])
+def test_a_ros1_bag_cut_inside_its_last_chunk_keeps_that_chunks_messages_before_the_cut(tmp_path, compression):
+    """Before: a bag cut inside a chunk (a recorder stopped while writing it) lost the whole chunk, though an
+    uncompressed chunk's records before the cut are all there (and an lz4 stream's complete blocks can be read)."""
+    import struct
+
+    from plsgraph.io.ros1_scan import _OP_CHUNK, _OP_MSG, MAGIC, _decompress, _records
+    from plsgraph.io.source import open_source
+
+    p = tmp_path / "whole.bag"
+    n = _chunked_bag(p, n_msgs=2000, compression=compression, chunk_bytes=256 * 1024)  # lz4 blocks: 64 kB
+    data = p.read_bytes()
+    chunks = [(hdr, body, off) for op, hdr, body, off in _records(data, len(MAGIC), len(data)) if op == _OP_CHUNK]
+    assert len(chunks) >= 2
+    in_whole_chunks = 0
+    for hdr, body, _ in chunks[:-1]:
+        inner = _decompress(hdr, body)
+        in_whole_chunks += sum(1 for op, *_ in _records(inner, 0, len(inner)) if op == _OP_MSG)
+    _, body, off = chunks[-1]
+    start = off + 4 + struct.unpack_from("<I", data, off)[0] + 4  # where the last chunk's data begins
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(data[: start + len(body) * 3 // 4])  # three quarters into the last chunk; the index is gone
+    src = open_source(cut)
+    times = [m.log_time_ns for m in src.iter_raw({"/odom_text"})]
+    whole = [m.log_time_ns for m in open_source(p).iter_raw({"/odom_text"})]
+    assert len(whole) == n and times == whole[: len(times)]  # in order, nothing twice, nothing invented
+    assert in_whole_chunks < len(times) < n  # the cut chunk's messages before the cut are kept
+    assert any("cut short" in w and f"/odom_text {len(times)};" in w for w in src.log.warnings)  # per topic

@@ -67,7 +67,9 @@ def _records(buf: memoryview | bytes, pos: int, end: int) -> Iterator[tuple[int,
                 raise _Corrupt("record cut off in its data length")
             (dl,) = struct.unpack_from("<I", mv, p)
             if dl > end - p - 4:
-                raise _Corrupt(f"record data of {dl} bytes runs past the end")
+                cut = _Corrupt(f"record data of {dl} bytes runs past the end")
+                cut.cut_record = (hdr, mv[p + 4 : end])  # the data the record has before the end
+                raise cut
         except _Corrupt as exc:
             exc.pos = pos
             raise
@@ -125,6 +127,24 @@ def _decompress(hdr: dict[bytes, bytes], data: memoryview) -> bytes:
     return out
 
 
+def _decompress_cut(hdr: dict[bytes, bytes], data: memoryview) -> bytes:
+    """As much of a chunk whose data is cut off at the end of the file as its bytes give: all of them when
+    uncompressed, the complete blocks of a bz2 or lz4 stream. Empty when nothing can be recovered."""
+    comp = hdr.get(b"compression", b"none")
+    try:
+        if comp == b"none":
+            return bytes(data)
+        if comp == b"bz2":
+            return bz2.BZ2Decompressor().decompress(bytes(data))
+        if comp == b"lz4":
+            import lz4.frame
+
+            return lz4.frame.LZ4FrameDecompressor().decompress(bytes(data))
+    except Exception:  # noqa: BLE001 - bz2/lz4 raise assorted types on bad data: nothing recovered
+        return b""
+    return b""
+
+
 class Ros1ScanSource:
     """A ROS 1 bag read front to back without its index. Message counts are what could be read."""
 
@@ -172,6 +192,11 @@ class Ros1ScanSource:
                 nxt = next((p for p in index[0] if p > getattr(exc, "pos", len(data))), None)
                 if nxt is None:
                     problem = exc
+                    cut = getattr(exc, "cut_record", None)
+                    if cut is not None and cut[0].get(b"op", b"")[:1] == bytes([_OP_CHUNK]):
+                        # The file ends inside a chunk (a recorder stopped while writing it): its messages up to
+                        # the cut are read, not the whole chunk lost.
+                        yield from self._cut_chunk(cut[0], cut[1], topics, read)
                     break
                 if not quiet:
                     self.log.warn(f"{self.path.name}: damaged record at byte {getattr(exc, 'pos', '?')} ({exc}); "
@@ -183,9 +208,11 @@ class Ros1ScanSource:
                 self.log.messages_read[t] = self.log.messages_read.get(t, 0) + n
             if problem is not None:
                 self.log.stopped_early = True
+                # Per topic: a calibration reads the bag twice (the events apart), and each pass says what it kept.
+                kept = ", ".join(f"{t} {n}" for t, n in sorted(read.items())) or "none of the topics read"
                 self.log.warn(
-                    f"{self.path.name}: bag is cut short or corrupt ({problem}); kept the {sum(read.values())} "
-                    "messages before it (how many were lost is unknown: the index is gone)"
+                    f"{self.path.name}: bag is cut short or corrupt ({problem}); kept the messages before it ({kept}; "
+                    "how many were lost is unknown: the index is gone)"
                 )
 
     def _walk(self, data, pos: int, topics: set[str] | None, quiet: bool, read: Counter) -> Iterator[RawMessage]:
@@ -212,6 +239,19 @@ class Ros1ScanSource:
                 except _Corrupt as exc:
                     if not quiet:
                         self.log.warn(f"{self.path.name}: chunk at byte {off} is damaged ({exc}); rest of it lost")
+
+    def _cut_chunk(self, hdr: dict[bytes, bytes], body: memoryview, topics: set[str] | None, read: Counter
+                   ) -> Iterator[RawMessage]:
+        """The messages of a chunk the file ends inside, up to its first record cut off."""
+        inner = _decompress_cut(hdr, body)
+        try:
+            for op2, hdr2, body2, _ in _records(inner, 0, len(inner)):
+                m = self._record(op2, hdr2, body2, topics)
+                if m is not None:
+                    read[m.topic] += 1
+                    yield m
+        except _Corrupt:
+            pass  # the cut: what follows is lost, as the warning says
 
     def _record(self, op: int, hdr: dict[bytes, bytes], body: memoryview, topics: set[str] | None
                 ) -> RawMessage | None:
