@@ -98,11 +98,13 @@ def _row(log_path: str, out_dir: str, status: str, c: dict, problems: list, warn
          error: str | None = None) -> dict:
     """A summary row, with the same keys whatever the outcome (None where there is no value): the recording (its
     absolute path), its result folder, the status (ok, flagged, failed), the extrinsic and its sigmas (``sigma``:
-    name -> value in the unit of the observability list, deg, m or ms), the problems (a failure's error among them) and
-    the warnings."""
+    the observability list's, name -> value in its unit, deg, m or ms, roll, pitch and yaw there being rotations
+    about the base axes; ``rpy_sigma_deg``: the sigmas of ``rpy_deg``'s Euler angles), the problems (a failure's
+    error among them) and the warnings."""
     obs = c.get("observability") or []
     return {"recording": str(Path(log_path).absolute()), "folder": str(Path(out_dir).absolute()), "status": status,
-            "source": c.get("source"), "rpy_deg": c.get("rpy_deg"), "translation_m": c.get("translation_m"),
+            "source": c.get("source"), "rpy_deg": c.get("rpy_deg"), "rpy_sigma_deg": c.get("rpy_sigma_deg"),
+            "translation_m": c.get("translation_m"),
             "time_offset_s": c.get("time_offset_s"),
             "sigma": {o["name"]: o.get("sigma") for o in obs if isinstance(o, dict) and "name" in o} or None,
             "sigma_units": {o["name"]: o.get("unit") for o in obs if isinstance(o, dict) and "name" in o} or None,

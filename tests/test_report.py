@@ -215,3 +215,29 @@ def test_diagnosis_text_gives_each_directions_sigma_and_its_note_without_naming_
     assert lines[i + 2].endswith("sigma 1 m")
     assert lines[i + 3].strip() == "is not observable from this recording; give it."
     assert text.count("camera height (translation z)") == 1
+
+
+def test_the_euler_angles_sigmas_are_the_covariance_propagated_to_them_not_the_base_axes_sigmas():
+    """Before: report.html and batch's summary put the sigmas of small rotations about the base x, y axes beside the
+    Euler roll and pitch. With the camera turned about -87 deg in yaw (as mounted looking forwards), those are each
+    other's: a base-y rotation moves the Euler roll."""
+    from scipy.spatial.transform import Rotation
+
+    from plsgraph.report.files import rpy_sigma_deg
+
+    R = Rotation.from_euler("xyz", [-96.0, 1.0, -87.0], degrees=True)
+    sig = np.radians([0.088, 0.132, 0.5])  # about base x, y, z
+    cov = np.diag(sig ** 2)
+    got = np.asarray(rpy_sigma_deg(R.as_matrix(), cov))
+    # Monte Carlo: rotations drawn about the base axes, read as Euler angles.
+    rng = np.random.default_rng(0)
+    d = rng.standard_normal((20000, 3)) * sig
+    e = (Rotation.from_rotvec(d) * R).as_euler("xyz", degrees=True)
+    want = np.degrees(np.angle(np.exp(1j * np.radians(e - R.as_euler("xyz", degrees=True))))).std(axis=0)
+    np.testing.assert_allclose(got, want, rtol=0.03)
+    assert got[0] > 0.12 and got[1] < 0.1  # roll takes the base-y sigma, pitch the base-x one
+    assert abs(got[2] - 0.5) < 0.02  # yaw is the rotation about the base z axis
+    np.testing.assert_allclose(rpy_sigma_deg(np.eye(3), cov), np.degrees(sig), rtol=1e-6)  # no yaw: the same
+    assert rpy_sigma_deg(R.as_matrix(), None) is None
+    c = calibration_dict(make_T(R.as_matrix(), np.zeros(3)), 0.0, np.diag([*sig ** 2, 1e-4, 1e-4, 1.0, 1e-6]), [])
+    np.testing.assert_allclose(c["rpy_sigma_deg"], got)

@@ -292,18 +292,26 @@ def _summary_table(c: dict) -> str:
     """rpy, translation and time offset with their one-sigma (from the covariance, when there is one)."""
     m = (c.get("covariance") or {}).get("matrix")
     sig = np.sqrt(np.clip(np.diag(np.asarray(m, dtype=float)), 0, None)) if m is not None else None
+    rpy_sig = c.get("rpy_sigma_deg")
+    if rpy_sig is None and m is not None:  # a report written before the Euler angles had their own sigmas
+        from .files import rpy_sigma_deg
+
+        rpy_sig = rpy_sigma_deg(np.asarray(c["T_base_cam"], dtype=float)[:3, :3], np.asarray(m, dtype=float))
     rows = []
     for i, name in enumerate(("roll", "pitch", "yaw")):
-        s = "-" if sig is None else f"± {np.degrees(sig[i]):.3f}"
-        rows.append({"parameter": f"{name} (deg)", "value": f"{c['rpy_deg'][i]:.3f}", "sigma": s})
+        s = "-" if rpy_sig is None else f"± {rpy_sig[i]:.3f}"
+        rows.append({"parameter": f"{name} (deg, Euler)", "value": f"{c['rpy_deg'][i]:.3f}", "sigma": s})
     for i, name in enumerate(("x", "y", "z")):
         s = "-" if sig is None else f"± {sig[3 + i]:.4f}"
         rows.append({"parameter": f"{name} (m)", "value": f"{c['translation_m'][i]:.4f}", "sigma": s})
     td = c["time_offset_s"]
     s = "-" if sig is None else f"± {1e3 * sig[6]:.2f}"
     rows.append({"parameter": "time offset (ms)", "value": f"{1e3 * td:.3f}", "sigma": s})
-    note = ("<p>sigma: one standard deviation from the refinement's covariance (rotations as small angles about the "
-            "base axes); '-' when there is none (closed form only). A sigma of 1 m on z means: not observable.</p>")
+    note = ("<p>sigma: one standard deviation from the refinement's covariance; '-' when there is none (closed "
+            "form only). Roll, pitch and yaw are the Euler angles about the fixed axes x, y, z of the camera's optical "
+            "frame (z forward) in the base frame, their sigmas propagated from the covariance; the observability list "
+            "gives the sigmas of small rotations about the base axes instead, which differ from these wherever yaw "
+            "is not zero. A sigma of 1 m on z means: not observable.</p>")
     return html_table(rows, ["parameter", "value", "sigma"]) + note
 
 

@@ -72,6 +72,32 @@ def ros_static_transform(T_base_cam: np.ndarray, parent: str = "base_link", chil
     return line
 
 
+def rpy_sigma_deg(R_base_cam: np.ndarray, cov_rot: np.ndarray | None) -> list[float] | None:
+    """One sigma (deg) of ``rpy_deg``, the Euler angles about the fixed axes x, y, z, from the 3 x 3 covariance of the
+    small rotations about the base axes (rad; the covariance's first three rows): propagated through the Euler
+    angles' derivatives, which mix those rotations wherever yaw is not zero (a camera turned 90 deg about z has its
+    Euler roll moved by rotations about the base y axis). None without a covariance; NaN near pitch +-90 deg, where
+    roll and yaw are not separate angles."""
+    if cov_rot is None:
+        return None
+    cov = np.asarray(cov_rot, dtype=float)[:3, :3]
+    if not np.all(np.isfinite(cov)):
+        return [float("nan")] * 3
+    R = Rotation.from_matrix(np.asarray(R_base_cam, dtype=float)[:3, :3])
+    if abs(R.as_euler("xyz")[1]) > np.radians(89.0):
+        return [float("nan")] * 3
+    eps = 1e-6
+    J = np.empty((3, 3))
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = eps
+        hi = (Rotation.from_rotvec(d) * R).as_euler("xyz")
+        lo = (Rotation.from_rotvec(-d) * R).as_euler("xyz")
+        J[:, i] = (np.angle(np.exp(1j * (hi - lo)))) / (2 * eps)  # wrapped: an angle near +-180 deg
+    var = np.einsum("ij,jk,ik->i", J, cov, J)
+    return np.degrees(np.sqrt(np.clip(var, 0.0, None))).tolist()
+
+
 def calibration_dict(
     T_base_cam: np.ndarray,
     time_offset_s: float,
@@ -102,6 +128,9 @@ def calibration_dict(
         "quaternion_xyzw": q.tolist(),
         "translation_m": T[:3, 3].tolist(),
         "rpy_deg": Rotation.from_matrix(T[:3, :3]).as_euler("xyz", degrees=True).tolist(),
+        "rpy_convention": "Euler angles about the fixed axes x, y, z (R = Rz(yaw) Ry(pitch) Rx(roll)), of the camera's "
+                          "optical frame (x right, y down, z forward) in the base frame",
+        "rpy_sigma_deg": rpy_sigma_deg(T[:3, :3], None if covariance is None else np.asarray(covariance)[:3, :3]),
         "time_offset_s": float(time_offset_s),
         "time_offset_convention": "t_odom = t_cam + time_offset_s",
         "parent_frame": parent_frame,
