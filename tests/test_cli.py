@@ -268,7 +268,8 @@ def test_batch_force_keeps_the_results_of_recordings_not_given_unless_pruned(tmp
     rows = {Path(r["recording"]).stem: r for r in json.loads((out / "summary.json").read_text())["recordings"]}
     assert rows["gone"]["earlier_run"] is True and rows["gone"]["rpy_deg"] == [1.0, 2.0, 3.0]
     assert rows["a"]["status"] == "failed" and rows["a"]["problems"] == [rows["a"]["error"]]
-    assert set(rows["a"]) >= {"folder", "sigma", "warnings", "translation_m", "rpy_deg", "rpy_sigma_deg", "time_offset_s"}
+    assert set(rows["a"]) >= {"folder", "sigma", "warnings", "translation_m", "rpy_deg", "rpy_sigma_deg",
+                              "time_offset_s"}
     # --prune (with --force) removes them; --prune alone is refused.
     assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11_a2", "--out", str(out), "--prune"]) == 2
     capsys.readouterr()
