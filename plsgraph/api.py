@@ -75,22 +75,34 @@ MOTION_ADVICE_DEFAULT = ("drive forwards and backwards while turning (arcs, S-cu
                          "whole time; vary the speed")
 
 
-def motion_advice(cf: Any, obs: list[dict]) -> list[str]:
-    """Plain-language advice on the motion a recording lacks."""
+def motion_advice(cf: Any, obs: list[dict], problems: list[str] | tuple[str, ...] = ()) -> list[str]:
+    """Plain-language advice on what a recording lacks: each line names what the motion left undetermined (as the
+    closed form's observability says), and for ``problems`` of the inputs' scale (board size, wheel radius, track
+    width) what to check first."""
     adv: list[str] = []
     o = cf.observable
-    if not o.get("yaw", True) or not o.get("x", True) or not o.get("y", True):
-        adv.append("turn while driving (arcs, S-curves, figure eights): straight-line driving leaves the camera "
-                   "yaw and the horizontal lever arm undetermined")
-    if not o.get("roll", True) or not o.get("pitch", True):
-        adv.append("turn the robot (both directions): the tilt of the camera relative to the floor comes from the "
-                   "rotation axis, which only turning shows")
+    turning = o.get("roll", True)  # turning fixes the base's up axis (roll); driving its forward axis (yaw)
+    driving = o.get("yaw", True)
+    if not turning and not driving:
+        adv.append(MOTION_ADVICE_DEFAULT + ": the robot hardly moved, so nothing was determined")
+    elif not driving:
+        adv.append("drive forwards and backwards while turning: turning in place fixes only the camera's tilt, and "
+                   "leaves its yaw and the horizontal lever arm undetermined")
+    elif not turning:
+        adv.append("turn while driving (arcs, S-curves, figure eights, both directions): driving straight leaves "
+                   "the camera's roll about the driving direction and the horizontal lever arm undetermined")
     if not o.get("td", True):
         adv.append("vary the speed and turn rate (accelerate, stop, reverse): a steady motion leaves the time "
                    "offset undetermined")
+    if any("disagree on distances" in p for p in problems):
+        adv.append("check the board's size first (--board: the square_size of the board you printed, measured) and "
+                   "--wheel-radius: the camera and the wheels disagree on distances, which no motion fixes")
+    elif any("effective track width" in p for p in problems):
+        adv.append("check --track-width (and, for a skid-steer robot, that its effective track is what the "
+                   "odometry uses): no motion fixes it")
     if any(r["name"] == "z" and r["status"] != "observable" for r in obs):
         adv.append("the camera height cannot be observed from driving on a flat floor; measure it and pass it as a "
-                   "prior if you need it")
+                   "prior if you need it (--camera-height, or the board's height with --board-height)")
     return adv
 
 
@@ -135,7 +147,8 @@ def diagnose(
     problems = problems_of_run(run) + verdicts  # the gate calibrate uses: both agree on one recording
     obs = observability_rows(run)
     good = not problems
-    return Diagnosis(str(recording), good, tuple(problems), tuple(motion_advice(cf, obs)), dict(cf.excitation),
+    return Diagnosis(str(recording), good, tuple(problems), tuple(motion_advice(cf, obs, problems)),
+                     dict(cf.excitation),
                      dict(cf.observable), tuple(obs), tuple(cf.degenerate_reasons), **counts,
                      warnings=tuple(run.warnings))
 

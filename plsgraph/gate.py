@@ -294,6 +294,8 @@ def _odometry_problems(s_v: float, s_w: float, radius: float | None = None, trac
             f"the effective track width comes out {ratio:.2f} x the nominal one (plausible: "
             f"{TRACK_RATIO_RANGE[0]}-{TRACK_RATIO_RANGE[1]} x, skid-steer robots reach 2 x): check --track-width"
             + (f" (the motion suggests an effective {track:.3f} m)" if track else "")
+            + ("; with the distances off as well (above), settle those first: this ratio may follow from them"
+               if problems else "")
         )
     return problems
 

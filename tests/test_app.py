@@ -541,3 +541,24 @@ def test_a_flagged_result_keeps_the_calibration_it_replaces_and_a_failed_copy_co
     assert not (out / "previous_calibration").exists() and (out / "report.json").exists()
     assert "previous_calibration" not in json.loads((out / "report.json").read_text())
     assert output.PREVIOUS_CALIBRATION == "previous_calibration"
+
+
+def test_motion_advice_names_what_the_motion_left_undetermined():
+    """Before: a straight drive (roll undetermined, yaw determined) was told it left the yaw undetermined, a spin in
+    place got the same straight-driving advice, and a board of the wrong size got advice on the camera height only."""
+    from types import SimpleNamespace
+
+    from plsgraph.api import motion_advice
+
+    def obs(**o):
+        full = {"roll": True, "pitch": True, "yaw": True, "x": True, "y": True, "z": False, "td": True}
+        return SimpleNamespace(observable={**full, **o})
+
+    z = [{"name": "z", "status": "unobservable"}]
+    straight = " ".join(motion_advice(obs(roll=False, x=False, y=False), z))
+    assert "roll" in straight and "yaw" not in straight and "driving straight" in straight
+    spin = " ".join(motion_advice(obs(yaw=False, x=False, y=False), z))
+    assert "turning in place" in spin and "yaw" in spin and "straight" not in spin
+    scale = motion_advice(obs(), z, ["the camera and the wheel odometry disagree on distances by x0.518 (...)"])
+    assert any("board's size" in a for a in scale) and not any("turn" in a for a in scale)
+    assert motion_advice(obs(), []) == []

@@ -91,6 +91,16 @@ def test_wheel_order_is_found_from_the_camera(sim, wired, window):
         assert chk.alignment.offset_s == pytest.approx(DIFF + sim.td, abs=0.02)
 
 
+def test_a_drive_without_turns_leaves_the_wheel_order_undecided_not_corrected():
+    """Before: on a straight drive the sign came from the turn-rate noise (correlation 0.21) and the wheels as named
+    were 'corrected' to swapped, with a warning that sent the user rewiring correct wheels."""
+    sim = simulate_robot(motion="straight", duration=12, seed=1, td=0.03, board=load_board("acircles_4x11_a2"))
+    for wired in ("as_given", "swapped"):
+        chk = check_wheel_order(_cam(sim), _wheels(sim, wired), (DIFF - 0.5, DIFF + 0.5))
+        assert not chk.decided and chk.hypothesis == "as_given", wired
+        assert "hardly turns" in chk.message and chk.turn_correlation < 0.5
+
+
 def test_upside_down_flag_reverses_the_sign_decision(sim):
     chk = check_wheel_order(_cam(sim), _wheels(sim, "as_given"), None, upside_down_camera=True)
     assert chk.hypothesis == "swapped"  # only swapped wheels make this (upright) camera come out upside down

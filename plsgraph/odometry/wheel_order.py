@@ -51,6 +51,9 @@ MIN_MARGIN = 0.1
 MIN_UP_COMPONENT = 0.25
 #: A swapped or reversed hypothesis must also fit: its magnitude correlation at least this.
 MIN_SCORE = 0.5
+#: The sign is read from the camera's turn rate against the base's yaw rate: their correlation must reach this (0.97-1.0
+#: on recordings that turn; about 0.2 on a straight drive, whose turns are noise and whose sign means nothing).
+MIN_TURN_CORRELATION = 0.5
 
 
 @dataclass(frozen=True)
@@ -188,6 +191,14 @@ def check_wheel_order(
         msg = (f"the wheel order could not be checked: the wheels as named correlate {a:.2f} with the camera's motion, "
                f"with one wheel reversed {b:.2f} (need a margin of {MIN_MARGIN} and {MIN_SCORE})")
         return WheelOrderCheck("as_given", False, scores, margin, up_y, k, corr, msg, aligns.get("as_given"),
+                               tracks["as_given"])
+    if corr < MIN_TURN_CORRELATION:
+        msg = (f"the wheel order's sign could not be checked: the camera's turns and the odometry's correlate only "
+               f"{corr:.2f} (need {MIN_TURN_CORRELATION}): the robot hardly turns, so a swapped pair of wheels would "
+               "go unseen")
+        if lead != "as_given":
+            msg += f"; and one wheel looks reversed ({b:.2f} against {a:.2f} as named), which one is unclear"
+        return WheelOrderCheck("as_given", False, scores, margin, up_y, k, corr, msg, aligns["as_given"],
                                tracks["as_given"])
     if abs(up_y) < MIN_UP_COMPONENT:
         msg = (f"the wheel order's sign could not be checked: the camera's image-down axis is nearly level "

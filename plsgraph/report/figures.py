@@ -215,6 +215,7 @@ def figure_inputs(run: Any, refinement: Any = None) -> SimpleNamespace:
             time_offset=None if to is None else SimpleNamespace(shifts=to.shifts, values=to.values, td=to.td,
                                                                 method=to.method),
             methods={name: SimpleNamespace(R_base_cam=m.R_base_cam) for name, m in cf.methods.items()},
+            td=getattr(cf, "td", None),
         )
     truth = None if run.truth is None else {"T_base_cam": np.asarray(run.truth["T_base_cam"], dtype=float)}
     return SimpleNamespace(camera_track=run.camera_track, base_track=run.base_track, camera=run.camera,
