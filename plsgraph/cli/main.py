@@ -22,9 +22,9 @@ from ..errors import PlsgraphError
 EPILOG = """\
 typical session:
   plsgraph inspect run.mcap                       what is in the recording
-  plsgraph diagnose run.mcap --board acircles_4x11  is the motion good enough?
-  plsgraph calibrate run.mcap --board acircles_4x11 --out calib/
-  plsgraph compare run.mcap --board acircles_4x11 --truth run.truth.yaml
+  plsgraph diagnose run.mcap --board acircles_4x11_a2  is the motion good enough?
+  plsgraph calibrate run.mcap --board acircles_4x11_a2 --out calib/
+  plsgraph compare run.mcap --board acircles_4x11_a2 --truth run.truth.yaml
 
 BOARD is a YAML file or the name of a bundled board (acircles_4x11, acircles_4x11_a2, aprilgrid_6x6, ...).
 Conventions: T_base_cam maps camera points into the robot base frame; t_odom = t_cam + time_offset_s.

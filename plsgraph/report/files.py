@@ -72,6 +72,13 @@ def ros_static_transform(T_base_cam: np.ndarray, parent: str = "base_link", chil
     return line
 
 
+def frames_note(parent: str, child: str) -> str:
+    """What the two frames are: the camera's optical frame, and the frame the odometry moves."""
+    return (f"{child} is the camera's optical frame (x right, y down, z forward, as ROS names *_optical_frame); "
+            f"{parent} is the frame whose motion the wheel odometry reports (from wheel joints: the midpoint between "
+            "the wheels)")
+
+
 def rpy_sigma_deg(R_base_cam: np.ndarray, cov_rot: np.ndarray | None) -> list[float] | None:
     """One sigma (deg) of ``rpy_deg``, the Euler angles about the fixed axes x, y, z, from the 3 x 3 covariance of the
     small rotations about the base axes (rad; the covariance's first three rows): propagated through the Euler
@@ -135,6 +142,7 @@ def calibration_dict(
         "time_offset_convention": "t_odom = t_cam + time_offset_s",
         "parent_frame": parent_frame,
         "child_frame": child_frame,
+        "frames_note": frames_note(parent_frame, child_frame),
         "covariance": {
             "order": COVARIANCE_ORDER,
             "note": COVARIANCE_NOTE,

@@ -10,6 +10,7 @@ measured: planar driving cannot observe it.
 from __future__ import annotations
 
 import re
+import textwrap
 from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import quoteattr
@@ -17,7 +18,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .files import write_text
+from .files import frames_note, write_text
 
 URDF_NAME = "base_to_camera.urdf"
 LAUNCH_NAME = "static_tf.launch.py"
@@ -53,7 +54,7 @@ def urdf_text(T_base_cam: np.ndarray, parent: str, child: str, *, ok: bool = Tru
                     + _xml_comment(why) + " -->")
         return "\n".join(head + ['<robot name="plsgraph_camera_mount">', "</robot>", ""])
     note = _height_note(height_measured)
-    lines = head + ['<robot name="plsgraph_camera_mount">']
+    lines = head + ['<robot name="plsgraph_camera_mount">', f"  <!-- {_xml_comment(frames_note(parent, child))} -->"]
     if time_offset_s is not None:
         sign = "-" if time_offset_s < 0 else "+"
         lines.append(f"  <!-- time offset: t_odom = t_cam {sign} {abs(time_offset_s):.9f} s (not part of the URDF) -->")
@@ -100,6 +101,8 @@ def launch_text(T_base_cam: np.ndarray, parent: str, child: str, *, ok: bool = T
         '"""plsgraph: publish the camera extrinsic T_base_cam as a static transform (ROS 2).',
         "",
         f"    ros2 launch {LAUNCH_NAME}   (or include it from your robot's launch file)",
+        "",
+        *textwrap.wrap(frames_note(parent, child) + ".", 100, initial_indent="", subsequent_indent=""),
         '"""',
         "",
         "from launch import LaunchDescription",
