@@ -120,3 +120,26 @@ def test_missed_windows_the_odometry_does_not_reach_are_not_counted_as_the_movin
     cov = coverage_summary(far, run)
     assert cov["no_odometry"] == tq.size and cov["found_fraction_robot_moving"] is None
     assert "moved" not in coverage_line(cov)
+
+
+def test_windows_on_a_second_files_clock_never_aligned_keep_the_detectors_reasons():
+    """Before: with the odometry from a second file whose clock was never aligned (the run ended first), the windows
+    the odometry happened to span were called the moving robot's ('1 of 30 windows, 20 % of those in which the robot
+    moved') and the detector's reasons for the rest were replaced by no_odometry."""
+    from plsgraph.options import CalibrationOptions
+    from plsgraph.report.output import coverage_line
+
+    base = _stop_and_go()
+    tq = np.arange(8.0, 12.0, 1.0 / 30.0)  # partly inside the odometry's span, by chance of the two clocks
+    outcome = np.where(tq < 8.5, "rims", "grid_not_found").astype(object)
+    info = {"window_outcomes": {"t": tq.tolist(), "outcome": outcome.tolist()}}
+    opts = CalibrationOptions.build(board="acircles_4x11_a2", odometry_file="/elsewhere/robot.bag")
+    run = SimpleNamespace(base_track=base, clock_offset_s=0.0, refinement=None, closed_form=None, options=opts,
+                          recording_info={})
+    assert list(window_outcomes(info, run)) == list(outcome)  # the front end's own outcomes
+    cov = coverage_summary(info, run)
+    assert cov["clocks_not_aligned"] and cov["found_fraction_robot_moving"] is None and cov["no_odometry"] == 0
+    line = coverage_line(cov)
+    assert "not aligned" in line and "moved" not in line and "grid_not_found" in line
+    run.recording_info = {"clock": {"coarse": True, "offset_s": 0.0}}  # once aligned, the odometry counts again
+    assert "clocks_not_aligned" not in coverage_summary(info, run)

@@ -112,6 +112,18 @@ def _odometry_offset_s(run: Any) -> float:
 NO_ODOMETRY = "no_odometry"
 
 
+def clocks_unknown(run: Any) -> bool:
+    """Whether the odometry is on a clock the camera's was never aligned with: a second file (or ``--clock-align
+    always``) and the run ended before the pairing aligned them. Its times then say nothing of the windows'."""
+    info = getattr(run, "recording_info", None) or {}
+    if info.get("clock") is not None:  # the pairing aligned the clocks (or took them as the same)
+        return False
+    inputs = getattr(getattr(run, "options", None), "inputs", None)
+    if inputs is None or inputs.clock_offset is not None:
+        return False
+    return inputs.odometry_file is not None or inputs.clock_align == "always"
+
+
 def window_outcomes(info: dict, run: Any = None) -> np.ndarray:
     """Every window's outcome (as the front end gave it), with the windows missed while the robot stood still
     (``run``'s odometry says so) relabelled ``robot_still``, and those missed where the odometry does not reach
@@ -121,7 +133,7 @@ def window_outcomes(info: dict, run: Any = None) -> np.ndarray:
         return np.zeros(0, dtype=str)
     outcome = np.asarray(wo["outcome"], dtype=object)
     base = getattr(run, "base_track", None)
-    if base is not None:
+    if base is not None and not clocks_unknown(run):
         t = np.asarray(wo["t"], dtype=float) + _odometry_offset_s(run)
         missed = ~np.isin(outcome, DETECTED + REFUSED)
         outcome[robot_still(t, base) & missed] = "robot_still"
@@ -152,9 +164,14 @@ def coverage_summary(info: dict, run: Any = None) -> dict | None:
     still = counts.get("robot_still", 0)
     unknown = counts.get(NO_ODOMETRY, 0)
     moving = windows - still - unknown
-    return {"windows": windows, "found": found, "robot_still": still, NO_ODOMETRY: unknown,
-            "found_fraction": found / windows, "found_fraction_robot_moving": found / moving if moving else None,
-            "by_outcome": dict(sorted(counts.items(), key=lambda kv: -kv[1]))}
+    apart = run is not None and getattr(run, "base_track", None) is not None and clocks_unknown(run)
+    out = {"windows": windows, "found": found, "robot_still": still, NO_ODOMETRY: unknown,
+           "found_fraction": found / windows,
+           "found_fraction_robot_moving": found / moving if moving and not apart else None,
+           "by_outcome": dict(sorted(counts.items(), key=lambda kv: -kv[1]))}
+    if apart:  # the windows' outcomes are the front end's own: nothing is known of the robot's motion then
+        out["clocks_not_aligned"] = True
+    return out
 
 
 def fig_coverage(run: Any, out: Path, truth_T: Any = None) -> str | None:

@@ -76,6 +76,8 @@ def coverage_line(cov: dict) -> str:
     """One line on the front end's coverage, for a summary."""
     moving = cov.get("found_fraction_robot_moving")
     also = "" if moving is None else f", {100 * moving:.0f} % of those in which the robot moved"
+    if cov.get("clocks_not_aligned"):
+        also = " (the odometry's clock was not aligned with the camera's, so its motion is not known there)"
     # The detector's reasons first; windows passed over while the board was lost (not searched) last.
     missed = [f"{k} {v}" for k, v in sorted(cov.get("by_outcome", {}).items(), key=lambda kv: kv[0] == NOT_SEARCHED)
               if k not in DETECTED][:4]
