@@ -451,10 +451,16 @@ def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress,
             f"after cutting the recording at odometry gaps the robot moved across (kept t={a:.2f}..{b:.2f} s): {exc}"
         ) from exc
     if cf.R_base_cam is None:
-        raise DegenerateMotionError(
+        from .api import motion_advice
+
+        exc = DegenerateMotionError(
             "the closed form could not determine the rotation (" + "; ".join(cf.degenerate_reasons)
             + "); drive forwards and backwards while turning in front of the board"
         )
+        said = [a for a in motion_advice(cf, []) if "camera height" not in a]
+        if said:
+            exc.advice = "; ".join(said)  # what this motion left undetermined, for the diagnosis
+        raise exc
     if refine:
         run_refinement(run, progress, solution_known)
     return run

@@ -86,8 +86,9 @@ def coverage_line(cov: dict) -> str:
 
 
 DIAGNOSIS_ADVICE = (
-    "drive forwards and backwards while turning (arcs, S-curves) with the board in view; straight "
-    "driving leaves the camera yaw and lever arm undetermined, turning in place the yaw"
+    "drive forwards and backwards while turning (arcs, S-curves) with the board in view; driving straight leaves the "
+    "camera's roll about the driving direction and the lever arm undetermined, turning in place its yaw and the lever "
+    "arm"
 )
 #: The advice when reading the recording lost messages (it is cut short or damaged) and too little was left.
 DAMAGED_ADVICE = ("the recording is cut short or damaged (see the warnings): use a complete copy, or recover what is "
