@@ -45,7 +45,7 @@ _WHY = {
     "z": (
         "under planar motion the base never moves along its vertical axis, so a camera mounted higher or lower "
         "(with the board correspondingly higher or lower) explains the images equally well; give the measured "
-        "camera height or the board-on-the-floor prior"
+        "camera height (--camera-height) or the height of the board's origin above the floor (--board-height)"
     ),
     "roll": "driving straight without turning does not excite rotation about the driving direction; turn while driving",
     "yaw": "turning in place does not excite rotation about the turning axis; drive forward and backward as well",

@@ -145,7 +145,8 @@ def calibration_dict(
         "frames_note": frames_note(parent_frame, child_frame),
         "covariance": {
             "order": COVARIANCE_ORDER,
-            "note": COVARIANCE_NOTE,
+            "note": COVARIANCE_NOTE if covariance is not None else (
+                "no covariance: this result is the closed form's (no refinement), which gives none"),
             "matrix": None if covariance is None else np.asarray(covariance, dtype=float).tolist(),
         },
         "observability": list(observability or []),

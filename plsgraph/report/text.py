@@ -74,7 +74,9 @@ def calibration_text(report: dict) -> str:
             lines.append(f"  {o['status']:<13} {o['direction']:<40} sigma {sig}")
     if "truth_errors" in report:
         lines.append("errors against truth:")
-        lines += [f"  {k:<36} {v:.4g}" for k, v in report["truth_errors"].items() if v is not None]
+        errs = {k: v for k, v in report["truth_errors"].items() if v is not None}
+        width = max([36, *map(len, errs)])
+        lines += [f"  {k:<{width}} {v:.4g}" for k, v in errs.items()]
     if report["problems"]:
         lines.append("PROBLEMS (the calibration is flagged: do not use it):")
         lines += [f"  - {p}" for p in report["problems"]]
