@@ -151,7 +151,8 @@ def _build_parser() -> argparse.ArgumentParser:
                    "Prophesee .raw")
     s.add_argument("--json", action="store_true", help="print machine-readable JSON")
     s.add_argument("--quick", action="store_true", help="do not decode the events (several times faster on a big "
-                   "recording): topics, message counts and time spans only")
+                   "recording): topics, message counts and time spans only (the event topic's from its messages' "
+                   "stamps, not from its events' times)")
     s.set_defaults(func=_cmd_inspect)
 
     s = sub.add_parser("simulate", help="write a simulated recording (MCAP) with its truth beside it")
