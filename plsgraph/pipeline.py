@@ -196,9 +196,12 @@ def _require_streams(run: Run, rec: Any) -> None:
                 "plsgraph does not read (it reads event_camera_msgs/EventPacket, event_array_msgs/EventArray, "
                 "dvs_msgs/EventArray, AEDAT4 and Metavision .raw): convert the events to one of those"
                 if not has_events and unread else "")
+        apart = ("; with the events and the odometry in two files, give the events' file first and the other with "
+                 "--odometry FILE" if len(missing) == 1 and run.options.inputs.odometry_file is None else "")
         raise RecordingError(
             f"{run.log_path} has {' and '.join(missing)}; a calibration needs both, recorded together "
-            "(name a topic with --events-topic/--joints-topic/--odom-topic if plsgraph did not recognise it)" + also
+            "(name a topic with --events-topic/--joints-topic/--odom-topic if plsgraph did not recognise it)" + apart
+            + also
         )
 
 

@@ -423,7 +423,8 @@ def test_an_event_topic_of_a_type_plsgraph_does_not_read_is_named(tmp_path):
             w.add_message(ce, log_time=t, publish_time=t, sequence=k, data=b"\x00\x01\x00\x00" + bytes(8))
         w.finish()
     with pytest.raises(RecordingError, match=r"/camera/events \(my_msgs/msg/Events\) is named like events but of a "
-                                             r"type plsgraph does not read"):
+                                             r"type plsgraph does not read") as e:
         read_inputs(Run(p, CalibrationOptions(board="acircles_4x11")))
+    assert "--odometry FILE" in str(e.value)  # an odometry-only file: the two-file form is named
     with pytest.raises(RecordingError, match=r"has type my_msgs/msg/Events, not an event type plsgraph reads"):
         pick_topic(open_source(p), EVENT_TYPES, "/camera/events", "event")
