@@ -167,6 +167,10 @@ def test_comparison_table_with_and_without_truth(rich):
     # A rotation-only solver has no translation to score: shown as not determined, never as "nan".
     assert np.isnan(rows["closed_form"]["t_xy_err_m"])
     assert "nan" not in tab.markdown and "-: not determined" in tab.markdown
+    # One set of keys in every row (a script reads columns), the refinement's own RMS explained.
+    assert all(set(r) == set(rows["refined"]) for r in tab.rows) and np.isnan(rows["closed_form"]["rms_px_graph"])
+    assert rows["refined"]["rms_px_graph"] == res.rms_px_final
+    assert "rms_px_graph: the refinement's own fit" in tab.markdown
     tab2 = compare_solutions(closed, res)
     r2 = {r["method"]: r for r in tab2.rows}
     assert r2["refined"]["rot_diff_deg"] == 0.0 and r2["closed_form"]["rot_diff_deg"] > 1.0
