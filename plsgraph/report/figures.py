@@ -170,6 +170,9 @@ def _fig_methods(run: Any, out: Path, truth_T: np.ndarray | None) -> str | None:
     ax.bar(range(len(names)), errs, color=["#2e7d32" if n == "refined" else "#1565c0" for n in names])
     ax.set_xticks(range(len(names)), names, rotation=35, fontsize=7, ha="right")
     ax.set_yscale("symlog", linthresh=0.1)
+    ax.set_ylim(0.0, 3.0 * max(max(errs), 0.1))  # room above the tallest bar for its number
+    for i, e in enumerate(errs):
+        ax.annotate(f"{e:.2g}", (i, e), textcoords="offset points", xytext=(0, 2), ha="center", fontsize=7)
     _plain_ticks(ax.yaxis)
     ax.set_ylabel("rotation error (deg)" if truth_T is not None else "rotation difference to refined (deg)")
     ax.set_title("closed form vs refined")
