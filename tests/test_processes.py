@@ -79,3 +79,47 @@ def test_a_spawned_worker_of_a_guarded_script_may_start_workers_itself(tmp_path)
     p = _run(tmp_path, body)
     assert p.returncode == 0, p.stderr
     assert p.stdout.split() == ["spawned", "False"]
+
+
+def test_worker_processes_end_with_a_parent_killed_by_its_pid(tmp_path):
+    """A review: `kill -9 PID` of a calibration (a supervisor's timeout, an out-of-memory kill) left its front end's
+    workers running with parent 1, holding the caller's pipes open (a harness reading the output hung) and a batch's
+    worker went on calibrating into the folder."""
+    import os
+    import signal
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(textwrap.dedent("""
+        import multiprocessing as mp, time
+        from concurrent.futures import ProcessPoolExecutor
+        from plsgraph.core.processes import worker_initializer
+
+        if __name__ == "__main__":
+            init, args = worker_initializer()
+            pool = ProcessPoolExecutor(2, mp_context=mp.get_context("spawn"), initializer=init, initargs=args)
+            for f in [pool.submit(time.sleep, 0.2) for _ in range(2)]:
+                f.result()
+            print(" ".join(str(p) for p in pool._processes), flush=True)
+            time.sleep(120)
+    """))
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        workers = [int(p) for p in proc.stdout.readline().split()]
+        assert len(workers) == 2
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=10)
+
+        def alive(pid):
+            try:
+                with open(f"/proc/{pid}/stat") as f:
+                    return f.read().split(")")[-1].split()[0] != "Z"  # a zombie has ended
+            except OSError:
+                return False
+
+        deadline = time.monotonic() + 10
+        while any(alive(p) for p in workers) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not any(alive(p) for p in workers)
+    finally:
+        proc.kill()

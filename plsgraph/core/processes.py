@@ -15,6 +15,7 @@ import functools
 import logging
 import os
 import sys
+from typing import Any
 
 log = logging.getLogger(__name__)
 
@@ -76,3 +77,26 @@ def warn_in_process(what: str) -> None:
     log.warning("%s runs in this process, without worker processes: plsgraph was called at the top level of the "
                 "script %s; put the calls under 'if __name__ == \"__main__\":' to use the workers (a worker process "
                 "imports the script again)", what, getattr(sys.modules.get("__main__"), "__file__", "?"))
+
+
+def end_with_parent(parent_pid: int | None = None) -> None:
+    """Have this process killed when its parent ends (Linux's PR_SET_PDEATHSIG; elsewhere nothing): a worker whose
+    calibrating process was killed by its pid alone (``kill PID``, a supervisor's timeout, an out-of-memory kill)
+    must not go on calibrating, writing into a folder nobody waits for, and holding the caller's pipes open.
+    ``parent_pid``: the parent as the worker was started; if it has already gone, this process ends now."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # 1: PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if parent_pid is not None and os.getppid() != parent_pid:  # the parent died before the line above
+        os._exit(1)
+
+
+def worker_initializer() -> tuple[Any, tuple]:
+    """(initializer, initargs) for a process pool whose workers end with this process (:func:`end_with_parent`)."""
+    return end_with_parent, (os.getpid(),)

@@ -697,7 +697,10 @@ def _run_parallel(job: _WindowJob, t_query, i0s, i1s, workers: int, progress, pn
     edges = np.linspace(0, t_query.size, workers + 1).round().astype(int)  # one run per worker: tracking state
     chunks = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
     try:
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
+        from ..core.processes import worker_initializer
+
+        init, args = worker_initializer()
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=init, initargs=args) as pool:
             parts = []
             results = pool.map(_run_chunk, chunks)  # every chunk is submitted now
             if beside is not None:
@@ -1285,7 +1288,10 @@ def camera_track_from_event_chunks(
             # Started fresh ("spawn"), not forked: the calibrating process may have threads by now (the figure
             # worker's), and a fork taken while one of them holds a lock can hang the child. Started before the
             # first span is decoded, so that the workers have loaded the detector by the time it arrives.
-            pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"))
+            from ..core.processes import worker_initializer
+
+            init, args = worker_initializer()  # the workers end with this process, however it ends
+            pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=init, initargs=args)
             for _ in range(workers):
                 pool.submit(_ready)
         for ch in chunks:

@@ -72,8 +72,12 @@ def default_executor(n_items: int, max_workers: int | None = None) -> Executor:
     if spawn_would_rerun_main():
         warn_in_process("the batch")
         return ThreadPoolExecutor(max_workers=1)
+    from ..core.processes import worker_initializer
+
     workers = max_workers or min(n_items, os.cpu_count() or 1)
-    return ProcessPoolExecutor(max_workers=max(1, workers), mp_context=multiprocessing.get_context("spawn"))
+    init, args = worker_initializer()  # a batch killed by its pid alone takes its workers with it
+    return ProcessPoolExecutor(max_workers=max(1, workers), mp_context=multiprocessing.get_context("spawn"),
+                               initializer=init, initargs=args)
 
 
 def refine_many(

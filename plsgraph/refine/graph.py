@@ -27,6 +27,7 @@ rotation (the height, unobservable there too, is kept at the seed's by a ridge t
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -2344,7 +2345,7 @@ class _Beside:
         try:
             ctx = mp.get_context("fork")
             self.conn, send = ctx.Pipe(duplex=False)
-            self.proc = ctx.Process(target=_beside_main, args=(send, fn, args), daemon=True)
+            self.proc = ctx.Process(target=_beside_main, args=(send, fn, args, os.getpid()), daemon=True)
             self.proc.start()
         except (OSError, ValueError, RuntimeError, AssertionError) as exc:  # AssertionError: a daemonic process
             log.info("refine: no second process (%s); the second opinion is solved here", exc)
@@ -2398,7 +2399,10 @@ class _Deferred:
         self.job.discard()
 
 
-def _beside_main(conn, fn: Callable, args: tuple) -> None:
+def _beside_main(conn, fn: Callable, args: tuple, parent_pid: int | None = None) -> None:
+    from ..core.processes import end_with_parent
+
+    end_with_parent(parent_pid)  # a daemonic process outlives a parent killed by SIGKILL otherwise
     try:
         out = (True, fn(*args))
     except BaseException as exc:  # noqa: BLE001 - reported to the parent, which solves it itself

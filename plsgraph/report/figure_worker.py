@@ -537,16 +537,10 @@ def _render_in_two(out: Path, inputs: Any, which: Any = None) -> tuple[list[tupl
 
 
 def _end_with_parent() -> None:
-    """Have this process killed when its parent ends (Linux's PR_SET_PDEATHSIG; elsewhere nothing): a fork drawing
-    figures must not outlive a worker that died, writing into a folder the caller has given up on."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
+    """Have this process killed when its parent ends (:func:`plsgraph.core.processes.end_with_parent`)."""
+    from ..core.processes import end_with_parent
 
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # 1: PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
+    end_with_parent()
 
 
 def _set_autogroup_nice(nice: int) -> bool:
