@@ -427,6 +427,56 @@ def test_an_interrupt_leaves_the_previous_result_intact(tmp_path):
     assert not [p for p in tmp_path.iterdir() if "staging" in p.name]
 
 
+def test_what_a_killed_run_left_beside_its_folder_is_cleared_by_the_next_and_a_result_caught_mid_swap_restored(
+        tmp_path):
+    """A review: runs killed by SIGKILL or SIGTERM left hidden .NAME.staging-* folders (one held a calibration.yaml)
+    that no later run removed. A run killed between the swap's two renames would leave the earlier result only in
+    .NAME.old-*/previous."""
+    out = tmp_path / "out"
+    (tmp_path / ".out.staging-abc").mkdir()
+    (tmp_path / ".out.staging-abc" / "calibration.yaml").write_text("ok: true\n")
+    (tmp_path / ".out.old-xyz" / "previous").mkdir(parents=True)
+    (tmp_path / ".out.old-xyz" / "previous" / "calibration.yaml").write_text("earlier\n")
+    (tmp_path / ".other.staging-1").mkdir()  # another folder's: not this run's business
+
+    seen = {}
+
+    def work(stage):
+        seen["out"] = (out / "calibration.yaml").read_text()  # put back before the run's own work
+        (stage / "report.json").write_text("{}")
+        return {"ok": True, "text": ""}
+
+    write_result_folder(out, work)
+    assert seen["out"] == "earlier\n" and sorted(p.name for p in out.iterdir()) == ["report.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".other.staging-1", "out"]
+
+
+def test_sigterm_ends_a_calibration_like_ctrl_c(tmp_path):
+    """A review: SIGTERM (a job scheduler, systemd) or SIGHUP (a closed ssh session) ended a calibration with no
+    message and left its staging folder behind."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from realdata import SAMPLE
+
+    exe = Path(sys.executable).with_name("plsgraph")
+    out = _old_result(tmp_path / "out")
+    proc = subprocess.Popen([str(exe), "calibrate", str(SAMPLE), "--board", "acircles_4x11_a2", "--out", str(out),
+                             "--force"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not list(tmp_path.glob(".out.staging-*")) and time.monotonic() < deadline:  # the run is under way
+        time.sleep(0.05)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "terminated (SIGTERM)" in err and "Traceback" not in err
+    assert sorted(p.name for p in out.iterdir()) == ["calibration.yaml", "residuals.png"]  # the earlier result
+    assert not [p for p in tmp_path.iterdir() if "staging" in p.name or ".old-" in p.name]
+
+
 def test_a_second_run_on_the_same_out_fails_clearly(tmp_path):
     # Before: two runs on one new --out both said "written" and the folder mixed their files.
     out = tmp_path / "out"

@@ -2,7 +2,7 @@
 
 Exit codes: 0 success, 1 the job ran but its result is flagged (degenerate / not converged / failed
 items in a batch), 2 user error (bad flags, unreadable input, refused overwrite), 3 internal error,
-130 interrupted.
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 (SIGHUP).
 """
 
 from __future__ import annotations
@@ -390,6 +390,10 @@ def _run_command(args: argparse.Namespace) -> int:
         print(f"plsgraph: error: {exc}", file=sys.stderr)
         _json_error(args, str(exc), 2)
         return 2
+    except Terminated as exc:  # SIGTERM (a job scheduler, systemd, kill) or SIGHUP (a closed terminal or ssh session)
+        print(f"plsgraph: terminated ({exc.name}); what the run had written in progress is removed, an earlier "
+              "result in its --out is kept", file=sys.stderr)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print("plsgraph: interrupted", file=sys.stderr)
         return 130
@@ -416,12 +420,47 @@ def single_threaded_blas() -> None:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP, raised in the command's main thread like Ctrl-C's KeyboardInterrupt, so that the same
+    clean-up runs (staging folder removed, worker processes stopped, an earlier result kept)."""
+
+    def __init__(self, signum: int):
+        import signal
+
+        super().__init__(signum)
+        self.signum = int(signum)
+        self.name = signal.Signals(signum).name
+
+
+def terminate_like_interrupt() -> None:
+    """SIGTERM and SIGHUP end the command as Ctrl-C does (:class:`Terminated`), in this process only: a process
+    forked from it (the refinement's second opinion, a figure) keeps the default, dying at once."""
+    import signal
+
+    me = os.getpid()
+
+    def handler(signum, frame):
+        if os.getpid() != me:  # a forked child: die as the default action would
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        raise Terminated(signum)
+
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        try:
+            if signal.getsignal(sig) in (signal.SIG_DFL, None):
+                signal.signal(sig, handler)
+        except (ValueError, OSError):  # not the main thread, or a platform without the signal
+            pass
+
+
 def run() -> None:
     """The ``plsgraph`` command (the console script): :func:`main`, then, for :data:`QUICK_EXIT_COMMANDS`, the
     process ends at once (:func:`end_process`) instead of tearing the interpreter down, which takes a third of a
     second after a calibration (gtsam, OpenCV and scipy are loaded) for nothing the user sees."""
     argv = sys.argv[1:]
     single_threaded_blas()
+    terminate_like_interrupt()
     code = main(argv)
     if next((a for a in argv if not a.startswith("-")), None) in QUICK_EXIT_COMMANDS:
         end_process(code)

@@ -321,11 +321,30 @@ class staged_output:
     def __enter__(self) -> Path:
         parent = self.out.absolute().parent
         parent.mkdir(parents=True, exist_ok=True)
+        self._clear_leftovers(parent)
         self.stage = Path(tempfile.mkdtemp(dir=parent, prefix=f".{self.out.name}.staging-"))
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(self.stage, 0o777 & ~umask)  # mkdtemp's 0700 would hide the results from the rest of the team
         return self.stage
+
+    def _clear_leftovers(self, parent: Path) -> None:
+        """What runs on this folder that were killed (SIGKILL, a power cut) left beside it: their staging folders
+        go, and an earlier result caught between the swap's two renames (``.NAME.old-*/previous`` with ``out``
+        missing) is put back first. Only under the folder's :class:`OutputLock`, which no such run holds now."""
+        import shutil
+
+        for old in sorted(parent.glob(f".{self.out.name}.old-*")):
+            prev = old / "previous"
+            try:
+                if prev.is_dir() and not self.out.exists():
+                    os.rename(prev, self.out)
+                shutil.rmtree(old, ignore_errors=True)
+            except OSError:
+                pass
+        for stage in parent.glob(f".{self.out.name}.staging-*"):
+            if stage.is_dir():
+                shutil.rmtree(stage, ignore_errors=True)
 
     def __exit__(self, exc_type, exc, tb) -> None:
         import shutil
