@@ -135,8 +135,27 @@ def _as_row(result: Any, item: tuple) -> dict:
     """refine_many's per-item outcome -> summary row (an exception it caught becomes a failed row)."""
     if result.ok and isinstance(result.value, dict):
         return result.value
-    return {**_failed_row(item[0], item[1], f"{result.error_type}: {result.error}"),
-            "seconds": round(result.seconds, 2)}
+    error = f"{result.error_type}: {result.error}"
+    if result.error_type == "BrokenProcessPool":
+        error = ("the worker process calibrating it was killed (out of memory, or a signal: see the system log, "
+                 "e.g. dmesg), also when it ran again alone; its folder keeps what it held")
+    return {**_failed_row(item[0], item[1], error), "seconds": round(result.seconds, 2)}
+
+
+def _stop_workers(executor: Any) -> None:
+    """Kill a process pool's workers now (a batch interrupted: the recordings they were on stop, and the one a worker
+    had queued never starts). Their own workers end with them (plsgraph.core.processes.end_with_parent); a folder
+    caught mid-swap is put back by the next run on it."""
+    for proc in list((getattr(executor, "_processes", None) or {}).values()):
+        try:
+            proc.kill()
+        except (OSError, AttributeError, ValueError):
+            pass
+    for proc in list((getattr(executor, "_processes", None) or {}).values()):
+        try:
+            proc.join(timeout=5)
+        except (OSError, AttributeError, ValueError, AssertionError):
+            pass
 
 
 def skipped_in_folders(inputs: list[Path]) -> list[str]:
@@ -185,10 +204,7 @@ def run_batch(
     With ``force`` into a folder of an earlier batch, the results of its recordings that this batch does not calibrate
     again stay, and so do their rows in the summary (``earlier_run``: true), so that one recording can be calibrated
     again alone; ``prune`` removes them instead. ``ok`` is about this batch's recordings."""
-    from dataclasses import replace
-
-    from .refine.batch import default_executor, refine_many
-    from .report.files import markdown_table, prepare_output_dir, write_json, write_text
+    from .report.files import OutputLock, prepare_output_dir
 
     if jobs is not None and jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {jobs}")
@@ -197,6 +213,18 @@ def run_batch(
     for p in logs:  # every recording's own settings checked before any work: a wrong one is the user's to fix
         recording_options(p, options)
     out = prepare_output_dir(out_dir, force=force, whole=False)  # written into; each recording's folder replaced
+    # One batch at a time in a folder (a second one fails at once; before, two marked each other's recordings failed).
+    with OutputLock(out):
+        return _run_batch_in(inputs, out, logs, options, force, jobs, executor, prune)
+
+
+def _run_batch_in(inputs: list[Path], out: Path, logs: list[Path], options: CalibrationOptions, force: bool,
+                  jobs: int | None, executor: Executor | None, prune: bool) -> dict:
+    from dataclasses import replace
+
+    from .refine.batch import default_executor, refine_many, rerun_broken
+    from .report.files import markdown_table, write_json, write_text
+
     earlier = _earlier_batch_rows(out)  # read before this batch's summary replaces the earlier one
     if (out / "summary.json").is_file():
         # Set aside, not deleted: if this batch is interrupted, the next one still finds which folders an earlier
@@ -218,10 +246,20 @@ def run_batch(
     started = time.time()
     try:
         results = refine_many(items, _batch_item, executor=executor)
+        broken = [k for k, r in enumerate(results) if not r.ok and r.error_type == "BrokenProcessPool"]
+        if broken and own:
+            # A worker process died (killed: out of memory, or a signal), which breaks the pool and fails every
+            # recording it had not finished, not only its own: each is calibrated again, alone in a fresh process.
+            executor.shutdown(wait=False, cancel_futures=True)
+            log.warning("a worker process of the batch ended abruptly (killed: out of memory, or a signal); the %d "
+                        "recording(s) it left unfinished are calibrated again, one at a time", len(broken))
+            results = rerun_broken(items, results, _batch_item)
     except KeyboardInterrupt:
+        if own:  # no recording starts or finishes after the interrupt: the folders said below are all there is
+            _stop_workers(executor)
         done = [Path(item[1]).name for item in items if _written_since(Path(item[1]), started)]
-        log.warning("batch interrupted: %s (a recording a worker was on may still finish; the others do not start); "
-                    "no summary is written (run the batch again with --force for one)",
+        log.warning("batch interrupted: %s (the recordings being calibrated were stopped; their folders keep what they "
+                    "held); no summary is written (run the batch again with --force for one)",
                     f"so far the folders of {', '.join(done)} are this run's" if done else
                     "no recording had finished yet")
         raise
@@ -241,7 +279,7 @@ def run_batch(
             notes.append(f"removed the earlier results of recordings not in this batch (--prune): {', '.join(stale)}")
     elif others:
         kept = [name for name in sorted(others) if (out / name / "report.json").is_file()]
-        rows += [{**others[name], "earlier_run": True} for name in kept]
+        rows += [{**_row_from_folder(others[name], out / name), "earlier_run": True} for name in kept]
         if kept:
             notes.append(f"kept the earlier results of recordings not in this batch (listed as earlier runs; --prune "
                          f"removes them): {', '.join(kept)}")
@@ -311,6 +349,40 @@ def _written_since(folder: Path, t0: float) -> bool:
 
 #: An earlier batch's summary.json while a batch runs (an interrupted batch leaves it for the next).
 EARLIER_SUMMARY = ".summary-earlier.json"
+
+
+def _row_from_folder(row: dict, folder: Path) -> dict:
+    """An earlier batch's summary ``row`` as its ``folder`` holds it now: status, extrinsic, sigmas, problems and
+    warnings read from the folder's report.json. The earlier summary may describe another result than the folder's
+    (a batch interrupted after it replaced the folder, before it wrote its own summary); the folder is what a user
+    would take. A report.json that cannot be read leaves the row as the summary had it, with a warning saying so."""
+    import json
+
+    try:
+        rep = json.loads((folder / "report.json").read_text())
+        if not isinstance(rep, dict):
+            raise ValueError("not a mapping")
+    except (OSError, ValueError) as exc:
+        return {**row, "warnings": [*(row.get("warnings") or []),
+                                    f"its folder's report.json could not be read ({exc}): this row is the earlier "
+                                    "summary's, which may not describe the folder"]}
+    c = rep.get("calibration") or {}
+    problems = list(rep.get("problems") or [])
+    if rep.get("ok"):
+        status, error = "ok", None
+    elif c or rep.get("advice"):  # a flagged calibration, or a diagnosis (too little motion, too little data)
+        status, error = "flagged", None
+    else:  # a failure's report: no calibration and no advice, the error among its problems
+        status, error = "failed", (problems[0] if problems else row.get("error"))
+    new = _row(row.get("recording") or str(folder), str(folder), status, c, problems, list(rep.get("warnings") or []),
+               error)
+    new["seconds"] = row.get("seconds")
+    new["options_file"] = row.get("options_file")
+    if "truth_errors" in rep:
+        new["truth_errors"] = rep["truth_errors"]
+    if rep.get("previous_calibration"):
+        new["previous_calibration"] = str((folder / rep["previous_calibration"]).absolute())
+    return new
 
 
 def _earlier_batch_rows(out: Path) -> dict[str, dict]:

@@ -7,7 +7,7 @@ import pytest
 from refine_cases import rotation_error_base_axes, sim_case
 
 from plsgraph.errors import InputError
-from plsgraph.refine.batch import RefineJob, item_seed, refine_job, refine_many
+from plsgraph.refine.batch import BatchItemResult, RefineJob, item_seed, refine_job, refine_many
 
 
 def noisy_mean(item, seed):
@@ -64,3 +64,38 @@ def test_process_pool_refines_recordings_and_records_errors():
     d = np.degrees(rotation_error_base_axes(r.R_base_cam, case.rec.T_base_cam[:3, :3]))
     assert np.all(np.abs(d) < 4 * r.sigma_rot_deg + 0.05)
     assert not res[1].ok and res[1].error_type == "InputError"
+
+
+def dies_once(item, seed):
+    """A worker killed while on this item the first time (the kernel's out-of-memory killer), fine the second."""
+    import os
+    import signal
+    from pathlib import Path
+
+    marker, value = item
+    if marker is not None and not Path(marker).exists():
+        Path(marker).write_text("killed once")
+        os.kill(os.getpid(), signal.SIGKILL)
+    return value
+
+
+def test_a_killed_worker_fails_only_its_own_item_once_the_broken_ones_run_again(tmp_path):
+    """A review: one batch worker killed (an out-of-memory kill) broke the pool, and every recording it had not
+    finished was reported failed with 'BrokenProcessPool', also those that never started."""
+    from plsgraph.refine.batch import default_executor, rerun_broken
+
+    items = [(None, 1), (str(tmp_path / "marker"), 2), (None, 3), (None, 4)]
+    ex = default_executor(len(items), 2)
+    try:
+        res = refine_many(items, dies_once, ex)
+    finally:
+        ex.shutdown(wait=True, cancel_futures=True)
+    assert any(r.error_type == "BrokenProcessPool" for r in res)
+    again = rerun_broken(items, res, dies_once)
+    assert [r.ok for r in again] == [True] * 4 and [r.value for r in again] == [1, 2, 3, 4]
+    assert [r.seed for r in again] == [r.seed for r in res]
+    # Killed again, alone: that item stays failed, as a broken pool's.
+    (tmp_path / "marker").unlink()
+    first = [BatchItemResult(0, "0", 7, False, None, "BrokenProcessPool", "killed")]
+    res2 = rerun_broken([(str(tmp_path / "marker"), 2)], first, dies_once)
+    assert not res2[0].ok and res2[0].error_type == "BrokenProcessPool" and res2[0].seed == 7

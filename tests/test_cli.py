@@ -252,7 +252,11 @@ def test_batch_force_keeps_the_results_of_recordings_not_given_unless_pruned(tmp
     (tmp_path / "in" / "a.mcap").write_bytes(b"not a recording")
     out = tmp_path / "out"
     (out / "gone").mkdir(parents=True)
-    (out / "gone" / "report.json").write_text('{"ok": true}')
+    # The folder holds another result than the earlier summary says (a batch was interrupted after replacing it, before
+    # writing its summary; a review): the row is the folder's.
+    (out / "gone" / "report.json").write_text(json.dumps(
+        {"ok": False, "problems": ["the camera comes out upside down"], "warnings": [],
+         "calibration": {"rpy_deg": [4.0, 5.0, 6.0], "time_offset_s": 0.02, "observability": []}}))
     (out / "mine").mkdir()
     (out / "mine" / "notes.txt").write_text("kept")
     # A calibration's folder put beside the batch's by hand (no earlier summary lists it): not the batch's to remove.
@@ -266,7 +270,8 @@ def test_batch_force_keeps_the_results_of_recordings_not_given_unless_pruned(tmp
     assert "kept the earlier results of recordings not in this batch" in text and "gone" in text
     assert (out / "gone" / "report.json").exists()
     rows = {Path(r["recording"]).stem: r for r in json.loads((out / "summary.json").read_text())["recordings"]}
-    assert rows["gone"]["earlier_run"] is True and rows["gone"]["rpy_deg"] == [1.0, 2.0, 3.0]
+    assert rows["gone"]["earlier_run"] is True and rows["gone"]["rpy_deg"] == [4.0, 5.0, 6.0]
+    assert rows["gone"]["status"] == "flagged" and rows["gone"]["problems"] == ["the camera comes out upside down"]
     assert rows["a"]["status"] == "failed" and rows["a"]["problems"] == [rows["a"]["error"]]
     assert set(rows["a"]) >= {"folder", "sigma", "warnings", "translation_m", "rpy_deg", "rpy_sigma_deg",
                               "time_offset_s"}
@@ -463,3 +468,59 @@ def test_window_and_tau_reach_the_front_end_and_are_checked(tmp_path, monkeypatc
     assert "has none" in capsys.readouterr().err
     assert main([*args, "--window", "9"]) == 2
     assert "outside 0.001 .. 5 s" in capsys.readouterr().err
+
+
+def test_a_second_batch_into_the_same_folder_fails_at_once(tmp_path, capsys):
+    """A review: two batches into one --out both ran, marked each other's recordings failed, and the last summary said
+    failed of a folder holding an ok calibration."""
+    from plsgraph.report.files import OutputLock
+
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "a.mcap").write_bytes(b"not a recording")
+    out = tmp_path / "out"
+    out.mkdir()
+    with OutputLock(out):  # the first batch, still running
+        assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11_a2", "--out", str(out), "--force",
+                     "--jobs", "1"]) == 2
+    assert "another plsgraph run is writing the output folder" in capsys.readouterr().err
+    assert not (out / "a").exists()
+
+
+def test_an_interrupted_batch_stops_its_workers_at_once():
+    """A review: Ctrl-C (or kill -INT of the batch alone) let the recording a worker had queued start and finish after
+    the message that named the finished folders."""
+    import time
+
+    from plsgraph.batch import _stop_workers
+    from plsgraph.refine.batch import default_executor
+
+    ex = default_executor(2, 2)
+    try:
+        futs = [ex.submit(time.sleep, 30) for _ in range(3)]
+        deadline = time.monotonic() + 20
+        while not (len(ex._processes) == 2 and all(p.is_alive() for p in ex._processes.values())
+                   and any(f.running() for f in futs)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        procs = list(ex._processes.values())
+        assert len(procs) == 2
+        t0 = time.monotonic()
+        _stop_workers(ex)
+        assert not any(p.is_alive() for p in procs) and time.monotonic() - t0 < 10  # not after the 30 s sleeps
+    finally:
+        ex.shutdown(wait=False, cancel_futures=True)
+
+
+def test_a_killed_worker_process_is_named_not_reported_as_a_bug(tmp_path, monkeypatch, capsys):
+    """A review: a front-end worker killed (an out-of-memory kill) gave 'internal error (BrokenProcessPool ...);
+    please report it'."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    import plsgraph.frontend.track as track
+
+    def killed(*args, **kwargs):
+        raise BrokenProcessPool("A process in the process pool was terminated abruptly")
+
+    monkeypatch.setattr(track, "camera_track_from_event_chunks", killed)
+    assert main(["calibrate", str(SAMPLE), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "o")]) == 3
+    err = capsys.readouterr().err
+    assert "worker process ended abruptly" in err and "out of memory" in err and "please report" not in err

@@ -1,8 +1,8 @@
 """The ``plsgraph`` command. Library code raises typed errors; only this module prints.
 
 Exit codes: 0 success, 1 the job ran but its result is flagged (degenerate / not converged / failed
-items in a batch), 2 user error (bad flags, unreadable input, refused overwrite), 3 internal error,
-130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 (SIGHUP).
+items in a batch), 2 user error (bad flags, unreadable input, refused overwrite), 3 internal error (or a worker
+process killed), 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 (SIGHUP).
 """
 
 from __future__ import annotations
@@ -398,6 +398,12 @@ def _run_command(args: argparse.Namespace) -> int:
         print("plsgraph: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # a bug: say so plainly, keep the traceback for the report with --verbose
+        if type(exc).__name__ == "BrokenProcessPool":  # a worker process killed, not a bug of ours
+            msg = ("a worker process ended abruptly (killed: out of memory, or a signal; the system log, e.g. dmesg, "
+                   "says which); nothing was written, an earlier result in --out is kept")
+            print(f"plsgraph: error: {msg}", file=sys.stderr)
+            _json_error(args, msg, 3)
+            return 3
         if args.verbose:
             traceback.print_exc()
         print(f"plsgraph: internal error ({type(exc).__name__}: {exc}); please report it with the command line "

@@ -138,6 +138,26 @@ def refine_many(
     return [r for r in out if r is not None]
 
 
+def rerun_broken(items: Sequence[Any], results: list[BatchItemResult], fn: Callable[[Any, int], Any]
+                 ) -> list[BatchItemResult]:
+    """``results`` with every outcome of a broken process pool (a worker killed, by the kernel's out-of-memory
+    killer or a signal: the pool then fails every item it had not finished, not only the killed one's) replaced by
+    running that item again, alone in a fresh process. An item whose worker is killed again stays failed."""
+    out = list(results)
+    for k, r in enumerate(results):
+        if r.ok or r.error_type != "BrokenProcessPool":
+            continue
+        alone = default_executor(1, 1)
+        try:
+            ok, value, etype, msg, tb, secs = alone.submit(_run_one, fn, items[k], r.seed).result()
+            out[k] = BatchItemResult(r.index, r.name, r.seed, ok, value, etype, msg, tb, secs)
+        except Exception as exc:  # noqa: BLE001 - killed again (a broken pool), or it could not be sent
+            out[k] = BatchItemResult(r.index, r.name, r.seed, False, None, type(exc).__name__, str(exc))
+        finally:
+            alone.shutdown(wait=True, cancel_futures=True)
+    return out
+
+
 @dataclass(frozen=True)
 class RefineJob:
     """Everything :func:`plsgraph.refine.graph.refine` needs for one recording (picklable)."""
