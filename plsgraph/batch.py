@@ -74,6 +74,13 @@ def _calibrate_item(item: tuple[str, str, CalibrationOptions, bool]) -> dict:
         row = _failed_row(log_path, out_dir, f"{type(exc).__name__}: {exc}")
         _replace_with_failure(log_path, out_dir, force, row["error"])
         row["previous_calibration"] = _kept_calibration(out_dir)
+    except OSError as exc:  # a full disk, a folder that cannot be written: the recording's, said plainly
+        from .report.files import disk_message
+
+        row = _failed_row(log_path, out_dir, disk_message(exc, out_dir))
+        log.warning("%s: %s", Path(log_path).name, row["error"])
+        _replace_with_failure(log_path, out_dir, force, row["error"])
+        row["previous_calibration"] = _kept_calibration(out_dir)
     except Exception as exc:  # a bug must not stop the other recordings; it is reported in the summary
         log.exception("unexpected failure on %s", log_path)
         row = _failed_row(log_path, out_dir, f"internal error {type(exc).__name__}: {exc}")

@@ -531,11 +531,21 @@ def test_a_flagged_result_keeps_the_calibration_it_replaces_and_a_failed_copy_co
     write_result_folder(out, lambda stage: (write_calibration(stage, flagged, earlier=out),
                                             {"ok": False, "text": ""})[1])
     assert (out / "previous_calibration" / "calibration.yaml").read_text() == good
-    # A copy that fails (an unreadable file, a full disk) leaves the new result whole, without the kept one.
+    # A nearly full disk (a review: the earlier calibration was lost when it could not be copied): the kept files
+    # are hard links, which need no room.
+    def full(*a, **k):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(shutil, "copy2", full)
+    write_result_folder(out, lambda stage: (write_calibration(stage, flagged, earlier=out),
+                                            {"ok": False, "text": ""})[1])
+    assert (out / "previous_calibration" / "calibration.yaml").read_text() == good
+    # Where neither a link nor a copy can be made, the new result is whole, without the kept one.
     def refuse(*a, **k):
         raise PermissionError("not readable")
 
     monkeypatch.setattr(shutil, "copy2", refuse)
+    monkeypatch.setattr(output.os, "link", refuse)
     write_result_folder(out, lambda stage: (write_calibration(stage, flagged, earlier=out),
                                             {"ok": False, "text": ""})[1])
     assert not (out / "previous_calibration").exists() and (out / "report.json").exists()
@@ -562,3 +572,18 @@ def test_motion_advice_names_what_the_motion_left_undetermined():
     scale = motion_advice(obs(), z, ["the camera and the wheel odometry disagree on distances by x0.518 (...)"])
     assert any("board's size" in a for a in scale) and not any("turn" in a for a in scale)
     assert motion_advice(obs(), []) == []
+
+
+def test_an_event_frames_picture_that_cannot_be_written_is_a_failed_figure_not_a_silent_gap(sample_result, tmp_path,
+                                                                                           monkeypatch):
+    """A review: on a full disk OpenCV's write failed (its return value unread), the run ended ok and report.html showed
+    a broken image with no warning."""
+    import cv2
+
+    from plsgraph.report import coverage
+    from plsgraph.report.figures import figure_inputs
+
+    monkeypatch.setattr(cv2, "imwrite", lambda *a, **k: False)
+    with pytest.raises(OSError, match="event_frames.png could not be written"):
+        coverage.fig_event_frames(figure_inputs(sample_result.run), tmp_path)
+    assert not (tmp_path / "event_frames.png").exists()

@@ -524,3 +524,25 @@ def test_a_killed_worker_process_is_named_not_reported_as_a_bug(tmp_path, monkey
     assert main(["calibrate", str(SAMPLE), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "o")]) == 3
     err = capsys.readouterr().err
     assert "worker process ended abruptly" in err and "out of memory" in err and "please report" not in err
+
+
+def test_a_full_disk_is_named_with_the_folder_and_the_earlier_result_kept(tmp_path, monkeypatch, capsys):
+    """A review: a full disk gave only 'plsgraph: error: [Errno 28] No space left on device' (no path, nothing on what
+    became of the results)."""
+    import errno
+
+    import plsgraph.report.output as output
+
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "calibration.yaml").write_text("ok: true\n")
+    (out / "report.json").write_text("{}")
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(output, "write_calibration", full)
+    code = main(["calibrate", str(SAMPLE), "--board", "acircles_4x11_a2", "--no-refine", "--out", str(out), "--force"])
+    err = capsys.readouterr().err
+    assert code == 2 and f"no space left on the disk of {out}" in err and "earlier result" in err
+    assert (out / "calibration.yaml").read_text() == "ok: true\n"

@@ -387,8 +387,11 @@ def _run_command(args: argparse.Namespace) -> int:
         os.dup2(devnull, sys.stdout.fileno())
         return getattr(args, "exit_code", 0)
     except OSError as exc:  # unwritable output folder, a file where a folder should be, a full disk
-        print(f"plsgraph: error: {exc}", file=sys.stderr)
-        _json_error(args, str(exc), 2)
+        from ..report.files import disk_message
+
+        msg = disk_message(exc, getattr(args, "out", None))
+        print(f"plsgraph: error: {msg}", file=sys.stderr)
+        _json_error(args, msg, 2)
         return 2
     except Terminated as exc:  # SIGTERM (a job scheduler, systemd, kill) or SIGHUP (a closed terminal or ssh session)
         print(f"plsgraph: terminated ({exc.name}); what the run had written in progress is removed, an earlier "

@@ -268,7 +268,9 @@ def fig_event_frames(run: Any, out: Path, truth_T: Any = None, n_frames: int = 3
     row = tiles[0]
     for tile in tiles[1:]:
         row = np.hstack([row, gap, tile])
-    cv2.imwrite(str(out / "event_frames.png"), row)
+    if not cv2.imwrite(str(out / "event_frames.png"), row):  # OpenCV says nothing else (a full disk, a bad folder)
+        (out / "event_frames.png").unlink(missing_ok=True)
+        raise OSError(f"event_frames.png could not be written into {out}")
     return "event_frames.png"
 
 

@@ -158,6 +158,17 @@ def calibration_dict(
     return to_jsonable(d)
 
 
+def disk_message(exc: OSError, out: object = None) -> str:
+    """An OSError as a user reads it: a full disk names where, and says what happened to the results."""
+    import errno
+
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        where = exc.filename or out
+        return (f"no space left on the disk{f' of {where}' if where else ''} ({exc.strerror}): this run's result was "
+                "not written, and an earlier result in that folder is kept as it was; free some space and run again")
+    return str(exc)
+
+
 def _atomic_write(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:

@@ -8,6 +8,7 @@ never holds files of two runs and an interrupted run leaves the previous result 
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -125,7 +126,12 @@ def keep_earlier_calibration(earlier: Path | None, stage: Path) -> Path | None:
         keep.mkdir(parents=True, exist_ok=True)
         for f in sorted(src.iterdir()):
             if f.is_file() and not f.is_symlink() and f.name in RESULT_FILES:
-                shutil.copy2(f, keep / f.name)
+                try:
+                    # A hard link: the stage is beside the folder, on its disk, and result files are only ever
+                    # replaced, never written in place. It needs no room, so a nearly full disk keeps them too.
+                    os.link(f, keep / f.name)
+                except OSError:
+                    shutil.copy2(f, keep / f.name)
     except OSError as exc:  # the new result matters more than the copy: written without it, and said so
         shutil.rmtree(keep, ignore_errors=True)
         log.warning("the earlier calibration in %s could not be kept (%s); it is replaced", earlier, exc)
