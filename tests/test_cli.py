@@ -546,3 +546,15 @@ def test_a_full_disk_is_named_with_the_folder_and_the_earlier_result_kept(tmp_pa
     err = capsys.readouterr().err
     assert code == 2 and f"no space left on the disk of {out}" in err and "earlier result" in err
     assert (out / "calibration.yaml").read_text() == "ok: true\n"
+
+
+def test_a_simulation_larger_than_the_available_memory_is_refused_before_it_starts(tmp_path, monkeypatch, capsys):
+    """A review: --duration was accepted up to an hour, which would need about 115 GB (the events are held in
+    memory), without a word."""
+    import plsgraph.api as api
+
+    monkeypatch.setattr(api, "_available_memory", lambda: 2e9)
+    assert main(["simulate", "--duration", "120", "--out", str(tmp_path / "s.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert "needs about 4.3 GB of memory" in err and "2.0 GB are available" in err and "at most about 52 s" in err
+    assert not (tmp_path / "s.mcap").exists()
