@@ -312,6 +312,8 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
             yield ch
 
     span = None if info.t_first_ns is None or info.t_last_ns is None else (info.t_first_ns, info.t_last_ns)
+    if span is None and hasattr(src, "approx_span"):  # an MCAP file: its chunk index gives the span for the bar
+        span = src.approx_span(topic)
 
     def too_short(first: int, last: int) -> InsufficientDataError | None:
         if (last - first) * 1e-9 >= MIN_EVENT_SPAN_S:

@@ -558,3 +558,25 @@ def test_a_simulation_larger_than_the_available_memory_is_refused_before_it_star
     err = capsys.readouterr().err
     assert "needs about 4.3 GB of memory" in err and "2.0 GB are available" in err and "at most about 52 s" in err
     assert not (tmp_path / "s.mcap").exists()
+
+
+def test_the_front_ends_progress_bar_knows_an_mcap_recordings_length(tmp_path, monkeypatch):
+    """A review: on MCAP files the 'detecting board' bar had no total (the topic's time span is not in the summary)
+    and looked finished all along (8998/8998 for 72 s)."""
+    import plsgraph.frontend.track as track
+    from plsgraph.io.source import open_source
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def capture(*args, **kwargs):
+        seen.update(kwargs)
+        raise Stop
+
+    monkeypatch.setattr(track, "camera_track_from_event_chunks", capture)
+    main(["calibrate", str(SAMPLE), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "o")])
+    first, last = seen["expected_span_ns"]
+    times = [m.log_time_ns for m in open_source(SAMPLE).iter_raw({"/event_camera/events"})]
+    assert first <= min(times) and last >= max(times) and (last - first) < 1.1 * (max(times) - min(times)) + 1e9

@@ -40,7 +40,17 @@ class McapSource:
         self._summary_ok = False
         # Channels by id from the summary: lets messages be read even when the chunk declaring them is lost.
         self._summary_channels: dict[int, tuple[str, str, str]] = {}
+        self._chunk_spans: dict[int, list[int]] = {}
         self._read_summary()
+
+    def approx_span(self, topic: str) -> tuple[int, int] | None:
+        """(first, last) log time (ns) of the chunks that hold ``topic``'s messages, from the summary's chunk index:
+        what a progress bar needs, not the messages' exact times; None without an index."""
+        ends = [self._chunk_spans[c] for c, (t, _, _) in self._summary_channels.items()
+                if t == topic and c in self._chunk_spans]
+        if not ends:
+            return None
+        return min(a for a, _ in ends), max(b for _, b in ends)
 
     def _read_summary(self) -> None:
         from mcap.reader import SeekingReader
@@ -53,6 +63,13 @@ class McapSource:
             return
         if summary is None or not summary.channels:
             return
+        # Each channel's time span from the chunk index (a chunk's range: for progress bars, not exact times).
+        spans: dict[int, list[int]] = {}
+        for ci in summary.chunk_indexes or []:
+            for cid in ci.message_index_offsets or {}:
+                a = spans.setdefault(cid, [ci.message_start_time, ci.message_end_time])
+                a[0], a[1] = min(a[0], ci.message_start_time), max(a[1], ci.message_end_time)
+        self._chunk_spans = spans
         counts = summary.statistics.channel_message_counts if summary.statistics else {}
         topics: dict[str, TopicInfo] = {}
         for cid, ch in summary.channels.items():
