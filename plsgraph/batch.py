@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from concurrent.futures import Executor
 from pathlib import Path
 from typing import Any
@@ -204,6 +205,7 @@ def run_batch(
     jobs: int | None = None,
     executor: Executor | None = None,
     prune: bool = False,
+    progress: Callable[[int, int], None] | None = None,
 ) -> dict:
     """Calibrate every recording in ``inputs`` into ``out_dir/<name>/``; a ``<name>.truth.yaml`` beside a
     recording is used as its truth. Returns ``{ok, text, rows}`` and writes summary.json / summary.md.
@@ -222,11 +224,12 @@ def run_batch(
     out = prepare_output_dir(out_dir, force=force, whole=False)  # written into; each recording's folder replaced
     # One batch at a time in a folder (a second one fails at once; before, two marked each other's recordings failed).
     with OutputLock(out):
-        return _run_batch_in(inputs, out, logs, options, force, jobs, executor, prune)
+        return _run_batch_in(inputs, out, logs, options, force, jobs, executor, prune, progress)
 
 
 def _run_batch_in(inputs: list[Path], out: Path, logs: list[Path], options: CalibrationOptions, force: bool,
-                  jobs: int | None, executor: Executor | None, prune: bool) -> dict:
+                  jobs: int | None, executor: Executor | None, prune: bool,
+                  progress: Callable[[int, int], None] | None = None) -> dict:
     from dataclasses import replace
 
     from .refine.batch import default_executor, refine_many, rerun_broken
@@ -252,7 +255,7 @@ def _run_batch_in(inputs: list[Path], out: Path, logs: list[Path], options: Cali
         executor = default_executor(len(items), jobs)
     started = time.time()
     try:
-        results = refine_many(items, _batch_item, executor=executor)
+        results = refine_many(items, _batch_item, executor=executor, progress=progress)
         broken = [k for k, r in enumerate(results) if not r.ok and r.error_type == "BrokenProcessPool"]
         if broken and own:
             # A worker process died (killed: out of memory, or a signal), which breaks the pool and fails every

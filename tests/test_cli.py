@@ -153,7 +153,7 @@ def test_an_interrupted_batch_leaves_no_summary_of_the_batch_before(tmp_path, mo
     assert any("batch interrupted: no recording had finished yet" in r.message and "no summary is written" in r.message
                for r in caplog.records)
 
-    def after_one(items, fn, executor=None):
+    def after_one(items, fn, executor=None, progress=None):
         folder = Path(items[0][1])
         folder.mkdir(parents=True, exist_ok=True)
         (folder / "report.json").write_text("{}")
@@ -580,3 +580,26 @@ def test_the_front_ends_progress_bar_knows_an_mcap_recordings_length(tmp_path, m
     first, last = seen["expected_span_ns"]
     times = [m.log_time_ns for m in open_source(SAMPLE).iter_raw({"/event_camera/events"})]
     assert first <= min(times) and last >= max(times) and (last - first) < 1.1 * (max(times) - min(times)) + 1e9
+
+
+def test_a_progress_bar_whose_count_starts_again_shows_passes_and_a_warning_starts_a_new_line():
+    """A review: the refinement's bar restarted about ten times (each pass counts its iterations from 0), showed an
+    estimate of 297 s for a 24 s step, and a warning was printed at the end of its line."""
+    import io
+    import logging
+
+    from plsgraph.cli.progress import ProgressBar, end_bar_line
+
+    stream = io.StringIO()
+    with ProgressBar("refining (GTSAM)", stream=stream, force=True, min_interval_s=0.0) as bar:
+        for it in range(4):
+            bar(it, 30)
+        assert "eta" in stream.getvalue().split("\r")[-1]
+        for it in range(3):  # the next pass
+            bar(it, 30)
+        last = stream.getvalue().split("\r")[-1]
+        assert "pass 2, step 2" in last and "eta" not in last and "/30" not in last
+        record = logging.LogRecord("x", logging.WARNING, __file__, 1, "a warning", None, None)
+        assert end_bar_line(record) is True and stream.getvalue().endswith("\n")  # the bar's line is ended first
+        bar(3, 30)
+    assert stream.getvalue().endswith("\n")

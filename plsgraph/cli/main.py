@@ -331,13 +331,16 @@ def _cmd_compare(args: argparse.Namespace) -> int:
 def _cmd_batch(args: argparse.Namespace) -> int:
     from ..batch import run_batch
     from ..errors import InputError
+    from .progress import ProgressBar
 
     if args.jobs is not None and args.jobs < 1:
         raise InputError(f"--jobs must be at least 1, got {args.jobs}")
     if args.prune and not args.force:
         raise InputError("--prune goes with --force (it removes earlier results, which only --force replaces)")
     if not args.scheduler:
-        res = run_batch(args.inputs, args.out, _options(args), force=args.force, jobs=args.jobs, prune=args.prune)
+        with ProgressBar("calibrating recordings") as bar:
+            res = run_batch(args.inputs, args.out, _options(args), force=args.force, jobs=args.jobs, prune=args.prune,
+                            progress=bar)
         return _emit(args, res["text"], 0 if res["ok"] else 1)
     try:
         from dask.distributed import Client
@@ -348,8 +351,9 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     except (OSError, TimeoutError) as exc:
         raise InputError(f"cannot reach the Dask scheduler at {args.scheduler}: {exc}") from exc
     try:
-        res = run_batch(args.inputs, args.out, _options(args), force=args.force, executor=client.get_executor(),
-                        prune=args.prune)
+        with ProgressBar("calibrating recordings") as bar:
+            res = run_batch(args.inputs, args.out, _options(args), force=args.force, executor=client.get_executor(),
+                            prune=args.prune, progress=bar)
     finally:
         client.close()
     return _emit(args, res["text"], 0 if res["ok"] else 1)
@@ -361,6 +365,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = _build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
+    from .progress import end_bar_line
+
+    for handler in logging.getLogger().handlers:  # a warning starts on a line of its own, not after a progress bar
+        if end_bar_line not in handler.filters:
+            handler.addFilter(end_bar_line)
     with warnings_once():  # each warning once; taken off the handlers again when the command ends
         return _run_command(args)
 
