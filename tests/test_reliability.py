@@ -850,3 +850,25 @@ def test_simulate_into_a_folder_nothing_can_be_written_into_fails_before_simulat
     monkeypatch.setattr("plsgraph.api.simulate_recording", lambda *a, **k: pytest.fail("simulated before the check"))
     with pytest.raises(InputError, match=r"cannot write .*s\.mcap: Read-only file system"):
         plsgraph.simulate(tmp_path / "s.mcap", duration=3.0)
+
+
+def test_a_linked_out_folder_has_its_target_replaced_and_an_interrupted_run_leaves_no_empty_folders(tmp_path):
+    """A review: --out given as a symbolic link (with --force) had the link replaced by a real folder while the target
+    kept the old result, without a word; an interrupted run into new/deep/cal left the empty new/deep/."""
+    target = _old_result(tmp_path / "real")
+    link = tmp_path / "link"
+    link.symlink_to(target)
+
+    def work(stage):
+        (stage / "report.json").write_text("{}")
+        return {"ok": True, "text": ""}
+
+    write_result_folder(link, work)
+    assert link.is_symlink() and sorted(p.name for p in target.iterdir()) == ["report.json"]
+
+    def interrupted(stage):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        write_result_folder(tmp_path / "new" / "deep" / "cal", interrupted)
+    assert not (tmp_path / "new").exists()

@@ -196,8 +196,19 @@ def write_result_folder(out: Path, work: Callable[[Path], dict], final: Path | N
     """Run ``work(stage)`` (which computes and writes into the staging folder it is given and returns the summary)
     under a lock on ``out``, then move the stage into place. Paths in the summary's text name ``out``."""
     out = Path(out)
-    with OutputLock(out), staged_output(out) as stage:
-        summary = work(stage)
+    if out.is_symlink():  # a link to the folder to write: its target is replaced, not the link (a review)
+        out = out.resolve()
+    made = [p for p in out.absolute().parents if not p.exists()]  # folders this run creates above the result's
+    try:
+        with OutputLock(out), staged_output(out) as stage:
+            summary = work(stage)
+    except BaseException:
+        for p in made:  # deepest first: an interrupted run into new/deep/cal leaves no empty folders behind
+            try:
+                p.rmdir()
+            except OSError:
+                break
+        raise
     if "text" in summary:
         summary["text"] = summary["text"].replace(str(stage), str(out))
     return summary
