@@ -206,6 +206,7 @@ def run_batch(
     executor: Executor | None = None,
     prune: bool = False,
     progress: Callable[[int, int], None] | None = None,
+    resume: bool = False,
 ) -> dict:
     """Calibrate every recording in ``inputs`` into ``out_dir/<name>/``; a ``<name>.truth.yaml`` beside a
     recording is used as its truth. Returns ``{ok, text, rows}`` and writes summary.json / summary.md.
@@ -221,15 +222,20 @@ def run_batch(
     _check_shared_inputs(options)
     for p in logs:  # every recording's own settings checked before any work: a wrong one is the user's to fix
         recording_options(p, options)
-    out = prepare_output_dir(out_dir, force=force, whole=False)  # written into; each recording's folder replaced
+    # Written into; each recording's folder replaced. --resume goes on in a folder that holds results.
+    out = prepare_output_dir(out_dir, force=force or resume, whole=False)
     # One batch at a time in a folder (a second one fails at once; before, two marked each other's recordings failed).
     with OutputLock(out):
-        return _run_batch_in(inputs, out, logs, options, force, jobs, executor, prune, progress)
+        done: list[Path] = []
+        if resume:  # the recordings with a result already: listed from their folders, not calibrated again
+            done = [p for p in logs if (out / p.stem / "report.json").is_file()]
+            logs = [p for p in logs if p not in done]
+        return _run_batch_in(inputs, out, logs, options, force or resume, jobs, executor, prune, progress, done)
 
 
 def _run_batch_in(inputs: list[Path], out: Path, logs: list[Path], options: CalibrationOptions, force: bool,
                   jobs: int | None, executor: Executor | None, prune: bool,
-                  progress: Callable[[int, int], None] | None = None) -> dict:
+                  progress: Callable[[int, int], None] | None = None, done: list[Path] | None = None) -> dict:
     from dataclasses import replace
 
     from .refine.batch import default_executor, refine_many, rerun_broken
@@ -280,9 +286,18 @@ def _run_batch_in(inputs: list[Path], out: Path, logs: list[Path], options: Cali
     for row, item in zip(rows, items, strict=True):
         own = Path(item[0]).with_name(Path(item[0]).stem + OPTIONS_SUFFIX)
         row["options_file"] = str(own.absolute()) if own.is_file() else None
-    ok = all(r["status"] == "ok" for r in rows)
-    others = {name: row for name, row in earlier.items() if name not in {Path(item[1]).name for item in items}}
     notes = []
+    if done:  # --resume: the recordings that had a result, as their folders hold it
+        for p in done:
+            base = earlier.get(p.stem) or _row(str(p), str(out / p.stem), "ok", {}, [], [])
+            rows.append({**_row_from_folder({**base, "recording": str(p.absolute())}, out / p.stem),
+                         "earlier_run": True})
+        notes.append(f"--resume: {len(done)} recording(s) already had a result and were not calibrated again "
+                     f"(listed as earlier runs): {', '.join(p.stem for p in done)}")
+        rows.sort(key=lambda r: Path(str(r["recording"])).name)
+    ok = all(r["status"] == "ok" for r in rows)  # the recordings given, those --resume found done among them
+    given = {Path(item[1]).name for item in items} | {p.stem for p in done or []}
+    others = {name: row for name, row in earlier.items() if name not in given}
     if force and prune:
         stale = _remove_stale_results(out, set(others))
         if stale:

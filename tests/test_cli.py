@@ -603,3 +603,28 @@ def test_a_progress_bar_whose_count_starts_again_shows_passes_and_a_warning_star
         assert end_bar_line(record) is True and stream.getvalue().endswith("\n")  # the bar's line is ended first
         bar(3, 30)
     assert stream.getvalue().endswith("\n")
+
+
+def test_batch_resume_calibrates_only_the_recordings_without_a_result(tmp_path, capsys):
+    """A review: an interrupted batch could not be resumed (refused without --force; with it the finished recordings
+    were computed again)."""
+    (tmp_path / "in").mkdir()
+    for name in ("a", "b"):
+        (tmp_path / "in" / f"{name}.mcap").write_bytes(b"not a recording")
+    out = tmp_path / "out"
+    (out / "a").mkdir(parents=True)  # finished before the interrupt
+    (out / "a" / "report.json").write_text(json.dumps(
+        {"ok": True, "problems": [], "warnings": [], "calibration": {"rpy_deg": [1.0, 2.0, 3.0],
+                                                                    "time_offset_s": 0.01, "observability": []}}))
+    before = (out / "a" / "report.json").read_text()
+    args = ["batch", str(tmp_path / "in"), "--board", "acircles_4x11_a2", "--out", str(out), "--jobs", "1"]
+    assert main([*args, "--resume", "--force"]) == 2  # one or the other
+    capsys.readouterr()
+    assert main([*args, "--resume"]) == 1  # b fails (not a recording): the exit code is about every recording given
+    text = capsys.readouterr().out
+    assert "--resume: 1 recording(s) already had a result and were not calibrated again" in text
+    assert (out / "a" / "report.json").read_text() == before  # not calibrated again
+    rows = {Path(r["recording"]).stem: r for r in json.loads((out / "summary.json").read_text())["recordings"]}
+    assert rows["a"]["earlier_run"] and rows["a"]["status"] == "ok" and rows["a"]["rpy_deg"] == [1.0, 2.0, 3.0]
+    assert rows["b"]["status"] == "failed" and not rows["b"].get("earlier_run")
+    assert (out / "b" / "report.json").is_file()

@@ -216,6 +216,9 @@ def _build_parser() -> argparse.ArgumentParser:
                    "recordings not given stay, listed in the summary as earlier runs")
     s.add_argument("--prune", action="store_true",
                    help="with --force: remove the earlier batch's results of recordings not given this time")
+    s.add_argument("--resume", action="store_true",
+                   help="calibrate only the recordings whose folder in --out holds no result yet (the rest of an "
+                   "interrupted batch); the others are listed in the summary from their folders")
     s.set_defaults(func=_cmd_batch)
     return p
 
@@ -337,10 +340,13 @@ def _cmd_batch(args: argparse.Namespace) -> int:
         raise InputError(f"--jobs must be at least 1, got {args.jobs}")
     if args.prune and not args.force:
         raise InputError("--prune goes with --force (it removes earlier results, which only --force replaces)")
+    if args.resume and (args.force or args.prune):
+        raise InputError("--resume keeps the results there are and calibrates the rest; --force and --prune replace "
+                         "or remove results: give one or the other")
     if not args.scheduler:
         with ProgressBar("calibrating recordings") as bar:
             res = run_batch(args.inputs, args.out, _options(args), force=args.force, jobs=args.jobs, prune=args.prune,
-                            progress=bar)
+                            progress=bar, resume=args.resume)
         return _emit(args, res["text"], 0 if res["ok"] else 1)
     try:
         from dask.distributed import Client
@@ -353,7 +359,7 @@ def _cmd_batch(args: argparse.Namespace) -> int:
     try:
         with ProgressBar("calibrating recordings") as bar:
             res = run_batch(args.inputs, args.out, _options(args), force=args.force, executor=client.get_executor(),
-                            prune=args.prune, progress=bar)
+                            prune=args.prune, progress=bar, resume=args.resume)
     finally:
         client.close()
     return _emit(args, res["text"], 0 if res["ok"] else 1)
