@@ -433,11 +433,15 @@ def test_what_a_killed_run_left_beside_its_folder_is_cleared_by_the_next_and_a_r
     that no later run removed. A run killed between the swap's two renames would leave the earlier result only in
     .NAME.old-*/previous."""
     out = tmp_path / "out"
-    (tmp_path / ".out.staging-abc").mkdir()
-    (tmp_path / ".out.staging-abc" / "calibration.yaml").write_text("ok: true\n")
-    (tmp_path / ".out.old-xyz" / "previous").mkdir(parents=True)
-    (tmp_path / ".out.old-xyz" / "previous" / "calibration.yaml").write_text("earlier\n")
+    (tmp_path / ".out.staging-abc_1234").mkdir()
+    (tmp_path / ".out.staging-abc_1234" / "calibration.yaml").write_text("ok: true\n")
+    (tmp_path / ".out.old-xyz98765" / "previous").mkdir(parents=True)
+    (tmp_path / ".out.old-xyz98765" / "previous" / "calibration.yaml").write_text("earlier\n")
     (tmp_path / ".other.staging-1").mkdir()  # another folder's: not this run's business
+    # A review: the name was a glob pattern (`out[1]` reached `out1`'s), and `.out.old-*` matched a folder's own
+    # stage when that folder is named `out.old-x`.
+    (tmp_path / ".out1.staging-abcdefgh").mkdir()
+    (tmp_path / ".out.old-x.staging-abcdefgh").mkdir()
 
     seen = {}
 
@@ -448,7 +452,10 @@ def test_what_a_killed_run_left_beside_its_folder_is_cleared_by_the_next_and_a_r
 
     write_result_folder(out, work)
     assert seen["out"] == "earlier\n" and sorted(p.name for p in out.iterdir()) == ["report.json"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".other.staging-1", "out"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".other.staging-1", ".out.old-x.staging-abcdefgh",
+                                                           ".out1.staging-abcdefgh", "out"]
+    write_result_folder(tmp_path / "out[1]", lambda stage: {"ok": True, "text": ""})
+    assert (tmp_path / ".out1.staging-abcdefgh").exists()
 
 
 def test_sigterm_ends_a_calibration_like_ctrl_c(tmp_path):

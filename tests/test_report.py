@@ -241,3 +241,15 @@ def test_the_euler_angles_sigmas_are_the_covariance_propagated_to_them_not_the_b
     assert rpy_sigma_deg(R.as_matrix(), None) is None
     c = calibration_dict(make_T(R.as_matrix(), np.zeros(3)), 0.0, np.diag([*sig ** 2, 1e-4, 1e-4, 1.0, 1e-6]), [])
     np.testing.assert_allclose(c["rpy_sigma_deg"], got)
+
+
+def test_a_camera_on_its_side_has_no_euler_sigmas_and_its_report_is_still_written():
+    """A review: near pitch +-90 deg (a portrait-mounted camera) rpy_sigma_deg is NaN (null in the files), and
+    report.html's table crashed on it, which dropped the whole calibration as an internal error."""
+    from plsgraph.report.figures import _summary_table
+
+    R = so3_exp([0.0, np.pi / 2, 0.0])  # pitch 90 deg
+    c = calibration_dict(make_T(R, [0.1, 0.0, 0.2]), 0.01, np.diag([1e-6] * 6 + [1e-8]), [])
+    assert c["rpy_sigma_deg"] == [None, None, None]  # NaN -> null
+    html = _summary_table(c)
+    assert html.count("<td>-</td>") >= 3 or html.count(">-<") >= 3

@@ -307,7 +307,9 @@ def _summary_table(c: dict) -> str:
         rpy_sig = rpy_sigma_deg(np.asarray(c["T_base_cam"], dtype=float)[:3, :3], np.asarray(m, dtype=float))
     rows = []
     for i, name in enumerate(("roll", "pitch", "yaw")):
-        s = "-" if rpy_sig is None else f"± {rpy_sig[i]:.3f}"
+        v = None if rpy_sig is None else rpy_sig[i]
+        # None or NaN near pitch +-90 deg (a camera on its side), where roll and yaw are no separate angles
+        s = "-" if v is None or not np.isfinite(v) else f"± {v:.3f}"
         rows.append({"parameter": f"{name} (deg, Euler)", "value": f"{c['rpy_deg'][i]:.3f}", "sigma": s})
     for i, name in enumerate(("x", "y", "z")):
         s = "-" if sig is None else f"± {sig[3 + i]:.4f}"

@@ -79,6 +79,16 @@ def frames_note(parent: str, child: str) -> str:
             "the wheels)")
 
 
+def _euler_deg(R: Rotation) -> np.ndarray:
+    """Euler angles about the fixed axes x, y, z (deg); at pitch +-90 deg scipy's gimbal-lock warning (the angles are
+    still a valid rotation) is not the user's business."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return R.as_euler("xyz", degrees=True)
+
+
 def rpy_sigma_deg(R_base_cam: np.ndarray, cov_rot: np.ndarray | None) -> list[float] | None:
     """One sigma (deg) of ``rpy_deg``, the Euler angles about the fixed axes x, y, z, from the 3 x 3 covariance of the
     small rotations about the base axes (rad; the covariance's first three rows): propagated through the Euler
@@ -91,7 +101,7 @@ def rpy_sigma_deg(R_base_cam: np.ndarray, cov_rot: np.ndarray | None) -> list[fl
     if not np.all(np.isfinite(cov)):
         return [float("nan")] * 3
     R = Rotation.from_matrix(np.asarray(R_base_cam, dtype=float)[:3, :3])
-    if abs(R.as_euler("xyz")[1]) > np.radians(89.0):
+    if abs(_euler_deg(R)[1]) > 89.0:
         return [float("nan")] * 3
     eps = 1e-6
     J = np.empty((3, 3))
@@ -134,7 +144,7 @@ def calibration_dict(
         "T_base_cam": T.tolist(),
         "quaternion_xyzw": q.tolist(),
         "translation_m": T[:3, 3].tolist(),
-        "rpy_deg": Rotation.from_matrix(T[:3, :3]).as_euler("xyz", degrees=True).tolist(),
+        "rpy_deg": _euler_deg(Rotation.from_matrix(T[:3, :3])).tolist(),
         "rpy_convention": "Euler angles about the fixed axes x, y, z (R = Rz(yaw) Ry(pitch) Rx(roll)), of the camera's "
                           "optical frame (x right, y down, z forward) in the base frame",
         "rpy_sigma_deg": rpy_sigma_deg(T[:3, :3], None if covariance is None else np.asarray(covariance)[:3, :3]),
@@ -343,9 +353,18 @@ class staged_output:
         """What runs on this folder that were killed (SIGKILL, a power cut) left beside it: their staging folders
         go, and an earlier result caught between the swap's two renames (``.NAME.old-*/previous`` with ``out``
         missing) is put back first. Only under the folder's :class:`OutputLock`, which no such run holds now."""
+        import glob
+        import re
         import shutil
 
-        for old in sorted(parent.glob(f".{self.out.name}.old-*")):
+        # The folder's name taken literally (not as a pattern: `cal[1]` must not reach `cal1`'s), and only what
+        # tempfile.mkdtemp names (the prefix, then eight of its letters): `.a.old-xyz` of a folder named `a.old-xyz`
+        # is not `a`'s.
+        name = glob.escape(self.out.name)
+        own = re.compile(re.escape(f".{self.out.name}.") + r"(old|staging)-[a-z0-9_]{8}")
+        for old in sorted(parent.glob(f".{name}.old-*")):
+            if not own.fullmatch(old.name):
+                continue
             prev = old / "previous"
             try:
                 if prev.is_dir() and not self.out.exists():
@@ -353,8 +372,8 @@ class staged_output:
                 shutil.rmtree(old, ignore_errors=True)
             except OSError:
                 pass
-        for stage in parent.glob(f".{self.out.name}.staging-*"):
-            if stage.is_dir():
+        for stage in parent.glob(f".{name}.staging-*"):
+            if stage.is_dir() and own.fullmatch(stage.name):
                 shutil.rmtree(stage, ignore_errors=True)
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -370,7 +389,7 @@ class staged_output:
         # target missing between them.
         main = threading.current_thread() is threading.main_thread()
         if main:
-            old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+            old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM, signal.SIGHUP})
         old = None
         try:
             if self.out.exists():
