@@ -3,6 +3,7 @@
 import subprocess
 import sys
 import textwrap
+import time
 
 from realdata import SAMPLE
 
@@ -123,3 +124,21 @@ def test_worker_processes_end_with_a_parent_killed_by_its_pid(tmp_path):
         assert not any(alive(p) for p in workers)
     finally:
         proc.kill()
+
+
+def test_a_pool_first_used_from_a_thread_that_has_ended_keeps_its_workers():
+    """A review: with PR_SET_PDEATHSIG (tied to the thread that starts a worker) a pool first used from a thread that
+    then ended (a web server's request thread) lost its workers, and every later item failed."""
+    import threading
+
+    from plsgraph.refine.batch import default_executor
+
+    ex = default_executor(2, 2)
+    try:
+        t = threading.Thread(target=lambda: list(ex.map(abs, [-1, -2])))
+        t.start()
+        t.join()
+        time.sleep(1.5)  # longer than the workers' watch interval
+        assert list(ex.map(abs, [-3, -4])) == [3, 4]
+    finally:
+        ex.shutdown(wait=True)

@@ -79,22 +79,37 @@ def warn_in_process(what: str) -> None:
                 "imports the script again)", what, getattr(sys.modules.get("__main__"), "__file__", "?"))
 
 
-def end_with_parent(parent_pid: int | None = None) -> None:
-    """Have this process killed when its parent ends (Linux's PR_SET_PDEATHSIG; elsewhere nothing): a worker whose
-    calibrating process was killed by its pid alone (``kill PID``, a supervisor's timeout, an out-of-memory kill)
-    must not go on calibrating, writing into a folder nobody waits for, and holding the caller's pipes open.
-    ``parent_pid``: the parent as the worker was started; if it has already gone, this process ends now."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        import ctypes
-        import signal
+def end_with_parent(parent_pid: int | None = None, poll_s: float = 0.5) -> None:
+    """Have this process end when its parent ends: a worker whose calibrating process was killed by its pid alone
+    (``kill PID``, a supervisor's timeout, an out-of-memory kill) must not go on calibrating, writing into a folder
+    nobody waits for, and holding the caller's pipes open. A daemon thread looks every ``poll_s`` whether the parent
+    (``parent_pid``; by default the parent now) is still this process's parent, and ends the process when not: tied
+    to the parent process, not to the thread that started this one (Linux's PR_SET_PDEATHSIG is, and a pool started
+    from a thread that has ended lost its workers with it).
 
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # 1: PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        return
-    if parent_pid is not None and os.getppid() != parent_pid:  # the parent died before the line above
+    Also gives SIGTERM and SIGHUP back their default action here: a forked child inherits the command's handler,
+    which Python runs only between bytecodes, so a child in a long C call would outlive its terminate()."""
+    import signal
+    import threading
+    import time
+
+    for sig in (signal.SIGTERM, getattr(signal, "SIGHUP", None)):
+        if sig is not None and callable(signal.getsignal(sig)):
+            try:
+                signal.signal(sig, signal.SIG_DFL)
+            except (ValueError, OSError):  # not the main thread: leave it
+                pass
+    parent = os.getppid() if parent_pid is None else int(parent_pid)
+    if os.getppid() != parent:  # the parent died before this process got here
         os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(poll_s)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
 
 
 def worker_initializer() -> tuple[Any, tuple]:
