@@ -80,11 +80,18 @@ def _calibrate_item(item: tuple[str, str, CalibrationOptions, bool]) -> dict:
 
         row = _failed_row(log_path, out_dir, disk_message(exc, out_dir))
         log.warning("%s: %s", Path(log_path).name, row["error"])
-        _replace_with_failure(log_path, out_dir, force, row["error"])
+        # The folder keeps what it held, as the message says: not replaced by a failure's report (which, once the
+        # failed run's stage has freed its room, might fit, and would take the earlier calibration's place).
         row["previous_calibration"] = _kept_calibration(out_dir)
     except Exception as exc:  # a bug must not stop the other recordings; it is reported in the summary
-        log.exception("unexpected failure on %s", log_path)
-        row = _failed_row(log_path, out_dir, f"internal error {type(exc).__name__}: {exc}")
+        if type(exc).__name__ == "BrokenProcessPool":  # its front end's worker killed: no bug of ours
+            error = ("a worker process of its front end was killed (out of memory, or a signal: see the system log, "
+                     "e.g. dmesg)")
+            log.warning("%s: %s", Path(log_path).name, error)
+        else:
+            log.exception("unexpected failure on %s", log_path)
+            error = f"internal error {type(exc).__name__}: {exc}"
+        row = _failed_row(log_path, out_dir, error)
         _replace_with_failure(log_path, out_dir, force, row["error"])
         row["previous_calibration"] = _kept_calibration(out_dir)
     row["seconds"] = round(time.perf_counter() - t0, 2)
@@ -146,24 +153,16 @@ def _as_row(result: Any, item: tuple) -> dict:
     error = f"{result.error_type}: {result.error}"
     if result.error_type == "BrokenProcessPool":
         error = ("the worker process calibrating it was killed (out of memory, or a signal: see the system log, "
-                 "e.g. dmesg), also when it ran again alone; its folder keeps what it held")
+                 "e.g. dmesg); its folder keeps what it held")
     return {**_failed_row(item[0], item[1], error), "seconds": round(result.seconds, 2)}
 
 
 def _stop_workers(executor: Any) -> None:
-    """Kill a process pool's workers now (a batch interrupted: the recordings they were on stop, and the one a worker
-    had queued never starts). Their own workers end with them (plsgraph.core.processes.end_with_parent); a folder
-    caught mid-swap is put back by the next run on it."""
-    for proc in list((getattr(executor, "_processes", None) or {}).values()):
-        try:
-            proc.kill()
-        except (OSError, AttributeError, ValueError):
-            pass
-    for proc in list((getattr(executor, "_processes", None) or {}).values()):
-        try:
-            proc.join(timeout=5)
-        except (OSError, AttributeError, ValueError, AssertionError):
-            pass
+    """A batch interrupted: its pool's workers killed now (:func:`plsgraph.refine.batch.stop_workers`); a folder caught
+    mid-swap is put back by the next run on it."""
+    from .refine.batch import stop_workers
+
+    stop_workers(executor)
 
 
 def skipped_in_folders(inputs: list[Path]) -> list[str]:
@@ -224,11 +223,15 @@ def run_batch(
         recording_options(p, options)
     # Written into; each recording's folder replaced. --resume goes on in a folder that holds results.
     out = prepare_output_dir(out_dir, force=force or resume, whole=False)
+    if out.is_symlink():  # one lock per folder, however it is named (a link to it too)
+        out = out.resolve()
     # One batch at a time in a folder (a second one fails at once; before, two marked each other's recordings failed).
     with OutputLock(out):
         done: list[Path] = []
         if resume:  # the recordings with a result already: listed from their folders, not calibrated again
-            done = [p for p in logs if (out / p.stem / "report.json").is_file()]
+            # A failure's folder (no calibration, no diagnosis: a broken file, a full disk) is tried again.
+            done = [p for p in logs if (out / p.stem / "report.json").is_file()
+                    and _row_from_folder({"recording": str(p)}, out / p.stem)["status"] != "failed"]
             logs = [p for p in logs if p not in done]
         return _run_batch_in(inputs, out, logs, options, force or resume, jobs, executor, prune, progress, done)
 
@@ -275,7 +278,8 @@ def _run_batch_in(inputs: list[Path], out: Path, logs: list[Path], options: Cali
             _stop_workers(executor)
         done = [Path(item[1]).name for item in items if _written_since(Path(item[1]), started)]
         log.warning("batch interrupted: %s (the recordings being calibrated were stopped; their folders keep what they "
-                    "held); no summary is written (run the batch again with --force for one)",
+                    "held); no summary is written (run the batch again with --resume to calibrate the rest and write "
+                    "one)",
                     f"so far the folders of {', '.join(done)} are this run's" if done else
                     "no recording had finished yet")
         raise

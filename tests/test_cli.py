@@ -628,3 +628,7 @@ def test_batch_resume_calibrates_only_the_recordings_without_a_result(tmp_path, 
     assert rows["a"]["earlier_run"] and rows["a"]["status"] == "ok" and rows["a"]["rpy_deg"] == [1.0, 2.0, 3.0]
     assert rows["b"]["status"] == "failed" and not rows["b"].get("earlier_run")
     assert (out / "b" / "report.json").is_file()
+    # A failure's folder is tried again (a broken file, a full disk: it may work now); the calibrated one is not.
+    assert main([*args, "--resume"]) == 1
+    assert "--resume: 1 recording(s) already had a result and were not calibrated again (listed as earlier runs): a" \
+        in capsys.readouterr().out

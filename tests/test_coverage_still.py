@@ -143,3 +143,7 @@ def test_windows_on_a_second_files_clock_never_aligned_keep_the_detectors_reason
     assert "not aligned" in line and "moved" not in line and "grid_not_found" in line
     run.recording_info = {"clock": {"coarse": True, "offset_s": 0.0}}  # once aligned, the odometry counts again
     assert "clocks_not_aligned" not in coverage_summary(info, run)
+    run.recording_info = {}  # the user said one clock (--clock-align never): the odometry counts
+    run.options = CalibrationOptions.build(board="acircles_4x11_a2", odometry_file="/elsewhere/robot.bag",
+                                           clock_align="never")
+    assert "clocks_not_aligned" not in coverage_summary(info, run)

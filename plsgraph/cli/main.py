@@ -373,10 +373,10 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
     from .progress import end_bar_line
 
-    for handler in logging.getLogger().handlers:  # a warning starts on a line of its own, not after a progress bar
-        if end_bar_line not in handler.filters:
-            handler.addFilter(end_bar_line)
     with warnings_once():  # each warning once; taken off the handlers again when the command ends
+        for handler in logging.getLogger().handlers:  # a warning starts on a line of its own, not after a bar:
+            handler.removeFilter(end_bar_line)  # last, so that only a record the filters let through ends the line
+            handler.addFilter(end_bar_line)
         return _run_command(args)
 
 

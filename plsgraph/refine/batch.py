@@ -138,6 +138,22 @@ def refine_many(
     return [r for r in out if r is not None]
 
 
+def stop_workers(executor: Any) -> None:
+    """Kill a process pool's workers now (an interrupt: the items they were on stop, and one a worker had queued never
+    starts). Their own workers end with them (plsgraph.core.processes.end_with_parent)."""
+    procs = list((getattr(executor, "_processes", None) or {}).values())
+    for proc in procs:
+        try:
+            proc.kill()
+        except (OSError, AttributeError, ValueError):
+            pass
+    for proc in procs:
+        try:
+            proc.join(timeout=5)
+        except (OSError, AttributeError, ValueError, AssertionError):
+            pass
+
+
 def rerun_broken(items: Sequence[Any], results: list[BatchItemResult], fn: Callable[[Any, int], Any]
                  ) -> list[BatchItemResult]:
     """``results`` with every outcome of a broken process pool (a worker killed, by the kernel's out-of-memory
@@ -153,6 +169,9 @@ def rerun_broken(items: Sequence[Any], results: list[BatchItemResult], fn: Calla
             out[k] = BatchItemResult(r.index, r.name, r.seed, ok, value, etype, msg, tb, secs)
         except Exception as exc:  # noqa: BLE001 - killed again (a broken pool), or it could not be sent
             out[k] = BatchItemResult(r.index, r.name, r.seed, False, None, type(exc).__name__, str(exc))
+        except BaseException:  # interrupted (Ctrl-C, SIGTERM): the item being run again stops now, not when done
+            stop_workers(alone)
+            raise
         finally:
             alone.shutdown(wait=True, cancel_futures=True)
     return out

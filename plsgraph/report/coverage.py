@@ -119,8 +119,8 @@ def clocks_unknown(run: Any) -> bool:
     if info.get("clock") is not None:  # the pairing aligned the clocks (or took them as the same)
         return False
     inputs = getattr(getattr(run, "options", None), "inputs", None)
-    if inputs is None or inputs.clock_offset is not None:
-        return False
+    if inputs is None or inputs.clock_offset is not None or inputs.clock_align == "never":
+        return False  # the user gave the clocks' difference, or said they are one clock
     return inputs.odometry_file is not None or inputs.clock_align == "always"
 
 
