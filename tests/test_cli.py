@@ -442,12 +442,11 @@ def test_batch_options_files_paths_and_checks_and_an_interrupted_batchs_earlier_
     assert _kept_calibration(str(out / "old")) == str((out / "old" / "previous_calibration").absolute())
 
 
-def test_window_and_tau_reach_the_front_end_and_are_checked(tmp_path, monkeypatch, capsys):
-    # A review: the bundled board of the real DAVIS346 recording is found only with a leaky surface of tau 0.3 s over
-    # 0.9 s windows (tests/test_real_tagboard.py), which the command line could not set.
+def _front_end_arguments(monkeypatch) -> dict:
+    """The keyword arguments the next calibration hands the streaming front end (which then stops it, exit 3)."""
     import plsgraph.frontend.track as track
 
-    seen = {}
+    seen: dict = {}
 
     class Stop(Exception):
         pass
@@ -457,6 +456,13 @@ def test_window_and_tau_reach_the_front_end_and_are_checked(tmp_path, monkeypatc
         raise Stop
 
     monkeypatch.setattr(track, "camera_track_from_event_chunks", capture)
+    return seen
+
+
+def test_window_and_tau_reach_the_front_end_and_are_checked(tmp_path, monkeypatch, capsys):
+    # A review: the bundled board of the real DAVIS346 recording is found only with a leaky surface of tau 0.3 s over
+    # 0.9 s windows (tests/test_real_tagboard.py), which the command line could not set.
+    seen = _front_end_arguments(monkeypatch)
     args = ["calibrate", str(SAMPLE), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "o")]
     assert main([*args, "--surface", "leaky", "--tau", "0.3", "--window", "0.9"]) == 3  # stopped at the front end
     assert seen["kind"] == "leaky" and seen["window_s"] == 0.9 and seen["surface_params"] == {"tau_s": 0.3}
@@ -563,19 +569,9 @@ def test_a_simulation_larger_than_the_available_memory_is_refused_before_it_star
 def test_the_front_ends_progress_bar_knows_an_mcap_recordings_length(tmp_path, monkeypatch):
     """A review: on MCAP files the 'detecting board' bar had no total (the topic's time span is not in the summary)
     and looked finished all along (8998/8998 for 72 s)."""
-    import plsgraph.frontend.track as track
     from plsgraph.io.source import open_source
 
-    seen = {}
-
-    class Stop(Exception):
-        pass
-
-    def capture(*args, **kwargs):
-        seen.update(kwargs)
-        raise Stop
-
-    monkeypatch.setattr(track, "camera_track_from_event_chunks", capture)
+    seen = _front_end_arguments(monkeypatch)
     main(["calibrate", str(SAMPLE), "--board", "acircles_4x11_a2", "--out", str(tmp_path / "o")])
     first, last = seen["expected_span_ns"]
     times = [m.log_time_ns for m in open_source(SAMPLE).iter_raw({"/event_camera/events"})]

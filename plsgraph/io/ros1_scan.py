@@ -231,25 +231,25 @@ class Ros1ScanSource:
                         self.log.warn(f"{self.path.name}: skipped a corrupt chunk at byte {off} ({exc})")
                     continue
                 try:
-                    for op2, hdr2, body2, _ in _records(inner, 0, len(inner)):
-                        m = self._record(op2, hdr2, body2, topics)
-                        if m is not None:
-                            read[m.topic] += 1
-                            yield m
+                    yield from self._chunk_messages(inner, topics, read)
                 except _Corrupt as exc:
                     if not quiet:
                         self.log.warn(f"{self.path.name}: chunk at byte {off} is damaged ({exc}); rest of it lost")
 
+    def _chunk_messages(self, inner: bytes, topics: set[str] | None, read: Counter) -> Iterator[RawMessage]:
+        """The messages of a chunk's decompressed records (counted in ``read``); raises _Corrupt where one cannot be
+        read."""
+        for op2, hdr2, body2, _ in _records(inner, 0, len(inner)):
+            m = self._record(op2, hdr2, body2, topics)
+            if m is not None:
+                read[m.topic] += 1
+                yield m
+
     def _cut_chunk(self, hdr: dict[bytes, bytes], body: memoryview, topics: set[str] | None, read: Counter
                    ) -> Iterator[RawMessage]:
         """The messages of a chunk the file ends inside, up to its first record cut off."""
-        inner = _decompress_cut(hdr, body)
         try:
-            for op2, hdr2, body2, _ in _records(inner, 0, len(inner)):
-                m = self._record(op2, hdr2, body2, topics)
-                if m is not None:
-                    read[m.topic] += 1
-                    yield m
+            yield from self._chunk_messages(_decompress_cut(hdr, body), topics, read)
         except _Corrupt:
             pass  # the cut: what follows is lost, as the warning says
 
