@@ -142,3 +142,25 @@ def test_a_pool_first_used_from_a_thread_that_has_ended_keeps_its_workers():
         assert list(ex.map(abs, [-3, -4])) == [3, 4]
     finally:
         ex.shutdown(wait=True)
+
+
+def test_a_thread_of_an_unguarded_script_sees_the_scripts_top_level_call(tmp_path):
+    """A review: batch's fallback for an unguarded script runs the recordings in a thread, whose own stack does not
+    show the script's top-level call: the front end then spawned workers that ran the script again."""
+    body = """
+        import threading
+        from plsgraph.core.processes import spawn_would_rerun_main
+
+        def check():
+            out = []
+            t = threading.Thread(target=lambda: out.append(spawn_would_rerun_main()))
+            t.start()
+            t.join()
+            return out[0], spawn_would_rerun_main()
+
+        {call}
+    """
+    unguarded = _run(tmp_path, body.replace("{call}", "print('seen', *check())"))
+    assert "seen True True" in unguarded.stdout, unguarded.stderr
+    guarded = _run(tmp_path, body.replace("{call}", "if __name__ == '__main__':\n            print('seen', *check())"))
+    assert "seen False False" in guarded.stdout, guarded.stderr

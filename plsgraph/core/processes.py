@@ -54,7 +54,20 @@ def spawn_would_rerun_main() -> bool:
     if not path:  # an interactive session, python -c, a notebook: nothing to run again
         return False
     script = os.path.abspath(path)
-    frame = sys._getframe(1)
+    import threading
+
+    frames = [sys._getframe(1)]
+    if threading.current_thread() is not threading.main_thread():
+        # Called from a thread (batch's fallback when the script is unguarded): the script's top-level call, if any,
+        # is on the main thread's stack, which waits for this one.
+        main_frame = sys._current_frames().get(threading.main_thread().ident)
+        if main_frame is not None:
+            frames.append(main_frame)
+    return any(_unguarded_call(f, script) for f in frames)
+
+
+def _unguarded_call(frame, script: str) -> bool:
+    """Whether the stack from ``frame`` down holds a call from the top level of ``script`` outside its guard."""
     while frame is not None:
         # The script's own top level (a spawned worker's bootstrap is a "<module>" frame named __main__ too, but
         # of other code: its tasks come from functions, not from the script's top level).
