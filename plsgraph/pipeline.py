@@ -426,6 +426,7 @@ def run_refinement(run: Run, progress: ProgressFactory,
     run.warn(*path_warnings(res, run.base_track))  # slip one radius and track do not describe (not a problem)
     run.discarded["refinement_frames_rejected"] = int(res.n_frames_rejected)
     run.discarded["refinement_frames_dropped"] = int(res.n_frames_dropped)
+    run.discarded["refinement_frames_long_span"] = int(res.n_frames_long_span)
     run.refinement = res
     return res
 

@@ -236,9 +236,10 @@ def test_every_window_has_one_outcome(sim):
             assert wo["outcome"].count(reason) == n
 
 
-def _far_board_drifting(seconds: float, drift: tuple[float, float, float], wobble: float, seed: int):
-    """The A2 board 1.2 m away, the camera drifting by ``drift`` (m/s) with a sideways ``wobble`` (m), seen by a
-    realistic sensor (latency, threshold mismatch, noise, hot pixels) in dim light: (t, poses, events)."""
+def _far_board_drifting(seconds: float, drift: tuple[float, float, float], wobble: float, seed: int,
+                        distance: float = 1.2):
+    """The A2 board ``distance`` (m) away, the camera drifting by ``drift`` (m/s) with a sideways ``wobble`` (m), seen
+    by a realistic sensor (latency, threshold mismatch, noise, hot pixels) in dim light: (t, poses, events)."""
     import dataclasses
 
     from plsgraph.sim import realism
@@ -248,7 +249,8 @@ def _far_board_drifting(seconds: float, drift: tuple[float, float, float], wobbl
     t = np.arange(0.0, seconds + 1e-9, 0.01)
     p = np.stack([drift[0] * t - 0.07, wobble * np.sin(1.5 * t), drift[2] * t], axis=1)
     R = so3_exp(np.array([0.03, -0.05, 0.02]))
-    poses = make_T(np.repeat(R[None], t.size, axis=0), FAR_BOARD.points.mean(axis=0) + np.array([0, 0, -1.2]) + p)
+    poses = make_T(np.repeat(R[None], t.size, axis=0),
+                   FAR_BOARD.points.mean(axis=0) + np.array([0, 0, -distance]) + p)
     return t, poses, simulate_events(t, poses, CAM, FAR_BOARD, params, seed=seed)
 
 
@@ -368,6 +370,34 @@ def test_creeping_board_found_on_half_second_spans(creeping_sim, monkeypatch):
     monkeypatch.setattr(frontend_track, "RING_PEAKS", False)  # the ring filter finds it on the 4-window spans
     with pytest.raises(InsufficientDataError, match="no board detected"):
         camera_track_from_events(ev, CAM, FAR_BOARD, rate_hz=30, kind="count")
+
+
+def _board_scale_errors(track, t: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """Per detection: the detected board's size in the image over the true one's, minus 1 (similarity fit)."""
+    T_true = interpolate_poses(np.clip(track.t, t[0], t[-1]), t, poses)
+    out = []
+    for uv, T in zip(track.detections.uv, T_true, strict=True):
+        true = CAM.project(transform_points(inv_T(T), FAR_BOARD.points))
+        seen = np.all(np.isfinite(uv), axis=1)
+        a, b = true[seen] - true[seen].mean(axis=0), uv[seen] - uv[seen].mean(axis=0)
+        out.append(float(np.sum(a * b) / np.sum(a * a)) - 1.0)
+    return np.asarray(out)
+
+
+def test_a_slowly_receding_board_reads_larger_on_long_spans():
+    """The cause of the refinement's max_span_windows (docs/refinement.md, "Long spans"): a far board receding slowly
+    (its image shrinks by 3.6 % a second, its circles move at about a pixel a second) is found as blobs of events
+    over 16 windows, and there its circles come out further apart than they are (+0.3 % on this recording), so the
+    board reads nearer; drifting sideways at a similar image speed it does not (+0.05 %)."""
+    scale = {}
+    for name, drift in (("receding", (0.0, 0.0, -0.08)), ("sideways", (0.012, 0.0, 0.0))):
+        t, poses, ev = _far_board_drifting(3.0, drift, 0.0, seed=5, distance=2.2)
+        track = camera_track_from_events(ev, CAM, FAR_BOARD, rate_hz=30, kind="polarity")
+        spans = np.asarray(track.info["span_windows"])
+        assert np.count_nonzero(spans >= 16) >= 40, np.unique(spans, return_counts=True)
+        scale[name] = float(np.median(_board_scale_errors(track, t, poses)[spans >= 16]))
+    assert scale["receding"] > 0.0015, scale
+    assert abs(scale["sideways"]) < 0.0015 and scale["receding"] - scale["sideways"] > 0.0015, scale
 
 
 @pytest.fixture(scope="module")

@@ -155,6 +155,33 @@ def test_the_graph_can_be_restricted_to_some_detectors_detections():
     assert rims.n_frames >= n_rims - 3  # a few frames may fall outside the odometry or be rejected
 
 
+def test_frames_found_on_long_spans_are_left_out_unless_they_are_most_of_them():
+    """``max_span_windows`` (default 8): frames the front end found on longer spans (camera_track.info["span_windows"])
+    are left out of the graph and counted, unless they are more than MAX_LONG_SPAN_SHARE of the frames; None keeps
+    them."""
+    from plsgraph.refine.graph import MAX_LONG_SPAN_SHARE
+
+    rec, base, track, seed_T = _case("odom_jitter")
+    n = len(track.detections)
+    every_fourth = np.where(np.arange(n) % 4 == 0, 16.0, 1.0).tolist()
+    marked = dataclasses.replace(track, info={**track.info, "span_windows": every_fourth})
+    kept_all = refine(marked, base, rec.camera, seed_T, rec.td + 0.005, RefinementOptions(max_span_windows=None))
+    default = refine(marked, base, rec.camera, seed_T, rec.td + 0.005)
+    n_long = every_fourth.count(16.0)
+    assert RefinementOptions().max_span_windows == 8.0
+    assert kept_all.n_frames_long_span == 0
+    assert n_long - 3 <= default.n_frames_long_span <= n_long  # a few may fall outside the odometry anyway
+    assert default.n_frames_dropped >= default.n_frames_long_span
+    assert default.n_frames + default.n_frames_rejected <= n - default.n_frames_long_span < kept_all.n_frames
+    assert default.to_dict()["n_frames_long_span"] == default.n_frames_long_span
+    # Most frames on long spans (a board slow in the image throughout): they are all the recording has, kept.
+    most = np.where(np.arange(n) % 4 == 0, 1.0, 16.0).tolist()
+    assert most.count(16.0) > MAX_LONG_SPAN_SHARE * n
+    slow = refine(dataclasses.replace(track, info={**track.info, "span_windows": most}), base, rec.camera, seed_T,
+                  rec.td + 0.005)
+    assert slow.n_frames_long_span == 0 and slow.n_frames == kept_all.n_frames
+
+
 def test_edge_motions_of_all_edges_at_once_equal_each_edge_alone():
     """The odometry factors' shared, vectorized edge motions (prefix sums over a long track that turns many times)
     against the edge-by-edge sums, motion and derivative, at nominal and rescaled odometry."""

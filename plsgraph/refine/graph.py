@@ -74,6 +74,9 @@ _FREEZE_SIGMA = 1e-3
 
 #: An adapted odometry variance factor at or above this gets a warning in the result.
 NOISY_ODOMETRY_FACTOR = 10.0
+#: RefinementOptions.max_span_windows leaves the long spans' frames in when they are more than this share of the
+#: frames (a recording of a board that is slow in the image nearly throughout: its frames are all it has).
+MAX_LONG_SPAN_SHARE = 0.5
 
 
 def knot_key(k: int) -> int:
@@ -94,6 +97,12 @@ class RefinementOptions:
     # The front end's detectors whose detections the graph uses (camera_track.info["detector"]: "rims", "blobs",
     # "image"); None: all.
     detectors: tuple[str, ...] | None = None
+    # Detections found on spans of more than this many windows (camera_track.info["span_windows"]) are left out of
+    # the graph, unless that would leave out more than MAX_LONG_SPAN_SHARE of the frames; None: all. A slow board's
+    # circles found as blobs of events over a long span come out further apart than they are when the board looms
+    # (the edge moving away from the focus of expansion sweeps more pixels and makes more events), so the board looks
+    # nearer in them: on the study they biased the wheel radius low (docs/refinement.md, "Long spans").
+    max_span_windows: float | None = 8.0
     robust: str | None = "huber"  # "huber", "cauchy" or None
     robust_k: float = 1.5  # threshold relative to a frame's expected whitened norm (see reprojection_noise)
     min_points: int = 6
@@ -329,6 +338,7 @@ class RefinementResult:
     n_frames_dropped: int
     n_points: int
     cov: np.ndarray | None = None
+    n_frames_long_span: int = 0  # of n_frames_dropped: found on spans longer than max_span_windows
     cov_base_axes: np.ndarray | None = None
     chi2_per_dof: float = float("nan")
     observability: ObservabilityReport | None = None
@@ -388,6 +398,7 @@ class RefinementResult:
             "n_frames": self.n_frames,
             "n_frames_rejected": self.n_frames_rejected,
             "n_frames_dropped": self.n_frames_dropped,
+            "n_frames_long_span": self.n_frames_long_span,
             "n_points": self.n_points,
             "chi2_per_dof": self.chi2_per_dof,
             "cov": arr(self.cov),
@@ -422,6 +433,7 @@ class _Problem:
     odo_T: np.ndarray
     n_dropped: int
     warnings: tuple[str, ...]
+    n_long_span: int = 0  # of n_dropped: frames on spans longer than max_span_windows
     steps: PlanarSteps | None = None  # the nominal odometry's steps (None: intrinsics not estimated)
     scale: tuple[float, float] = (1.0, 1.0)  # (s_v, s_w) the odometry poses above were rescaled with
     frame_sigma: np.ndarray | None = None  # per frame: its pixel sigma in units of sigma_px (None: all 1)
@@ -757,6 +769,13 @@ def _prepare(
     src = camera_track.info.get("detector")
     if opt.detectors is not None and src is not None and len(src) == len(det):
         keep &= np.isin(np.asarray(src, dtype=str), list(opt.detectors))
+    spans_all = camera_track.info.get("span_windows")
+    n_long = 0
+    if opt.max_span_windows is not None and spans_all is not None and len(spans_all) == len(det):
+        long_span = keep & (np.asarray(spans_all, dtype=float) > opt.max_span_windows)
+        if np.count_nonzero(long_span) <= MAX_LONG_SPAN_SHARE * np.count_nonzero(keep):
+            keep &= ~long_span
+            n_long = int(np.count_nonzero(long_span))
     try:
         from ..odometry.wheels import in_gap
 
@@ -806,6 +825,7 @@ def _prepare(
         odo_t=t_odo,
         odo_T=smooth_poses(base_track.T_world_base, half, smoothing_times(t_odo) if opt.smooth_in_time else None),
         n_dropped=int((~keep).sum()),
+        n_long_span=n_long,
         warnings=tuple(warnings),
         steps=PlanarSteps.from_poses(base_track.T_world_base) if opt.estimate_odometry_scale else None,
         frame_sigma=frame_sigma,
@@ -1885,7 +1905,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                                     initial_error=float(initial_error),
                                     final_error=final_error, rms_px_initial=float(rms0), rms_px_final=rms,
                                     n_frames=int(rows.size), n_frames_rejected=int(rejected.sum()),
-                                    n_frames_dropped=prob.n_dropped, n_points=n_pts, cov=None, cov_base_axes=None,
+                                    n_frames_dropped=prob.n_dropped, n_frames_long_span=prob.n_long_span,
+                                    n_points=n_pts, cov=None, cov_base_axes=None,
                                     chi2_per_dof=chi2, observability=None, warnings=tuple(warnings), priors={},
                                     timing={"total_s": time.perf_counter() - t_start}), None, values
         if knots_job is None and converged and _wants_knot_probe(opt):
@@ -2092,6 +2113,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             n_frames=int(rows.size),
             n_frames_rejected=int(rejected.sum()),
             n_frames_dropped=prob.n_dropped,
+            n_frames_long_span=prob.n_long_span,
             n_points=n_pts,
             cov=cov,
             cov_base_axes=cov_base,
