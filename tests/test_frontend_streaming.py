@@ -1,6 +1,7 @@
 """The streaming front end sees the same windows as the single pass, in memory bounded by its span."""
 
 import numpy as np
+import pytest
 from realdata import DATA_DIR
 
 from plsgraph.core.board import load_board
@@ -116,6 +117,18 @@ def test_work_done_while_the_workers_finish_costs_the_front_end_nothing():
     failing = streamed(fails)
     assert calls == ["ok", "fails"]
     assert np.array_equal(plain.t, failing.t) and np.array_equal(plain.T_board_cam, failing.T_board_cam)
+
+    # An interrupt inside the import of a compiled module comes out as its ImportError: the interrupt, not logged.
+    def interrupted_import():
+        calls.append("interrupted")
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise ImportError("initialization failed") from exc
+
+    with pytest.raises(KeyboardInterrupt):
+        streamed(interrupted_import)
+    assert calls[-1] == "interrupted"
 
 
 def test_a_span_handed_over_as_chunks_lets_them_go_once_joined():

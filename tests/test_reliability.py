@@ -458,6 +458,47 @@ def test_what_a_killed_run_left_beside_its_folder_is_cleared_by_the_next_and_a_r
     assert (tmp_path / ".out1.staging-abcdefgh").exists()
 
 
+def test_a_signal_that_surfaces_as_another_error_ends_the_run_as_the_signal(monkeypatch, capsys):
+    """A SIGTERM that arrived while GTSAM was being imported (beside the front end's last spans) came out of the
+    import as ImportError("initialization failed"), was logged as a failed import, and the run went on until the
+    refinement's own import of the half-initialised module failed ("type KeyList is already registered"): exit 3 and a
+    bug report asked for, instead of exit 143."""
+    import argparse
+    import signal
+
+    import plsgraph.cli.main as cli
+    from plsgraph.core.processes import interrupt_behind
+
+    def failing(exc):
+        def func(args):
+            raise exc
+        return argparse.Namespace(func=func, verbose=False, json=False)
+
+    def from_(cause, message="initialization failed"):
+        try:
+            raise cause
+        except BaseException as inner:  # noqa: BLE001
+            try:
+                raise ImportError(message) from inner
+            except ImportError as outer:
+                return outer
+
+    monkeypatch.setattr(cli, "SIGNALS_RECEIVED", [])
+    term = cli.Terminated(signal.SIGTERM)
+    assert interrupt_behind(from_(term)) is term and interrupt_behind(ImportError("x")) is None
+    assert cli._run_command(failing(from_(term))) == 143
+    assert "terminated (SIGTERM)" in capsys.readouterr().err
+    assert cli._run_command(failing(from_(KeyboardInterrupt()))) == 130
+    assert "interrupted" in capsys.readouterr().err
+    # No signal: a failed import is a bug, said as one.
+    assert cli._run_command(failing(ImportError("type KeyList is already registered"))) == 3
+    assert "internal error" in capsys.readouterr().err
+    # The second import's failure, after the signal was swallowed: the signal's doing.
+    monkeypatch.setattr(cli, "SIGNALS_RECEIVED", [int(signal.SIGHUP)])
+    assert cli._run_command(failing(ImportError("type KeyList is already registered"))) == 129
+    assert "terminated (SIGHUP)" in capsys.readouterr().err
+
+
 def test_sigterm_ends_a_calibration_like_ctrl_c(tmp_path):
     """A review: SIGTERM (a job scheduler, systemd) or SIGHUP (a closed ssh session) ended a calibration with no
     message and left its staging folder behind."""

@@ -416,6 +416,9 @@ def _run_command(args: argparse.Namespace) -> int:
         print("plsgraph: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # a bug: say so plainly, keep the traceback for the report with --verbose
+        code = _ended_by_signal(exc)
+        if code is not None:
+            return code
         if type(exc).__name__ == "BrokenProcessPool":  # a worker process killed, not a bug of ours
             msg = ("a worker process ended abruptly (killed: out of memory, or a signal; the system log, e.g. dmesg, "
                    "says which); nothing was written, an earlier result in --out is kept")
@@ -444,6 +447,33 @@ def single_threaded_blas() -> None:
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
+#: The signals this command was sent (:func:`terminate_like_interrupt`), newest last.
+SIGNALS_RECEIVED: list[int] = []
+
+
+def _ended_by_signal(exc: Exception) -> int | None:
+    """The exit code of a run a signal ended although ``exc`` reached the top: an interrupt raised inside an import of
+    a compiled module comes out as its ImportError, and a half-initialised module (gtsam) then fails again at its next
+    import ("type ... is already registered"), which is the signal's doing, not a bug. None: no signal came."""
+    import signal
+
+    from ..core.processes import interrupt_behind
+
+    behind = interrupt_behind(exc)
+    signum = getattr(behind, "signum", None) if behind is not None else None
+    if signum is None and SIGNALS_RECEIVED:
+        signum = SIGNALS_RECEIVED[-1]
+    if signum is None and behind is None:
+        return None
+    if signum is None or signum == signal.SIGINT:
+        print("plsgraph: interrupted", file=sys.stderr)
+        return 130
+    name = signal.Signals(signum).name
+    print(f"plsgraph: terminated ({name}); what the run had written in progress is removed, an earlier result in its "
+          "--out is kept", file=sys.stderr)
+    return 128 + int(signum)
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM or SIGHUP, raised in the command's main thread like Ctrl-C's KeyboardInterrupt, so that the same
     clean-up runs (staging folder removed, worker processes stopped, an earlier result kept)."""
@@ -458,21 +488,28 @@ class Terminated(KeyboardInterrupt):
 
 def terminate_like_interrupt() -> None:
     """SIGTERM and SIGHUP end the command as Ctrl-C does (:class:`Terminated`), in this process only: a process
-    forked from it (the refinement's second opinion, a figure) keeps the default, dying at once."""
+    forked from it (the refinement's second opinion, a figure) keeps the default, dying at once. Every signal this
+    process takes, Ctrl-C's included, is kept in :data:`SIGNALS_RECEIVED` (see :func:`_ended_by_signal`)."""
     import signal
 
     me = os.getpid()
 
     def handler(signum, frame):
-        if os.getpid() != me:  # a forked child: die as the default action would
+        if os.getpid() != me:  # a forked child: as Python's default would (Ctrl-C raises, the others kill)
+            if signum == signal.SIGINT:
+                raise KeyboardInterrupt
             signal.signal(signum, signal.SIG_DFL)
             os.kill(os.getpid(), signum)
             return
+        SIGNALS_RECEIVED.append(int(signum))
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
         raise Terminated(signum)
 
-    for sig in (signal.SIGTERM, signal.SIGHUP):
+    for sig, default in ((signal.SIGTERM, (signal.SIG_DFL, None)), (signal.SIGHUP, (signal.SIG_DFL, None)),
+                         (signal.SIGINT, (signal.default_int_handler,))):
         try:
-            if signal.getsignal(sig) in (signal.SIG_DFL, None):
+            if signal.getsignal(sig) in default:
                 signal.signal(sig, handler)
         except (ValueError, OSError):  # not the main thread, or a platform without the signal
             pass

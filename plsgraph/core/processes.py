@@ -128,3 +128,16 @@ def end_with_parent(parent_pid: int | None = None, poll_s: float = 0.5) -> None:
 def worker_initializer() -> tuple[Any, tuple]:
     """(initializer, initargs) for a process pool whose workers end with this process (:func:`end_with_parent`)."""
     return end_with_parent, (os.getpid(),)
+
+
+def interrupt_behind(exc: BaseException) -> BaseException | None:
+    """The interrupt (Ctrl-C's KeyboardInterrupt, or SIGTERM's and SIGHUP's ending) that ``exc`` stands for, if any:
+    an interrupt raised while a compiled module initialises comes out as that module's ImportError ("initialization
+    failed", the interrupt as its cause), which an ``except Exception`` would take for the module's own failure."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        exc = exc.__cause__ or exc.__context__
+    return None

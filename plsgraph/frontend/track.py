@@ -1320,6 +1320,11 @@ def camera_track_from_event_chunks(
             try:
                 while_waiting()
             except Exception as exc:  # noqa: BLE001 - work beside the front end must not cost it
+                from ..core.processes import interrupt_behind
+
+                stop = interrupt_behind(exc)
+                if stop is not None:  # interrupted inside an import: the interrupt, not a failed import
+                    raise stop from None
                 log.warning("while the front end's workers finish: %s", exc)
         while pending:
             absorb(*pending.pop(0).result())
