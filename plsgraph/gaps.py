@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .core.tracks import BaseTrack, CameraTrack, gap_indices
+from .core.tracks import PER_FRAME_INFO, BaseTrack, CameraTrack, gap_indices
 from .errors import InsufficientDataError
 
 GAP_MOTION_M = 0.005  # a gap the base moved more than this across (or turned GAP_MOTION_DEG) cuts the motion
@@ -102,12 +102,19 @@ def _slice_base(track: BaseTrack, i0: int, i1: int) -> BaseTrack:
 
 def _slice_camera(track: CameraTrack, keep: np.ndarray) -> CameraTrack:
     det = track.detections
+    info = track.info
     if det is not None:
         dmask = np.isin(det.t, track.t[keep]) if len(det) != len(track) else keep
+        # The per-detection lists follow the detections (the refinement's span and detector filters read them by
+        # detection; left long, they would be skipped).
+        info = dict(info)
+        for key in PER_FRAME_INFO:
+            if key in info and len(info[key]) == len(det):
+                info[key] = [x for x, k in zip(info[key], dmask, strict=True) if k]
         det = det.subset(dmask)
     return replace(track, t=track.t[keep], T_board_cam=track.T_board_cam[keep],
                    cov=None if track.cov is None else track.cov[keep],
-                   rms_px=None if track.rms_px is None else track.rms_px[keep], detections=det)
+                   rms_px=None if track.rms_px is None else track.rms_px[keep], detections=det, info=info)
 
 
 def cut_at_gaps(run: Any) -> None:

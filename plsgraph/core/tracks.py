@@ -91,6 +91,13 @@ def _without_interpolator(track) -> dict:
     return {k: v for k, v in track.__dict__.items() if k != _INTERPOLATOR}
 
 
+#: Lists of a camera track's ``info`` (the front end's bookkeeping) with one entry per detection, kept aligned with
+#: the detections: which detector found each, the span of events it was found on (multiples of the window), and the
+#: end of the window it was found in (s; the detection's own stamp is the mean time of its events, up to half a span
+#: earlier).
+PER_FRAME_INFO = ("detector", "span_windows", "window_t")
+
+
 @dataclass(frozen=True)
 class CameraTrack:
     """Camera poses relative to the board, ``T_board_cam`` (n, 4, 4), at camera times ``t`` (n,).

@@ -50,7 +50,7 @@ import numpy as np
 from ..core.board import Board
 from ..core.camera import CameraModel
 from ..core.events import EventStream
-from ..core.tracks import CameraTrack, Detections
+from ..core.tracks import PER_FRAME_INFO, CameraTrack, Detections
 from ..errors import InputError, InsufficientDataError
 from . import surfaces
 from .consistency import REASON_INCONSISTENT, inconsistent_frames
@@ -951,10 +951,6 @@ def camera_track_from_events(
 
 #: The window outcome of a detection PnP gave no pose for (it failed, or its reprojection RMS was too large).
 REASON_NO_POSE = "no_pose"
-#: Per-detection lists of the front end's info, kept aligned with the detections: which detector found each,
-#: the span of events it was found on (multiples of the window), and the end of the window it was found in (s; the
-#: detection's own stamp is the mean time of its events, up to half a span earlier).
-PER_FRAME_INFO = ("detector", "span_windows", "window_t")
 #: Share of the events (largest over the streamed spans) from pixels flickering with the lights above which the
 #: front end warns (:func:`plsgraph.frontend.noise.flicker_events`) ...
 FLICKER_WARN_SHARE = 0.1
@@ -1320,11 +1316,9 @@ def camera_track_from_event_chunks(
             try:
                 while_waiting()
             except Exception as exc:  # noqa: BLE001 - work beside the front end must not cost it
-                from ..core.processes import interrupt_behind
+                from ..core.processes import reraise_interrupt
 
-                stop = interrupt_behind(exc)
-                if stop is not None:  # interrupted inside an import: the interrupt, not a failed import
-                    raise stop from None
+                reraise_interrupt(exc)  # interrupted inside an import: the interrupt, not a failed import
                 log.warning("while the front end's workers finish: %s", exc)
         while pending:
             absorb(*pending.pop(0).result())

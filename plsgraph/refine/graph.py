@@ -769,13 +769,22 @@ def _prepare(
     src = camera_track.info.get("detector")
     if opt.detectors is not None and src is not None and len(src) == len(det):
         keep &= np.isin(np.asarray(src, dtype=str), list(opt.detectors))
+    for key in ("detector", "span_windows"):
+        if key in camera_track.info and len(camera_track.info[key]) != len(det):
+            log.warning("refine: the front end's %s list (%d) does not match the %d detections; not used", key,
+                        len(camera_track.info[key]), len(det))
     spans_all = camera_track.info.get("span_windows")
     n_long = 0
     if opt.max_span_windows is not None and spans_all is not None and len(spans_all) == len(det):
-        long_span = keep & (np.asarray(spans_all, dtype=float) > opt.max_span_windows)
-        if np.count_nonzero(long_span) <= MAX_LONG_SPAN_SHARE * np.count_nonzero(keep):
+        long_span = np.asarray(spans_all, dtype=float) > opt.max_span_windows
+        usable = n_valid >= opt.min_points  # the share is decided on frames that do not depend on the seed's td
+        if np.count_nonzero(long_span & usable) <= MAX_LONG_SPAN_SHARE * np.count_nonzero(usable):
+            n_long = int(np.count_nonzero(long_span & keep))
             keep &= ~long_span
-            n_long = int(np.count_nonzero(long_span))
+        elif np.any(long_span & keep):
+            log.info("refine: %d of %d frames were found on spans longer than %g windows; too many to leave out, "
+                     "kept", int(np.count_nonzero(long_span & usable)), int(np.count_nonzero(usable)),
+                     opt.max_span_windows)
     try:
         from ..odometry.wheels import in_gap
 
@@ -2307,6 +2316,9 @@ def _send_solution(on_solution: Callable[[SimpleNamespace], None] | None, values
         on_solution(SimpleNamespace(T_base_cam=C, R_base_cam=C[:3, :3], td=float(values.atVector(KEY_TD)[0]),
                                     T_world_board=values.atPose3(KEY_BOARD).matrix(), observability=None))
     except Exception as exc:  # noqa: BLE001
+        from ..core.processes import reraise_interrupt
+
+        reraise_interrupt(exc)
         log.warning("after the refinement's solve: %s", exc)
     return True
 
@@ -2478,6 +2490,9 @@ def denser_solution(camera_track: CameraTrack, base_track: BaseTrack, camera: Ca
         alt = _refine_from(camera_track, base_track, camera, denser, None, C, td, td_given, td_search, scales, None,
                            knot_tds, time.perf_counter(), probe=True, warm=warm)[0]
     except Exception as exc:  # noqa: BLE001 - a second opinion never costs the answer
+        from ..core.processes import reraise_interrupt
+
+        reraise_interrupt(exc)
         log.info("refine: the solve with denser knots failed (%s); no knot-spacing second opinion", exc)
         return None
     return SimpleNamespace(T_base_cam=alt.T_base_cam, td=alt.td, knot_t=alt.knot_t, iterations=alt.iterations,
