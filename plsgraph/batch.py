@@ -84,6 +84,9 @@ def _calibrate_item(item: tuple[str, str, CalibrationOptions, bool]) -> dict:
         # failed run's stage has freed its room, might fit, and would take the earlier calibration's place).
         row["previous_calibration"] = _kept_calibration(out_dir)
     except Exception as exc:  # a bug must not stop the other recordings; it is reported in the summary
+        from .core.processes import reraise_interrupt
+
+        reraise_interrupt(exc)  # an interrupt inside an import stops the batch, as any interrupt does
         if type(exc).__name__ == "BrokenProcessPool":  # its front end's worker killed: no bug of ours
             error = ("a worker process of its front end was killed (out of memory, or a signal: see the system log, "
                      "e.g. dmesg)")

@@ -446,6 +446,9 @@ def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress,
         try:
             tracks_final(run)
         except Exception as exc:  # noqa: BLE001 - work beside the calibration must not cost the calibration
+            from .core.processes import reraise_interrupt
+
+            reraise_interrupt(exc)
             log.warning("after the tracks: %s", exc)
     try:
         cf = run_closed_form(run)

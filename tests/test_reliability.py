@@ -290,6 +290,28 @@ def test_a_short_gap_in_wheel_angles_is_bridged_and_every_other_frame_used(sim, 
     assert r.truth_errors["refined.rot_err_deg"] < 1.0
 
 
+def test_a_cut_track_keeps_the_front_ends_per_detection_lists_with_its_detections():
+    """A review: cutting the camera track at a gap sliced its frames but not info["span_windows"] / ["detector"] /
+    ["window_t"], whose lengths then no longer matched and the refinement's span and detector filters were skipped
+    without a word."""
+    from plsgraph.core.tracks import CameraTrack, Detections
+    from plsgraph.gaps import _slice_camera
+
+    n = 10
+    t = 0.1 * np.arange(n)
+    pts = np.c_[np.random.default_rng(0).uniform(size=(5, 2)), np.zeros(5)]
+    info = {"span_windows": [float(i) for i in range(n)], "detector": ["rims", "blobs"] * 5,
+            "window_t": list(t + 0.01), "kind": "polarity"}
+    track = CameraTrack(t, np.repeat(np.eye(4)[None], n, axis=0), detections=Detections(t, np.zeros((n, 5, 2)), pts),
+                        info=info)
+    keep = np.arange(n) % 3 != 0
+    cut = _slice_camera(track, keep)
+    assert len(cut) == len(cut.detections) == keep.sum()
+    for key in ("span_windows", "detector", "window_t"):
+        assert cut.info[key] == [v for v, k in zip(info[key], keep, strict=True) if k]
+    assert cut.info["kind"] == "polarity" and track.info["span_windows"] == info["span_windows"]  # a copy
+
+
 def test_a_long_gap_or_a_jump_in_one_is_not_bridged():
     from plsgraph.gaps import MAX_BRIDGE_S, bridgeable
 
@@ -494,9 +516,63 @@ def test_a_signal_that_surfaces_as_another_error_ends_the_run_as_the_signal(monk
     assert cli._run_command(failing(ImportError("type KeyList is already registered"))) == 3
     assert "internal error" in capsys.readouterr().err
     # The second import's failure, after the signal was swallowed: the signal's doing.
-    monkeypatch.setattr(cli, "SIGNALS_RECEIVED", [int(signal.SIGHUP)])
-    assert cli._run_command(failing(ImportError("type KeyList is already registered"))) == 129
+    monkeypatch.setattr(cli, "SIGNALS_RECEIVED", [])
+
+    def after(sig, exc):
+        def func(args):
+            cli.SIGNALS_RECEIVED.append(int(sig))
+            raise exc
+        return argparse.Namespace(func=func, verbose=False, json=False)
+
+    assert cli._run_command(after(signal.SIGHUP, ImportError("type KeyList is already registered"))) == 129
     assert "terminated (SIGHUP)" in capsys.readouterr().err
+    # ... also when it surfaces as one of the errors the command explains (a review), and a chained Ctrl-C is Ctrl-C's
+    from plsgraph.errors import InputError
+
+    assert cli._run_command(after(signal.SIGTERM, InputError("no board"))) == 143
+    assert cli._run_command(after(signal.SIGTERM, PermissionError("clean-up"))) == 143
+    assert cli._run_command(after(signal.SIGTERM, from_(KeyboardInterrupt()))) == 130
+    capsys.readouterr()
+    # A signal of an earlier command in the same process is not this one's (the list is the command's own).
+    assert cli._run_command(failing(ImportError("a bug"))) == 3
+    assert "internal error" in capsys.readouterr().err
+
+
+def test_an_interrupt_held_back_during_the_swap_says_the_result_was_written(tmp_path, monkeypatch, capsys):
+    """A review: a signal that arrives while the finished result is being swapped into --out is held back until the
+    swap is done, so the run ends with the new result in place; the message said an earlier result was kept."""
+    import argparse
+    import os
+    import signal
+
+    import plsgraph.cli.main as cli
+    import plsgraph.report.files as files
+    from plsgraph.report.output import write_result_folder
+
+    out = tmp_path / "out"
+    real_rename = os.rename
+
+    def rename(src, dst):
+        real_rename(src, dst)
+        if Path(dst) == out:
+            os.kill(os.getpid(), signal.SIGHUP)  # held back by the swap's mask
+
+    def hup(signum, frame):
+        raise cli.Terminated(signum)
+
+    old = signal.signal(signal.SIGHUP, hup)
+    monkeypatch.setattr(files.os, "rename", rename)
+    try:
+        def func(args):
+            write_result_folder(out, lambda stage: (stage / "calibration.yaml").write_text("new\n") and {})
+            return 0
+
+        code = cli._run_command(argparse.Namespace(func=func, verbose=False, json=False))
+    finally:
+        signal.signal(signal.SIGHUP, old)
+    assert code == 129
+    assert f"result was written to {out}" in capsys.readouterr().err
+    assert (out / "calibration.yaml").read_text() == "new\n"
 
 
 def test_sigterm_ends_a_calibration_like_ctrl_c(tmp_path):

@@ -391,9 +391,16 @@ def _json_error(args: argparse.Namespace, message: str, code: int) -> None:
 
 
 def _run_command(args: argparse.Namespace) -> int:
+    SIGNALS_RECEIVED.clear()  # this command's own
+    written = getattr(sys.modules.get("plsgraph.report.files"), "JUST_WRITTEN", None)
+    if written:
+        written.clear()
     try:
         return int(args.func(args) or 0)
     except PlsgraphError as exc:
+        code = _ended_by_signal(exc)
+        if code is not None:
+            return code
         print(f"plsgraph: error: {exc}", file=sys.stderr)
         _json_error(args, str(exc), 2)
         return 2
@@ -404,16 +411,19 @@ def _run_command(args: argparse.Namespace) -> int:
     except OSError as exc:  # unwritable output folder, a file where a folder should be, a full disk
         from ..report.files import disk_message
 
+        code = _ended_by_signal(exc)
+        if code is not None:
+            return code
+
         msg = disk_message(exc, getattr(args, "out", None))
         print(f"plsgraph: error: {msg}", file=sys.stderr)
         _json_error(args, msg, 2)
         return 2
     except Terminated as exc:  # SIGTERM (a job scheduler, systemd, kill) or SIGHUP (a closed terminal or ssh session)
-        print(f"plsgraph: terminated ({exc.name}); what the run had written in progress is removed, an earlier "
-              "result in its --out is kept", file=sys.stderr)
+        print(_terminated_message(exc.name), file=sys.stderr)
         return 128 + exc.signum
     except KeyboardInterrupt:
-        print("plsgraph: interrupted", file=sys.stderr)
+        print(_interrupted_message(), file=sys.stderr)
         return 130
     except Exception as exc:  # a bug: say so plainly, keep the traceback for the report with --verbose
         code = _ended_by_signal(exc)
@@ -460,18 +470,38 @@ def _ended_by_signal(exc: Exception) -> int | None:
     from ..core.processes import interrupt_behind
 
     behind = interrupt_behind(exc)
-    signum = getattr(behind, "signum", None) if behind is not None else None
-    if signum is None and SIGNALS_RECEIVED:
+    if behind is not None:
+        signum = getattr(behind, "signum", signal.SIGINT)  # Terminated carries its signal; Ctrl-C's does not
+    elif SIGNALS_RECEIVED:
         signum = SIGNALS_RECEIVED[-1]
-    if signum is None and behind is None:
+    else:
         return None
-    if signum is None or signum == signal.SIGINT:
-        print("plsgraph: interrupted", file=sys.stderr)
+    if signum == signal.SIGINT:
+        print(_interrupted_message(), file=sys.stderr)
         return 130
-    name = signal.Signals(signum).name
-    print(f"plsgraph: terminated ({name}); what the run had written in progress is removed, an earlier result in its "
-          "--out is kept", file=sys.stderr)
+    print(_terminated_message(signal.Signals(signum).name), file=sys.stderr)
     return 128 + int(signum)
+
+
+def _just_written() -> object:
+    """The --out whose result was put in place as the interrupt came (report.files.JUST_WRITTEN), or None."""
+    written = getattr(sys.modules.get("plsgraph.report.files"), "JUST_WRITTEN", None)
+    return written[-1] if written else None
+
+
+def _interrupted_message() -> str:
+    written = _just_written()
+    if written is not None:
+        return f"plsgraph: interrupted as the run ended; its result was written to {written}"
+    return "plsgraph: interrupted"
+
+
+def _terminated_message(name: str) -> str:
+    written = _just_written()
+    if written is not None:  # the signal came while the finished result was being put in place, and it was
+        return f"plsgraph: terminated ({name}) as the run ended; its result was written to {written}"
+    return (f"plsgraph: terminated ({name}); what the run had written in progress is removed, an earlier result in "
+            "its --out is kept")
 
 
 class Terminated(KeyboardInterrupt):

@@ -141,3 +141,11 @@ def interrupt_behind(exc: BaseException) -> BaseException | None:
             return exc
         exc = exc.__cause__ or exc.__context__
     return None
+
+
+def reraise_interrupt(exc: BaseException) -> None:
+    """Raise the interrupt ``exc`` stands for (:func:`interrupt_behind`), if any: for the ``except Exception`` of work
+    that must not cost the result but may import a compiled module (GTSAM, matplotlib)."""
+    stop = interrupt_behind(exc)
+    if stop is not None:
+        raise stop from None

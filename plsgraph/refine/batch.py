@@ -58,6 +58,9 @@ def _run_one(fn: Callable[[Any, int], Any], item: Any, seed: int) -> tuple:
         value = fn(item, seed)
         return True, value, None, None, None, time.perf_counter() - t0
     except Exception as exc:  # noqa: BLE001 - recording every failure is the point of a batch
+        from ..core.processes import reraise_interrupt
+
+        reraise_interrupt(exc)  # an interrupt inside an import is not the item's failure
         return False, None, type(exc).__name__, str(exc), traceback.format_exc(), time.perf_counter() - t0
 
 

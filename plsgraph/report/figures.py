@@ -237,6 +237,9 @@ def render_figures(out: Path, run: Any, which: Any = None) -> tuple[list[tuple[s
         try:
             f = make(run, out, truth_T)
         except Exception as exc:  # a picture must never cost the user the numbers
+            from ..core.processes import reraise_interrupt
+
+            reraise_interrupt(exc)  # an interrupt inside matplotlib's import is the interrupt
             failures.append((caption, str(exc)))
             continue
         if f:

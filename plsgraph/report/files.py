@@ -326,6 +326,11 @@ class OutputLock:
             self.fd = None
 
 
+#: The --out folder whose result was swapped in while an interrupt was held back (:class:`staged_output`): the
+#: interrupt then arrives with the result written, which the command's message says.
+JUST_WRITTEN: list[Path] = []
+
+
 class staged_output:
     """Write a result folder as a whole: the caller writes into ``stage`` (a fresh hidden folder beside ``out``);
     on success it replaces ``out`` (every file of an earlier run goes); on any error or interrupt the stage is
@@ -396,6 +401,7 @@ class staged_output:
                 old = Path(tempfile.mkdtemp(dir=stage.parent, prefix=f".{self.out.name}.old-"))
                 os.rename(self.out, old / "previous")
             os.rename(stage, self.out)
+            JUST_WRITTEN.append(self.out)  # an interrupt held back by the mask arrives with the result in place
         except BaseException:
             if old is not None and (old / "previous").exists() and not self.out.exists():
                 os.rename(old / "previous", self.out)
@@ -404,6 +410,7 @@ class staged_output:
         finally:
             if main:
                 signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
+        JUST_WRITTEN.remove(self.out)  # no interrupt came with the swap
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
 
