@@ -536,6 +536,16 @@ def test_a_signal_that_surfaces_as_another_error_ends_the_run_as_the_signal(monk
     # A signal of an earlier command in the same process is not this one's (the list is the command's own).
     assert cli._run_command(failing(ImportError("a bug"))) == 3
     assert "internal error" in capsys.readouterr().err
+    # With --json a script reads the signal's end on stdout as it reads an error's.
+    args = after(signal.SIGTERM, ImportError("type KeyList is already registered"))
+    args.json = True
+    assert cli._run_command(args) == 143
+    said = json.loads(capsys.readouterr().out)
+    assert said["ok"] is False and said["exit_code"] == 143 and "terminated (SIGTERM)" in said["error"]
+    args = failing(KeyboardInterrupt())
+    args.json = True
+    assert cli._run_command(args) == 130
+    assert json.loads(capsys.readouterr().out)["exit_code"] == 130
 
 
 def test_an_interrupt_held_back_during_the_swap_says_the_result_was_written(tmp_path, monkeypatch, capsys):

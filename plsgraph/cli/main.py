@@ -11,6 +11,7 @@ import argparse
 import json
 import logging
 import os
+import signal
 import sys
 import traceback
 from pathlib import Path
@@ -398,7 +399,7 @@ def _run_command(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except PlsgraphError as exc:
-        code = _ended_by_signal(exc)
+        code = _ended_by_signal(exc, args)
         if code is not None:
             return code
         print(f"plsgraph: error: {exc}", file=sys.stderr)
@@ -411,7 +412,7 @@ def _run_command(args: argparse.Namespace) -> int:
     except OSError as exc:  # unwritable output folder, a file where a folder should be, a full disk
         from ..report.files import disk_message
 
-        code = _ended_by_signal(exc)
+        code = _ended_by_signal(exc, args)
         if code is not None:
             return code
 
@@ -420,13 +421,11 @@ def _run_command(args: argparse.Namespace) -> int:
         _json_error(args, msg, 2)
         return 2
     except Terminated as exc:  # SIGTERM (a job scheduler, systemd, kill) or SIGHUP (a closed terminal or ssh session)
-        print(_terminated_message(exc.name), file=sys.stderr)
-        return 128 + exc.signum
+        return _signal_exit(args, exc.signum)
     except KeyboardInterrupt:
-        print(_interrupted_message(), file=sys.stderr)
-        return 130
+        return _signal_exit(args, signal.SIGINT)
     except Exception as exc:  # a bug: say so plainly, keep the traceback for the report with --verbose
-        code = _ended_by_signal(exc)
+        code = _ended_by_signal(exc, args)
         if code is not None:
             return code
         if type(exc).__name__ == "BrokenProcessPool":  # a worker process killed, not a bug of ours
@@ -461,12 +460,10 @@ def single_threaded_blas() -> None:
 SIGNALS_RECEIVED: list[int] = []
 
 
-def _ended_by_signal(exc: Exception) -> int | None:
+def _ended_by_signal(exc: Exception, args: argparse.Namespace) -> int | None:
     """The exit code of a run a signal ended although ``exc`` reached the top: an interrupt raised inside an import of
     a compiled module comes out as its ImportError, and a half-initialised module (gtsam) then fails again at its next
     import ("type ... is already registered"), which is the signal's doing, not a bug. None: no signal came."""
-    import signal
-
     from ..core.processes import interrupt_behind
 
     behind = interrupt_behind(exc)
@@ -476,11 +473,20 @@ def _ended_by_signal(exc: Exception) -> int | None:
         signum = SIGNALS_RECEIVED[-1]
     else:
         return None
+    if args.verbose:  # what surfaced, for a reader who suspects a bug behind it
+        traceback.print_exc()
+    return _signal_exit(args, signum)
+
+
+def _signal_exit(args: argparse.Namespace, signum: int) -> int:
+    """Say that a signal ended the command (on stderr, and as JSON with --json) and give its exit code."""
     if signum == signal.SIGINT:
-        print(_interrupted_message(), file=sys.stderr)
-        return 130
-    print(_terminated_message(signal.Signals(signum).name), file=sys.stderr)
-    return 128 + int(signum)
+        msg, code = _interrupted_message(), 130
+    else:
+        msg, code = _terminated_message(signal.Signals(signum).name), 128 + int(signum)
+    print(msg, file=sys.stderr)
+    _json_error(args, msg.removeprefix("plsgraph: "), code)
+    return code
 
 
 def _just_written() -> object:
