@@ -9,6 +9,7 @@ import pytest
 from plsgraph.core.board import Board, load_board
 from plsgraph.core.camera import CameraModel, davis346_default
 from plsgraph.core.geometry import inv_T, make_T, rotation_error_deg, so3_exp, transform_points
+from plsgraph.errors import InputError
 from plsgraph.frontend.detect import (
     REASON_AMBIGUOUS,
     REASON_EMPTY,
@@ -542,3 +543,82 @@ def test_rim_holes_are_the_compact_gaps_inside_rims_with_exact_centroids_and_are
     for img in (np.zeros((20, 20), bool), blob):
         c, a = rim_holes(img)
         assert c.shape == (0, 2) and a.shape == (0,)
+
+
+
+def _moving_circle_events(centres: np.ndarray, radius: np.ndarray, shift: np.ndarray, on_gain: np.ndarray,
+                          shape=(260, 346), ss: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """ON and OFF count images of dark circles moving by ``shift`` (px) over a light board: OFF events where a circle
+    arrived (its leading edge), ON events where it left (its trailing edge), ``on_gain`` (per circle) ON events per
+    OFF event. Pixels are sampled ``ss`` x ``ss`` times (pixel (x, y) covers [x - 0.5, x + 0.5])."""
+    h, w = shape
+    sub = (np.arange(ss) + 0.5) / ss - 0.5
+    ys = (np.arange(h)[:, None] + sub[None, :]).ravel()
+    xs = (np.arange(w)[:, None] + sub[None, :]).ravel()
+    on = np.zeros((h * ss, w * ss), np.float32)
+    off = np.zeros_like(on)
+    for c, r, g in zip(centres, radius, on_gain, strict=True):
+        start, end = c - shift / 2, c + shift / 2
+        y0, y1 = np.searchsorted(ys, [c[1] - r - 4, c[1] + r + 4])
+        x0, x1 = np.searchsorted(xs, [c[0] - r - 4, c[0] + r + 4])
+        yy, xx = np.meshgrid(ys[y0:y1], xs[x0:x1], indexing="ij")
+        at_start = (xx - start[0]) ** 2 + (yy - start[1]) ** 2 <= r * r
+        at_end = (xx - end[0]) ** 2 + (yy - end[1]) ** 2 <= r * r
+        off[y0:y1, x0:x1] += at_end & ~at_start
+        on[y0:y1, x0:x1] += g * (at_start & ~at_end)
+    on = on.reshape(h, ss, w, ss).sum(axis=(1, 3)) / ss**2
+    off = off.reshape(h, ss, w, ss).sum(axis=(1, 3)) / ss**2
+    return cv2.GaussianBlur(on, (0, 0), 0.8), cv2.GaussianBlur(off, (0, 0), 0.8)
+
+
+@pytest.mark.parametrize("dist,shift", [(1.2, (3.0, 1.0)), (1.2, (1.0, 0.0)), (1.8, (1.0, 0.0))])
+def test_blob_centres_by_polarity_are_unmoved_by_one_polarity_firing_more(dist, shift):
+    """A moving circle's OFF events lie on its leading edge and its ON events on its trailing edge. Where one polarity
+    fires more than the other, by a share that differs from circle to circle, the centroid of all events moves along
+    the motion by half a pixel or more; the mean of the two polarities' centroids stays on the circle's centre (at the
+    middle of the motion)."""
+    from plsgraph.frontend.detect import neighbour_distance, polarity_centroids, refine_centroids
+
+    board = load_board("acircles_4x11_a2")
+    T = pose_facing(board, dist, (0.15, -0.2, 0.05), front_z=-1)
+    uv = truth_pixels(T, board)
+    radius = 0.5 * board.circle_diameter * CAM.fx / transform_points(inv_T(T), board.points)[:, 2]
+    gain = np.random.default_rng(3).uniform(0.5, 2.0, len(uv))  # ON events per OFF event, circle by circle
+    on, off = _moving_circle_events(uv, radius, np.asarray(shift), gain)
+    start = uv + np.random.default_rng(1).normal(0.0, 0.4, uv.shape)  # where the blob detector put them
+    disk = 0.5 * neighbour_distance(uv)
+    plain = np.linalg.norm(refine_centroids(on + off, start, disk) - uv, axis=1)
+    by_polarity = np.linalg.norm(polarity_centroids(on, off, start, disk) - uv, axis=1)
+    assert np.median(plain) > 0.3
+    assert np.median(by_polarity) < 0.05 and by_polarity.max() < 0.15
+    # Balanced polarities: the plain centroid is right too, and the two agree.
+    on1, off1 = _moving_circle_events(uv, radius, np.asarray(shift), np.ones(len(uv)))
+    a, b = refine_centroids(on1 + off1, start, disk), polarity_centroids(on1, off1, start, disk)
+    assert np.median(np.linalg.norm(a - uv, axis=1)) < 0.05 and np.max(np.linalg.norm(a - b, axis=1)) < 0.1
+    # A circle whose disk holds events of one polarity only keeps the both-polarity centroid.
+    lone = polarity_centroids(on, np.zeros_like(off), start, disk)
+    assert np.allclose(lone, refine_centroids(on, start, disk))
+
+
+def test_the_blob_detector_takes_its_centres_from_the_polarity_images(monkeypatch):
+    """With polarity_images, the blobs' centres are polarity_centroids' (on a rendered board, as bright blobs); the
+    images must have the image's shape."""
+    import plsgraph.frontend.detect as detect_module
+
+    T = pose_facing(CIRCLES, 0.7, (0.5, 0.3, 1.0), front_z=-1)
+    img = 1.0 - render_log_intensity(T, CAM, CIRCLES)  # bright circles
+    calls = []
+
+    def spy(on, off, uv, radius):
+        calls.append(uv.shape)
+        return detect_module.refine_centroids(on + off, uv, radius)
+
+    monkeypatch.setattr(detect_module, "polarity_centroids", spy)
+    plain = detect_circle_grid(img, CIRCLES, CAM, foreground="bright", blur_sigma=0.8)
+    assert plain.ok and not calls
+    det = detect_circle_grid(img, CIRCLES, CAM, foreground="bright", blur_sigma=0.8,
+                             polarity_images=(0.5 * img, 0.5 * img))
+    assert det.ok and calls
+    assert np.median(np.linalg.norm(det.uv - truth_pixels(T, CIRCLES), axis=1)) < 0.15
+    with pytest.raises(InputError):
+        detect_circle_grid(img, CIRCLES, CAM, foreground="bright", polarity_images=(img[:10], img))

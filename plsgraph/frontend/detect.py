@@ -405,6 +405,42 @@ def refine_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, ite
     return uv
 
 
+def polarity_centroids(on: np.ndarray, off: np.ndarray, uv: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """Circle centres from the ON and the OFF events apart: the mean of the two polarities' centroids
+    (:func:`refine_centroids` on each, from ``uv``), each polarity weighed equally.
+
+    A dark circle moving over a light board fires OFF events along its leading edge and ON events along its trailing
+    edge, so each polarity's events are centred off the circle, by as much ahead as the other's behind. Their plain
+    count centres the blob towards whichever polarity fired more there, and how many more varies from circle to
+    circle (thresholds, the circle's contrast against what it passes over, its speed). A point where either polarity
+    has no events in its disk keeps the both-polarity centroid of ``on + off``, and so does one whose polarities'
+    mean lies more than half the disk's radius from it (a polarity's centroid drawn to a neighbouring circle's edge
+    on a span that smears the circles into each other)."""
+    uv = np.asarray(uv, dtype=float)
+    radius = np.asarray(radius, dtype=float)
+    both = refine_centroids(on + off, uv, radius)
+    out = 0.5 * (refine_centroids(on, both, radius) + refine_centroids(off, both, radius))
+    keep = (_disk_weight(on, both, radius) <= 0.0) | (_disk_weight(off, both, radius) <= 0.0)
+    keep |= np.linalg.norm(out - both, axis=1) > 0.5 * radius
+    out[keep] = both[keep]
+    return out
+
+
+def _disk_weight(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """The sum of ``weight`` in disks of ``radius`` around ``uv`` (pixel centres, as refine_centroids samples)."""
+    h, w = weight.shape
+    R = int(np.ceil(np.max(radius, initial=0.0))) + 1
+    off = np.arange(-R, R + 1)
+    dy, dx = np.meshgrid(off, off, indexing="ij")
+    cx, cy = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
+    px = cx[:, None] + dx.ravel()[None, :]
+    py = cy[:, None] + dy.ravel()[None, :]
+    inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
+    r2 = (px - uv[:, :1]) ** 2 + (py - uv[:, 1:]) ** 2
+    return np.where(inside & (r2 <= np.asarray(radius)[:, None] ** 2),
+                    weight[np.clip(py, 0, h - 1), np.clip(px, 0, w - 1)], 0.0).sum(axis=1)
+
+
 def check_grid_order(
     uv: np.ndarray,
     board: Board,
@@ -700,6 +736,7 @@ def detect_circle_grid(
     peaks: bool | None = None,
     rings: bool = False,
     rim_first: int | None = None,
+    polarity_images: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> GridDetection:
     """Find an asymmetric circle grid and return its centres in ``board.points`` order.
 
@@ -727,6 +764,8 @@ def detect_circle_grid(
     windows), lets :func:`track_circle_grid` label the candidates (rim holes, or the blob detector's blobs) by it
     before the full search. ``rim_first``: the rim thickness tried first (the one that worked in the previous
     window: a board's circles change size slowly), then the others of :data:`RIM_THICKNESSES` in order.
+    ``polarity_images`` (the ON and the OFF events' count images behind ``image``): with ``refine``, the blobs' centres
+    are the mean of the two polarities' centroids (:func:`polarity_centroids`), not the centroid of ``image``.
     """
     if board.pattern != "asymmetric_circles":
         raise InputError(f"detect_circle_grid: board {board.name!r} is a {board.pattern}, not asymmetric_circles")
@@ -743,6 +782,16 @@ def detect_circle_grid(
     if weight is None:
         return _fail(n, REASON_EMPTY)
     smooth = cv2.GaussianBlur(weight, (0, 0), blur_sigma) if blur_sigma > 0 else weight
+    recentre = refine_centroids
+    if polarity_images is not None:
+        on, off = (np.asarray(x, dtype=np.float32) for x in polarity_images)
+        if on.shape != weight.shape or off.shape != weight.shape:
+            raise InputError("detect_circle_grid: polarity_images must have the image's shape")
+        if blur_sigma > 0:
+            on, off = cv2.GaussianBlur(on, (0, 0), blur_sigma), cv2.GaussianBlur(off, (0, 0), blur_sigma)
+
+        def recentre(_weight, uv, radius):
+            return polarity_centroids(on, off, uv, radius)
     img8 = np.clip(smooth * (255.0 / max(float(smooth.max()), 1e-6)), 0, 255).astype(np.uint8)
     # The blobs once: OpenCV's grid finders need every circle among them, the lattice labelling at least six.
     kp = _blob_detector(img8.shape, 255).detect(img8)
@@ -763,7 +812,8 @@ def detect_circle_grid(
             continue
         tried.add(key)
         if refine:
-            uv = refine_centroids(weight if blob_color == 255 else smooth, uv, 0.5 * neighbour_distance(uv))
+            uv = (recentre if blob_color == 255 else refine_centroids)(weight if blob_color == 255 else smooth, uv,
+                                                                         0.5 * neighbour_distance(uv))
         reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_homography_rms_px)
         if reason == REASON_OK:
             return GridDetection(uv, True, REASON_OK, rms)
@@ -786,7 +836,7 @@ def detect_circle_grid(
             if refine:
                 seen = np.all(np.isfinite(uv), axis=1)
                 uv = uv.copy()
-                uv[seen] = refine_centroids(weight, uv[seen], 0.5 * neighbour_distance(uv[seen]))
+                uv[seen] = recentre(weight, uv[seen], 0.5 * neighbour_distance(uv[seen]))
             reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_homography_rms_px)
             if reason == REASON_OK:
                 return GridDetection(uv, True, REASON_OK, rms)
@@ -826,7 +876,7 @@ def detect_circle_grid(
         uv = det.uv.copy()
         seen = np.all(np.isfinite(uv), axis=1)
         if refine:
-            uv[seen] = refine_centroids(weight, uv[seen], PEAK_REFINE_RADIUS * neighbour_distance(uv[seen]))
+            uv[seen] = recentre(weight, uv[seen], PEAK_REFINE_RADIUS * neighbour_distance(uv[seen]))
         reason, rms = check_grid_order(uv, board, camera, max_rms_px=max_homography_rms_px)
         if reason == REASON_OK:
             return GridDetection(uv, True, REASON_OK, rms)

@@ -82,12 +82,17 @@ def _last_index(pix: np.ndarray, n_pixels: int) -> np.ndarray:
     return last
 
 
-def count_image(stream: EventStream, signed: bool = False) -> np.ndarray:
-    """Event count per pixel, or with ``signed`` the sum of polarities (ON - OFF)."""
+def count_image(stream: EventStream, signed: bool = False, polarity: str | None = None) -> np.ndarray:
+    """Event count per pixel, or with ``signed`` the sum of polarities (ON - OFF); ``polarity`` "on" / "off" counts
+    only that polarity's events."""
     pix = pixel_index(stream)
     n = stream.width * stream.height
+    if polarity not in (None, "on", "off"):
+        raise InputError(f"count_image: polarity must be 'on', 'off' or None, got {polarity!r}")
     if signed:
         img = np.bincount(pix, weights=stream.p.astype(np.float64), minlength=n)
+    elif polarity is not None:
+        img = np.bincount(pix[(stream.p > 0) == (polarity == "on")], minlength=n)
     else:
         img = np.bincount(pix, minlength=n)
     return img.astype(np.float32).reshape(stream.height, stream.width)
