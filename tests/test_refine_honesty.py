@@ -1163,3 +1163,30 @@ def test_a_start_solved_without_the_knots_second_opinion_gets_the_same_result_on
     assert late.inflation["knot_spacing_sensitivity"] == whole.inflation["knot_spacing_sensitivity"]
     assert late.disagreement == whole.disagreement
     assert late.timing["marginals_s"] < 0.5
+
+
+def test_each_detectors_pixel_noise_is_measured_and_weighs_its_frames():
+    """``adapt_detector_noise``: frames of two detectors, one with 8x the other's pixel noise (0.8 against 0.1 px,
+    every other frame). One sigma for both weighs the noisy frames as much as the precise ones; measured per detector
+    at the adaptation, their variance factors stand about as far apart as their noise (64x), the sigmas shrink and
+    the time offset comes out closer, the rotation within its sigmas."""
+    from plsgraph.core.tracks import Detections
+
+    fx = only("odom_jitter")
+    fx = dataclasses.replace(fx, robot=dataclasses.replace(fx.robot, odom_jitter_s=0.003, odom_rate_hz=25.0))
+    rec, base, _, seed_T = _drive(fx, 3, duration=12.0)
+    fine, coarse = rec.detections(0.1, seed=13), rec.detections(0.8, seed=113)
+    noisy = np.arange(len(fine.t)) % 2 == 1
+    uv = np.where(noisy[:, None, None], coarse.uv, fine.uv)
+    track = camera_track_from_detections(Detections(fine.t, uv, fine.board_points), rec.camera)
+    track = dataclasses.replace(track, info={**track.info, "detector": np.where(noisy, "rims", "blobs").tolist()})
+    one = refine(track, base, rec.camera, seed_T, rec.td + 0.005, RefinementOptions(adapt_detector_noise=False))
+    each = refine(track, base, rec.camera, seed_T, rec.td + 0.005, RefinementOptions(adapt_detector_noise=True))
+    f = each.inflation["detector_variance_factors"]
+    assert one.inflation["detector_variance_factors"] == {}
+    assert 20.0 < f["rims"] / f["blobs"] < 100.0
+    assert np.sqrt(f["rims"] * f["blobs"]) == pytest.approx(1.0, rel=0.05)  # equal counts: geometric mean 1
+    assert np.all(each.sigma_rot_deg < one.sigma_rot_deg)
+    assert abs(each.td - rec.td) < 0.5 * abs(one.td - rec.td)
+    z = so3_log(each.R_base_cam @ rec.T_base_cam[:3, :3].T) / np.radians(each.sigma_rot_deg)  # base axes
+    assert np.all(np.abs(z) < 3.0)

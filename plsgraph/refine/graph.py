@@ -103,6 +103,12 @@ class RefinementOptions:
     # (the edge moving away from the focus of expansion sweeps more pixels and makes more events), so the board looks
     # nearer in them: on the study they biased the wheel radius low (docs/refinement.md, "Long spans").
     max_span_windows: float | None = 8.0
+    # The detectors' own pixel noise: at the noise model's adaptation (adapt_odometry_noise) each detector's frames
+    # (camera_track.info["detector"]: blobs, rims) get a pixel variance factor from their residuals, the median of
+    # their frames' mean squares relative to all frames' (normalised so that the frames' geometric mean is 1; groups
+    # of fewer than DETECTOR_NOISE_MIN_FRAMES frames keep 1). Blob centres by polarity are several times more precise
+    # than rim centres (docs/frontend.md); one sigma for both weighs the rims up and the blobs down.
+    adapt_detector_noise: bool = False
     robust: str | None = "huber"  # "huber", "cauchy" or None
     robust_k: float = 1.5  # threshold relative to a frame's expected whitened norm (see reprojection_noise)
     min_points: int = 6
@@ -437,6 +443,7 @@ class _Problem:
     steps: PlanarSteps | None = None  # the nominal odometry's steps (None: intrinsics not estimated)
     scale: tuple[float, float] = (1.0, 1.0)  # (s_v, s_w) the odometry poses above were rescaled with
     frame_sigma: np.ndarray | None = None  # per frame: its pixel sigma in units of sigma_px (None: all 1)
+    frame_group: np.ndarray | None = None  # per frame: the front end's detector (camera_track.info["detector"])
 
 
 def scaled_base_track(base_track: BaseTrack, s_v: float, s_w: float, steps: PlanarSteps | None = None,
@@ -838,6 +845,7 @@ def _prepare(
         warnings=tuple(warnings),
         steps=PlanarSteps.from_poses(base_track.T_world_base) if opt.estimate_odometry_scale else None,
         frame_sigma=frame_sigma,
+        frame_group=np.asarray(src, dtype=str)[keep] if src is not None and len(src) == len(det) else None,
     )
     if opt.estimate_odometry_scale and tuple(scale) != (1.0, 1.0):
         prob = _rescaled(prob, scale, opt)
@@ -1116,6 +1124,44 @@ def _build_graph(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: Refin
     graph.add(gtsam.PriorFactorPose3(int(keys[0]), gtsam.Pose3(prob.T_knots_odo[0]), anchor))
     _add_priors(graph, C_prior, td_prior, opt, R_prior)
     return graph, batch, keys
+
+
+#: Fewest frames of one detector for its own pixel variance factor (adapt_detector_noise).
+DETECTOR_NOISE_MIN_FRAMES = 20
+
+
+def detector_noise_factors(prob: _Problem, rows: np.ndarray, batch: FrameBatch, values: gtsam.Values
+                           ) -> dict[str, float]:
+    """Per detector, the pixel variance factor of its frames (``adapt_detector_noise``): the median over its frames
+    (``rows``, at the solution ``values``) of their mean squared error in units of their pixel sigma, relative to
+    the others', normalised to a geometric mean of 1 over the frames. Empty without detectors or with one group."""
+    if prob.frame_group is None:
+        return {}
+    per = _frame_rms(batch, values)[0]
+    if prob.frame_sigma is not None:
+        per = per / prob.frame_sigma[rows]
+    groups = prob.frame_group[rows]
+    ms = {}
+    for g in np.unique(groups):
+        x = per[(groups == g) & np.isfinite(per) & (per > 0)]
+        if x.size >= DETECTOR_NOISE_MIN_FRAMES:
+            ms[str(g)] = float(np.median(x**2))
+    if len(ms) < 2:
+        return {}
+    n = {g: int(np.count_nonzero(groups == g)) for g in ms}
+    mean_log = sum(n[g] * np.log(ms[g]) for g in ms) / sum(n.values())
+    return {g: float(np.exp(np.log(ms[g]) - mean_log)) for g in ms}
+
+
+def _with_detector_noise(prob: _Problem, factors: dict[str, float]) -> _Problem:
+    """``prob`` with each frame's pixel sigma scaled by the square root of its detector's variance factor."""
+    import dataclasses
+
+    if not factors or prob.frame_group is None:
+        return prob
+    f = np.array([factors.get(str(g), 1.0) for g in prob.frame_group], dtype=float)
+    base = prob.frame_sigma if prob.frame_sigma is not None else np.ones(f.size)
+    return dataclasses.replace(prob, frame_sigma=base * np.sqrt(f))
 
 
 def _frame_rms(batch: FrameBatch, values: gtsam.Values) -> tuple[np.ndarray, float, int]:
@@ -1738,9 +1784,12 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     settled = False
     td_bracket = td_seed
     frozen: list[np.ndarray] = []
+    detector_var: dict[str, float] = {}  # per detector, its pixel variance factor (adapt_detector_noise)
     if warm is not None:
         if not warm.get("adapt", False):
             odo_var, planar_var, adapted = warm["odo_var"], warm["planar_var"], True
+            detector_var = dict(warm.get("detector_var") or {})
+            prob = _with_detector_noise(prob, detector_var)
         # The rocking is the base's, not the knots': a continued solve keeps the one measured (its rounds cost passes).
         vib_var = float(warm.get("vib_var", 0.0))
         vib_rounds = VIBRATION_ROUNDS
@@ -1813,11 +1862,17 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                     "hard floor (wheel slip correlated over many samples, as on skid-steer robots); the refinement "
                     "weighted it down by that factor, so yaw and lever arm rest more on the camera and their sigmas "
                     "are larger")
+            if opt.adapt_detector_noise:
+                detector_var = detector_noise_factors(prob, rows, batch, values)
+                if detector_var:
+                    prob = _with_detector_noise(prob, detector_var)
+                    log.info("refine: pixel variance factors by detector %s",
+                             {g: round(v, 2) for g, v in detector_var.items()})
             if opt.planar and opt.adapt_planar_prior:
                 f = np.clip(planar_noise_factors(graph, values), 1.0, opt.max_planar_prior_factor)
                 planar_var = (float(f[0]) if opt.adapt_planar_height else 1.0, float(f[1]))
                 log.info("refine: planar prior variance factors (height, tilt) %s", np.round(planar_var, 1))
-            if _largest(odo_var) > 1.25 or max(planar_var) > 1.25:
+            if _largest(odo_var) > 1.25 or max(planar_var) > 1.25 or detector_var:
                 log.info("refine: odometry errors %sx the model's variance (magnitude x correlation); solving "
                          "again with the odometry and planar variances scaled", np.round(odo_var, 1))
                 continue
@@ -1847,7 +1902,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         if converged and not probe and knots_job is None and _wants_knot_probe(opt):
             knots_job = _start_knot_probe(camera_track, base_track, camera, opt, td_given, td_search, knot_tds,
                                           values, prob, frozen, rejected, vib_var, odo_var, planar_var,
-                                          (C_anc, td_anc, R_anc), scale0, t_opt)
+                                          (C_anc, td_anc, R_anc), scale0, t_opt, detector_var)
         try:
             if not solution_sent:
                 solution_sent = _send_solution(on_solution, values)
@@ -1926,7 +1981,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             # the knots' (td changes of 17-24 ms on study runs where it had found under 2 ms).
             knots_job = _start_knot_probe(camera_track, base_track, camera, opt, td_given, td_search, knot_tds, values,
                                           prob, frozen, rejected, vib_var, odo_var, planar_var, (C_anc, td_anc, R_anc),
-                                          scale0, t_opt)
+                                          scale0, t_opt, detector_var)
         if not solution_sent:
             _send_solution(on_solution, values)
     except BaseException:
@@ -2145,6 +2200,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                        "noise_model_sensitivity": None if sensitivity is None else dict(zip(
                            ("roll", "pitch", "yaw", "x", "y", "z", "td"), sensitivity.tolist(), strict=True)),
                        "planar_variance_factors": {"height": float(planar_var[0]), "tilt": float(planar_var[1])},
+                       "detector_variance_factors": dict(detector_var),
                        "floor_tilt_rms_deg": floor_tilt_rms_deg(values, prob.knot_t.size),
                        "chassis_vibration_deg": None if vibration is None else {
                            "per_knot": float(np.degrees(np.sqrt(vib_var))), "rounds": int(vibration["rounds"]),
@@ -2331,7 +2387,8 @@ def _wants_knot_probe(opt: RefinementOptions) -> bool:
 def _start_knot_probe(camera_track: CameraTrack, base_track: BaseTrack, camera: CameraModel, opt: RefinementOptions,
                       td_given: float, td_search: float, knot_tds: tuple[float, float] | None, values: gtsam.Values,
                       prob: _Problem, frozen: list, rejected: np.ndarray, vib_var: float, odo_var, planar_var,
-                      anchor: tuple, scale0: tuple[float, float], t_opt: float) -> _Beside:
+                      anchor: tuple, scale0: tuple[float, float], t_opt: float,
+                      detector_var: dict[str, float] | None = None) -> _Beside:
     """The knots' second opinion (:func:`denser_solution`) started from the solution in ``values``: in a second
     process when ``opt.workers`` > 1, else solved when its result is asked for (the same answer)."""
     C = values.atPose3(KEY_CAM).matrix()
@@ -2340,7 +2397,7 @@ def _start_knot_probe(camera_track: CameraTrack, base_track: BaseTrack, camera: 
     scales = tuple(float(x) for x in values.atVector(KEY_SCALE)) if prob.steps is not None else scale0
     warm = dict(B=values.atPose3(KEY_BOARD).matrix(), knot_t=prob.knot_t, T_world_base=T_knots, odo_var=odo_var,
                 planar_var=planar_var, frozen=list(frozen), vib_var=vib_var, adapt=opt.adapt_odometry_noise,
-                anchor=anchor, rejected_t=prob.frame_t[rejected])
+                anchor=anchor, rejected_t=prob.frame_t[rejected], detector_var=dict(detector_var or {}))
     job = _Beside(denser_solution, (camera_track, base_track, camera, opt, td_given, td_search, knot_tds, C, td,
                                     scales, warm), opt.workers > 1, deadline_s=max(300.0, 20.0 * t_opt))
     return job
