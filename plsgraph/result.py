@@ -315,6 +315,7 @@ def calibration_result(run: Run) -> CalibrationResult:
             "n_pairs": cf.n_pairs,
             "degenerate": cf.degenerate,
             "degenerate_reasons": list(cf.degenerate_reasons),
+            "td_at_border": bool(getattr(cf, "td_at_border", False)),
         },
         "time_offset": None
         if cf.time_offset is None

@@ -268,3 +268,27 @@ def test_short_drives_among_turning_in_place_count_as_driving(monkeypatch):
     res = calibrate_closed_form(CameraTrack(t[cam_idx], np.linalg.inv(T_world_board) @ R_only[cam_idx] @ T_bc), spin,
                                 td=0.0, compare=False)
     assert res.degenerate and any("no driving" in m for m in res.degenerate_reasons)
+
+
+def test_a_time_offset_search_that_ends_at_its_border_flags_the_result(monkeypatch):
+    """When the model-based time-offset search finds its best offset at the edge of its first range (+-100 ms around
+    the correlation's), the camera's and the odometry's motions agree at no offset near it: the closed form says so
+    (``td_at_border``, a warning) and the result is flagged. On the three 30-run studies the two recordings where it
+    happened were the two whose refined yaw and lever arm lay 3-4 sigma off; here the search is made to end there."""
+    import plsgraph.calib.closed_form as cf_module
+    from plsgraph.gate import problems_of
+
+    rec, base, cam = tracks("rich", seed=12, td=0.05)
+    plain = calibrate_closed_form(cam, base, compare=False)
+    assert not plain.td_at_border and not any("border" in w for w in plain.warnings)
+    assert not any("agree at no time offset" in p for p in problems_of(plain, None))
+    real = cf_module.refine_time_offset
+
+    def at_border(cv, base_track, td0, *args, half_range=0.1, **kw):
+        td, shifts, costs = real(cv, base_track, td0, *args, half_range=half_range, **kw)
+        return (td0 + half_range if half_range >= 0.1 else td), shifts, costs
+
+    monkeypatch.setattr(cf_module, "refine_time_offset", at_border)
+    res = calibrate_closed_form(cam, base, compare=False)
+    assert res.td_at_border and any("border of +-100 ms" in w for w in res.warnings)
+    assert any("agree at no time offset" in p for p in problems_of(res, None))

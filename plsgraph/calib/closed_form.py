@@ -106,6 +106,9 @@ class ClosedFormResult:
     warnings: list[str] = field(default_factory=list)
     t_xy_velocity: np.ndarray | None = None
     odometry_scale: dict[str, float] = field(default_factory=dict)
+    # The model-based time-offset search found its best offset at the edge of its first range (+-100 ms around the
+    # correlation's): the camera's and the odometry's motions agree at no offset near the correlation's.
+    td_at_border: bool = False
 
 
 def _stack_rows(
@@ -559,6 +562,7 @@ def calibrate_closed_form(
     t_xy = np.zeros(2)
     s_v = s_w = 1.0
     t_xy_vel = None
+    td_at_border = False
     he_diag: dict = {}
     if full_rotation:
         try:
@@ -596,7 +600,7 @@ def calibrate_closed_form(
             R, t_xy, s_v, s_w, downweighted = solve_model(pairs, max(1, iterations), t_xy, s_v, s_w)
             if o.refine_td and td is None:
                 # Two rounds: the first may move td far enough that the model is worth re-solving before the second.
-                for half_range in (0.1, 0.02):
+                for first, half_range in ((True, 0.1), (False, 0.02)):
                     td_ref, _, costs = refine_time_offset(
                         cv, base_track, td_est, R, t_xy, s_v, s_w, half_range=half_range
                     )
@@ -605,6 +609,7 @@ def calibrate_closed_form(
                             f"the model-based time-offset refinement found its minimum at the border of "
                             f"+-{1e3 * half_range:.0f} ms around {td_est:+.4f} s; kept that estimate"
                         )
+                        td_at_border = td_at_border or first
                         break
                     td_est = td_ref
                     pairs = pair_samples(cv, base_track, td_est)
@@ -702,4 +707,5 @@ def calibrate_closed_form(
         warnings=warnings,
         t_xy_velocity=t_xy_vel,
         odometry_scale=_scale_report(s_v, s_w, base_track.info) if R is not None else {},
+        td_at_border=bool(td_at_border),
     )
