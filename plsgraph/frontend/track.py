@@ -170,7 +170,7 @@ BLOB_BLUR_PX = 0.8
 #: weighed equally, instead of the centroid of all events: a moving circle's two polarities lie on its two edges, and
 #: how many more one fires than the other varies from circle to circle. On the independent recordings' blob
 #: detections the centres' error (less their common shift) fell from 0.13-0.15 to 0.05-0.07 px rms on one-window
-#: spans and from 0.27-0.33 to 0.11-0.17 px on eight-window spans (docs/frontend.md, "Blob centres by polarity").
+#: spans and from 0.22-0.33 to 0.11-0.22 px on eight-window spans (docs/frontend.md, "Blob centres by polarity").
 BLOB_POLARITY_CENTRES = True
 #: Blob spans of RING_MIN_SPAN windows or more also look for the circles as rings (detect.ring_peaks), in the
 #: whole image, when the blob detector's blobs do not give the board (slow, distant boards).
