@@ -29,6 +29,11 @@ def cal_log_summary(path):
     return code, lines
 
 
+def _z(err, sigma):
+    """err / sigma, or None where the result gives no sigma (a flagged result that withholds its covariance)."""
+    return None if sigma is None or not sigma else err / sigma
+
+
 def score(tag, out=None, log=None, quiet=False):
     tru = yaml.safe_load(open(f"{BASE}/rec_{tag}.indep_truth.yaml"))
     out = out or f"{BASE}/out_{tag}"
@@ -55,18 +60,19 @@ def score(tag, out=None, log=None, quiet=False):
                frames=rep["counts"]["camera_frames"], windows=rep["coverage"]["windows"],
                found=rep["coverage"].get("found"), det=rep.get("discarded", {}).get("frontend_detected", rep["counts"]["camera_frames"]), by_outcome=rep["coverage"].get("by_outcome"),
                rot_err=float(np.linalg.norm(dR)), rpy_err=dR.tolist(),
-               rpy_z=[dR[0] / sig["roll"], dR[1] / sig["pitch"], dR[2] / sig["yaw"]],
+               rpy_z=[_z(dR[0], sig["roll"]), _z(dR[1], sig["pitch"]), _z(dR[2], sig["yaw"])],
                rpy_sig=[sig["roll"], sig["pitch"], sig["yaw"]],
-               xy_err_mm=(e_xy * 1e3).tolist(), xy_z=[e_xy[0] / sig["x"], e_xy[1] / sig["y"]],
-               xy_sig_mm=[sig["x"] * 1e3, sig["y"] * 1e3], td_true_ms=tru["td_s"] * 1e3,
-               td_est_ms=cal["time_offset_s"] * 1e3, td_err_ms=e_td, td_sig_ms=sig["td"], td_z=e_td / sig["td"],
+               xy_err_mm=(e_xy * 1e3).tolist(), xy_z=[_z(e_xy[0], sig["x"]), _z(e_xy[1], sig["y"])],
+               xy_sig_mm=[None if sig["x"] is None else sig["x"] * 1e3, None if sig["y"] is None else sig["y"] * 1e3],
+               td_true_ms=tru["td_s"] * 1e3, td_est_ms=cal["time_offset_s"] * 1e3, td_err_ms=e_td,
+               td_sig_ms=sig["td"], td_z=_z(e_td, sig["td"]),
                r_est=od["wheel_radius_m"], r_sig=od["wheel_radius_sigma_m"], r_true=tru["wheel_radius_eff"],
                b_est=od["track_width_m"], b_sig=od["track_width_sigma_m"], b_true=tru["track_width_eff"],
                status=st, rms=rep.get("refinement", {}).get("rms_px") if isinstance(rep.get("refinement"), dict) else None)
-    res["r_z"] = (res["r_est"] - res["r_true"]) / res["r_sig"]
-    res["b_z"] = (res["b_est"] - res["b_true"]) / res["b_sig"]
-    zs = [abs(z) for z in res["rpy_z"] + res["xy_z"] + [res["td_z"], res["r_z"], res["b_z"]]]
-    res["max_abs_z"] = max(zs)
+    res["r_z"] = _z(res["r_est"] - res["r_true"], res["r_sig"])
+    res["b_z"] = _z(res["b_est"] - res["b_true"], res["b_sig"])
+    zs = [abs(z) for z in res["rpy_z"] + res["xy_z"] + [res["td_z"], res["r_z"], res["b_z"]] if z is not None]
+    res["max_abs_z"] = max(zs) if zs else None
     h = tru.get("harsh", {})
     res["latency_ms"] = [h.get("tau_board_white_ms"), h.get("tau_board_black_ms")]
     if not quiet:
@@ -75,11 +81,20 @@ def score(tag, out=None, log=None, quiet=False):
         print(f"   problems: {rep['problems']}")
         for w in rep["warnings"]:
             print(f"   warning: {w[:220]}")
-        print(f"   rot err {res['rot_err']:.3f} deg; roll {dR[0]:+.3f} (z {res['rpy_z'][0]:+.1f}, sig {sig['roll']:.3f}) pitch {dR[1]:+.3f} (z {res['rpy_z'][1]:+.1f}, sig {sig['pitch']:.3f}) yaw {dR[2]:+.3f} (z {res['rpy_z'][2]:+.1f}, sig {sig['yaw']:.3f})")
-        print(f"   x err {e_xy[0]*1e3:+.1f} mm (z {res['xy_z'][0]:+.1f}, sig {sig['x']*1e3:.1f})  y err {e_xy[1]*1e3:+.1f} mm (z {res['xy_z'][1]:+.1f}, sig {sig['y']*1e3:.1f})  z status {st['z']}")
-        print(f"   td true {res['td_true_ms']:.2f} est {res['td_est_ms']:.2f} err {e_td:+.2f} ms (z {res['td_z']:+.1f}, sig {sig['td']:.2f}); pixel latency white/black {res['latency_ms']}")
-        print(f"   wheel r {res['r_est']:.4f}+-{res['r_sig']:.4f} (truth {res['r_true']:.4f}, z {res['r_z']:+.1f}); track {res['b_est']:.4f}+-{res['b_sig']:.4f} (truth {res['b_true']:.4f}, z {res['b_z']:+.1f})")
-        print(f"   max |z| {res['max_abs_z']:.1f}")
+        def f(v, fmt="+.1f", k=1.0):
+            return "-" if v is None else format(v * k, fmt)
+
+        zr, zx = res["rpy_z"], res["xy_z"]
+        print(f"   rot err {res['rot_err']:.3f} deg; roll {dR[0]:+.3f} (z {f(zr[0])}, sig {f(sig['roll'], '.3f')}) "
+              f"pitch {dR[1]:+.3f} (z {f(zr[1])}, sig {f(sig['pitch'], '.3f')}) yaw {dR[2]:+.3f} (z {f(zr[2])}, "
+              f"sig {f(sig['yaw'], '.3f')})")
+        print(f"   x err {e_xy[0]*1e3:+.1f} mm (z {f(zx[0])}, sig {f(sig['x'], '.1f', 1e3)})  y err {e_xy[1]*1e3:+.1f} mm "
+              f"(z {f(zx[1])}, sig {f(sig['y'], '.1f', 1e3)})  z status {st['z']}")
+        print(f"   td true {res['td_true_ms']:.2f} est {res['td_est_ms']:.2f} err {e_td:+.2f} ms (z {f(res['td_z'])}, "
+              f"sig {f(sig['td'], '.2f')}); pixel latency white/black {res['latency_ms']}")
+        print(f"   wheel r {res['r_est']:.4f}+-{f(res['r_sig'], '.4f')} (truth {res['r_true']:.4f}, z {f(res['r_z'])}); "
+              f"track {res['b_est']:.4f}+-{f(res['b_sig'], '.4f')} (truth {res['b_true']:.4f}, z {f(res['b_z'])})")
+        print(f"   max |z| {f(res['max_abs_z'], '.1f')}")
     return res
 
 

@@ -14,9 +14,12 @@ for t in tags:
         r = compare.score(t, quiet=True)
     if "error" in r:
         print(f"| {t} | {r['level']} | {r['ev_s']/1e3:.0f}k | - | {r['exit']} | {r['log_lines'][:1]} | - | - | - | - | - |"); continue
+    def z(v):
+        return "-" if v is None else f"{v:+.1f}"
+
     first = (r["problems"][:1] or [w for w in r["warnings"] if "gap" in w or "reset" in w or "settle" in w][:1] or [""])[0][:90]
     print(f"| {t} | {r['level']} | {r['ev_s']/1e3:.0f}k | {r['det']} used {r['frames']} / {r['in_view']} ({r['windows']}) | {r['exit']} | {first} | "
-          f"{r['rot_err']:.2f} ({r['rpy_z'][0]:+.1f}/{r['rpy_z'][1]:+.1f}/{r['rpy_z'][2]:+.1f}) | "
-          f"{r['xy_err_mm'][0]:+.0f} ({r['xy_z'][0]:+.1f}), {r['xy_err_mm'][1]:+.1f} ({r['xy_z'][1]:+.1f}) | "
-          f"{r['td_err_ms']:+.1f} ({r['td_z']:+.1f}) | {1e3*(r['r_est']-r['r_true']):+.1f} ({r['r_z']:+.1f}) | "
-          f"{1e3*(r['b_est']-r['b_true']):+.0f} ({r['b_z']:+.1f}) |")
+          f"{r['rot_err']:.2f} ({z(r['rpy_z'][0])}/{z(r['rpy_z'][1])}/{z(r['rpy_z'][2])}) | "
+          f"{r['xy_err_mm'][0]:+.0f} ({z(r['xy_z'][0])}), {r['xy_err_mm'][1]:+.1f} ({z(r['xy_z'][1])}) | "
+          f"{r['td_err_ms']:+.1f} ({z(r['td_z'])}) | {1e3*(r['r_est']-r['r_true']):+.1f} ({z(r['r_z'])}) | "
+          f"{1e3*(r['b_est']-r['b_true']):+.0f} ({z(r['b_z'])}) |")
