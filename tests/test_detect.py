@@ -547,10 +547,11 @@ def test_rim_holes_are_the_compact_gaps_inside_rims_with_exact_centroids_and_are
 
 
 def _moving_circle_events(centres: np.ndarray, radius: np.ndarray, shift: np.ndarray, on_gain: np.ndarray,
-                          shape=(260, 346), ss: int = 4) -> tuple[np.ndarray, np.ndarray]:
+                          shape=(260, 346), ss: int = 4, blur: float = 0.8) -> tuple[np.ndarray, np.ndarray]:
     """ON and OFF count images of dark circles moving by ``shift`` (px) over a light board: OFF events where a circle
     arrived (its leading edge), ON events where it left (its trailing edge), ``on_gain`` (per circle) ON events per
-    OFF event. Pixels are sampled ``ss`` x ``ss`` times (pixel (x, y) covers [x - 0.5, x + 0.5])."""
+    OFF event. Pixels are sampled ``ss`` x ``ss`` times (pixel (x, y) covers [x - 0.5, x + 0.5]); ``blur`` (px) a
+    Gaussian blur of both images."""
     h, w = shape
     sub = (np.arange(ss) + 0.5) / ss - 0.5
     ys = (np.arange(h)[:, None] + sub[None, :]).ravel()
@@ -568,7 +569,9 @@ def _moving_circle_events(centres: np.ndarray, radius: np.ndarray, shift: np.nda
         on[y0:y1, x0:x1] += g * (at_start & ~at_end)
     on = on.reshape(h, ss, w, ss).sum(axis=(1, 3)) / ss**2
     off = off.reshape(h, ss, w, ss).sum(axis=(1, 3)) / ss**2
-    return cv2.GaussianBlur(on, (0, 0), 0.8), cv2.GaussianBlur(off, (0, 0), 0.8)
+    if blur <= 0:
+        return on, off
+    return cv2.GaussianBlur(on, (0, 0), blur), cv2.GaussianBlur(off, (0, 0), blur)
 
 
 @pytest.mark.parametrize("dist,shift", [(1.2, (3.0, 1.0)), (1.2, (1.0, 0.0)), (1.8, (1.0, 0.0))])

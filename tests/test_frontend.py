@@ -681,3 +681,49 @@ def test_a_lost_board_is_searched_sparsely_and_found_from_the_window_it_came_bac
         assert at and all(at)  # around the board, labelled by its circles
     centre, _, _ = errors(track, t, poses)
     assert np.nanmax(centre) < 2.0
+
+
+def test_rim_centres_by_polarity_are_closer_than_the_holes_and_keep_the_board(monkeypatch):
+    """(``track.RIM_POLARITY_CENTRES``, off by default.) A rim detection's centres are its holes' binary centroids, a
+    few tenths of a pixel noisy; re-centred on the rim window's events by polarity (each polarity's centroid from the
+    hole centre, then their mean) they lie on the circles' centres at the middle of the motion, also where one
+    polarity fires twice as many events as the other. A board the re-centring would spoil (it fails the order check)
+    keeps its hole centres."""
+    from test_detect import _moving_circle_events, pose_facing, truth_pixels
+
+    from plsgraph.frontend.detect import GridDetection
+    from plsgraph.frontend.track import _rim_centres_by_polarity
+
+    board = load_board("acircles_4x11_a2")
+    T = pose_facing(board, 1.2, (0.15, -0.2, 0.05), front_z=-1)
+    uv = truth_pixels(T, board)
+    radius = 0.5 * board.circle_diameter * CAM.fx / transform_points(inv_T(T), board.points)[:, 2]
+    on, off = _moving_circle_events(uv, radius, np.array([3.0, 1.0]), np.full(len(uv), 2.0), blur=0.0)
+    # events: ON / OFF counts per pixel (x10, rounded), all in one window
+    rng = np.random.default_rng(2)
+    xs, ys, ps = [], [], []
+    for img, p in ((on, 1), (off, -1)):
+        n = np.round(10 * img).astype(int)
+        yy, xx = np.nonzero(n)
+        reps = n[yy, xx]
+        xs.append(np.repeat(xx, reps))
+        ys.append(np.repeat(yy, reps))
+        ps.append(np.full(reps.sum(), p))
+    x, y, p = np.concatenate(xs), np.concatenate(ys), np.concatenate(ps)
+    t = np.sort(rng.integers(0, 30_000_000, x.size)).astype(np.int64)
+    ev = EventStream(t, x.astype(np.uint16), y.astype(np.uint16), p.astype(np.int8), CAM.width, CAM.height)
+    holes = uv + rng.normal(0.0, 0.4, uv.shape)
+    det = GridDetection(holes, True, "ok", 0.3, 2)
+    out = _rim_centres_by_polarity(det, ev, board, CAM)
+    err_holes = np.linalg.norm(holes - uv, axis=1)
+    err = np.linalg.norm(out.uv - uv, axis=1)
+    assert out.ok and out.rim_px == 2
+    assert np.median(err) < 0.1 < np.median(err_holes)
+    # Too few events to say anything: the holes stand.
+    empty = _rim_centres_by_polarity(det, EventStream.empty(CAM.width, CAM.height), board, CAM)
+    assert np.array_equal(empty.uv, holes)
+    # Re-centred points that fail the order check: the holes stand.
+    import plsgraph.frontend.track as track_module
+
+    monkeypatch.setattr(track_module, "check_grid_order", lambda *a, **k: ("inconsistent_order", 2.0))
+    assert np.array_equal(_rim_centres_by_polarity(det, ev, board, CAM).uv, holes)
