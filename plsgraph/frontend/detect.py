@@ -373,31 +373,46 @@ def neighbour_distance(uv: np.ndarray) -> np.ndarray:
     return d.min(axis=1)
 
 
-def refine_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, iterations: int = 4) -> np.ndarray:
+def refine_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, iterations: int = 4,
+                     image: np.ndarray | None = None) -> np.ndarray:
     """Weighted centroids of ``weight`` in disks of ``radius`` (n,) around ``uv`` (n, 2), iterated.
 
     A filled circle and a symmetric rim both have their centroid at the centre; each iteration
     re-centres the disk (mean shift), which converges in a few steps. Pixels are sampled at their
     centres (pixel (x, y) covers [x - 0.5, x + 0.5]), OpenCV's convention. Points whose disk holds
-    no weight keep their input position.
+    no weight keep their input position. ``weight`` may be a stack of images (k, h, w), ``image`` (n,)
+    then says which one each point's centroid is taken on (several images in one pass).
     """
     uv = np.asarray(uv, dtype=float).copy()
     radius = np.asarray(radius, dtype=float)
-    h, w = weight.shape
+    stack = weight if weight.ndim == 3 else weight[None]
+    which = np.zeros(len(uv), dtype=np.intp) if image is None else np.asarray(image, dtype=np.intp)
+    h, w = stack.shape[1:]
     R = int(np.ceil(radius.max())) + 1
+    # A border of R zero pixels: a disk reaching past the image's edge reads zeros there, with no test per pixel. A
+    # point outside the image has its disk laid around the nearest edge pixel: the part of its disk within R of that
+    # pixel is read, and the part beyond lies outside the image (zeros) anyway.
+    padded = np.zeros((stack.shape[0], h + 2 * R, w + 2 * R), dtype=np.float32)
+    padded[:, R:R + h, R:R + w] = stack
+    flat = padded.reshape(-1)
+    hp, wp = h + 2 * R, w + 2 * R
     off = np.arange(-R, R + 1)
     dy, dx = np.meshgrid(off, off, indexing="ij")
-    dx, dy = dx.ravel(), dy.ravel()
+    dxi, dyi = dx.ravel(), dy.ravel()
+    dx, dy = dxi.astype(np.float32), dyi.astype(np.float32)
+    r_sq = (radius**2).astype(np.float32)[:, None]
+    base = (which * (hp * wp))[:, None] + (R * wp + R) + (dyi * wp + dxi)[None, :]
     for _ in range(iterations):
-        cx, cy = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
-        px = cx[:, None] + dx[None, :]
-        py = cy[:, None] + dy[None, :]
-        inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
-        r2 = (px - uv[:, :1]) ** 2 + (py - uv[:, 1:]) ** 2
-        wt = np.where(inside & (r2 <= radius[:, None] ** 2), weight[np.clip(py, 0, h - 1), np.clip(px, 0, w - 1)], 0.0)
-        s = wt.sum(axis=1)
+        c = np.round(uv)
+        ci = c.astype(np.intp)
+        ci[:, 0] = np.clip(ci[:, 0], 0, w - 1)
+        ci[:, 1] = np.clip(ci[:, 1], 0, h - 1)
+        f = (uv - ci).astype(np.float32)  # the point relative to the pixel its disk is laid around
+        disk = (dx[None, :] - f[:, :1]) ** 2 + (dy[None, :] - f[:, 1:]) ** 2 <= r_sq
+        wt = flat[base + (ci[:, 1] * wp + ci[:, 0])[:, None]] * disk
+        s = wt.sum(axis=1, dtype=np.float64)
         good = s > 1e-9
-        new = np.stack([(wt * px).sum(axis=1), (wt * py).sum(axis=1)], axis=-1) / np.where(good, s, 1.0)[:, None]
+        new = ci + np.stack([wt @ dx, wt @ dy], axis=-1).astype(np.float64) / np.where(good, s, 1.0)[:, None]
         step = np.where(good[:, None], new - uv, 0.0)
         uv += step
         if np.max(np.abs(step), initial=0.0) < 1e-3:
@@ -419,11 +434,19 @@ def polarity_centroids(on: np.ndarray, off: np.ndarray, uv: np.ndarray, radius: 
     uv = np.asarray(uv, dtype=float)
     radius = np.asarray(radius, dtype=float)
     both = refine_centroids(on + off, uv, radius)
-    out = 0.5 * (refine_centroids(on, both, radius) + refine_centroids(off, both, radius))
+    out = _polarity_mean(on, off, both, radius)
     keep = (_disk_weight(on, both, radius) <= 0.0) | (_disk_weight(off, both, radius) <= 0.0)
     keep |= np.linalg.norm(out - both, axis=1) > 0.5 * radius
     out[keep] = both[keep]
     return out
+
+
+def _polarity_mean(on: np.ndarray, off: np.ndarray, uv: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """The mean of the ON and the OFF image's centroids (:func:`refine_centroids`), each iterated from ``uv``."""
+    n = len(uv)
+    c = refine_centroids(np.stack([on, off]), np.concatenate([uv, uv]), np.concatenate([radius, radius]),
+                         image=np.repeat([0, 1], n))
+    return 0.5 * (c[:n] + c[n:])
 
 
 def _disk_weight(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray) -> np.ndarray:
