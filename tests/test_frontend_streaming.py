@@ -27,13 +27,21 @@ def test_streaming_matches_single_pass_on_the_sample():
         history_s=0.5,
     )
     assert streamed.info["windows"] == one.info["windows"]  # the same window grid
-    # Tracking restarts at each span, so a window or two may differ; the poses found by both agree.
     assert abs(len(streamed) - len(one)) <= 0.1 * len(one)
     for track in (one, streamed):  # per detection, as the track's frames
         assert len(track.info["span_windows"]) == len(track.info["detector"]) == len(track)
-    common, i, j = np.intersect1d(one.t, streamed.t, return_indices=True)
-    assert common.size >= 0.8 * len(one)
-    d = np.abs(one.T_board_cam[i, :3, 3] - streamed.T_board_cam[j, :3, 3]).max(axis=1)
+    # The board is found in the same windows.
+    wa, wb = np.asarray(one.info["window_t"]), np.asarray(streamed.info["window_t"])
+    both, i, j = np.intersect1d(wa, wb, return_indices=True)
+    assert both.size >= 0.9 * len(one)
+    # Which span of events a window's board is found on depends on the span that worked in the window before (the
+    # ladder starts with it), and tracking restarts at each streamed span: for a stretch of windows after a restart
+    # the two can keep different rungs, each finding the board (here 13-26 windows of 119, on 0.5 against 1 window's
+    # events, or 4 against 1). Where both used the same span, they found the same board at the same stamp.
+    same = np.asarray(one.info["span_windows"])[i] == np.asarray(streamed.info["span_windows"])[j]
+    assert np.count_nonzero(same) >= 0.6 * len(one)
+    assert np.median(np.abs(one.t[i[same]] - streamed.t[j[same]])) < 1e-9
+    d = np.abs(one.T_board_cam[i[same], :3, 3] - streamed.T_board_cam[j[same], :3, 3]).max(axis=1)
     assert np.median(d) < 1e-6
 
 

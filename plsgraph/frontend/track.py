@@ -173,16 +173,22 @@ BLOB_BLUR_PX = 0.8
 #: spans and from 0.22-0.33 to 0.11-0.22 px on eight-window spans (docs/frontend.md, "Blob centres by polarity").
 BLOB_POLARITY_CENTRES = True
 #: Rim detections (count surfaces) re-centred by polarity: each circle's ON and OFF events' centroids, each iterated
-#: from the rim's hole centre in its own disk of RIM_POLARITY_DISK x the distance to the nearest circle, and their
-#: mean; kept when the re-centred board passes the order check. A hole's centre is a binary region's: 0.4-0.5 px
-#: noisy on the independent recordings (less each frame's common shift), against 0.16-0.23 px for the polarities'
-#: mean, and calibrated with it their rotation's mean error over the 22 recordings fell 0.46 -> 0.38 deg (clean ones
-#: 0.23 -> 0.12 deg; docs/frontend.md, "Blob centres by polarity"). Off: on the simulator's test recordings the
-#: centres come out further from the truth at their stamps (median 0.42 against under 0.3 px; the polarities' mean
-#: belongs to another instant than the rims' stamp) and ten front-end tests fail; the study has not judged it yet.
-RIM_POLARITY_CENTRES = False
-RIM_POLARITY_DISK = 0.3
+#: from the rim's hole centre in its own disk of RIM_POLARITY_DISK x the circle's radius in pixels, and their mean;
+#: kept when the re-centred board passes the order check. The radius in pixels is the distance to the nearest circle
+#: times the board's ratio of circle radius to neighbour distance (0.28 on acircles_4x11_a2, 0.42 on acircles_4x11):
+#: a disk a little larger than the circle holds its rim's events and none of its neighbours'. A disk of a fixed share
+#: of the neighbour distance does not: on a board with large circles it lies inside the empty hole. A hole's centre
+#: is a binary region's: 0.4-0.5 px noisy on the independent recordings (less each frame's common shift), against
+#: 0.16-0.25 px for the polarities' mean (docs/frontend.md, "Rim centres by polarity").
+RIM_POLARITY_CENTRES = True
+RIM_POLARITY_DISK = 1.1
 RIM_POLARITY_BLUR_PX = 0.7
+
+
+def _circle_radius_share(board: Board) -> float:
+    """The circles' radius over the distance between neighbouring circles (the diagonal neighbours, sqrt(2) square
+    sizes apart) of an asymmetric circle grid."""
+    return 0.5 * board.circle_diameter / (np.sqrt(2.0) * board.square_size)
 
 
 def _rim_centres_by_polarity(det: GridDetection, events: EventStream, board: Board,
@@ -194,13 +200,13 @@ def _rim_centres_by_polarity(det: GridDetection, events: EventStream, board: Boa
     seen = np.all(np.isfinite(det.uv), axis=1)
     if np.count_nonzero(seen) < 4 or len(events) == 0:
         return det
-    from .detect import _disk_weight
+    from .detect import _disk_weight, _polarity_mean
 
     q = det.uv[seen]
-    r = RIM_POLARITY_DISK * neighbour_distance(q)
+    r = RIM_POLARITY_DISK * _circle_radius_share(board) * neighbour_distance(q)
     on = cv2.GaussianBlur(surfaces.count_image(events, polarity="on"), (0, 0), RIM_POLARITY_BLUR_PX)
     off = cv2.GaussianBlur(surfaces.count_image(events, polarity="off"), (0, 0), RIM_POLARITY_BLUR_PX)
-    c = 0.5 * (refine_centroids(on, q, r) + refine_centroids(off, q, r))
+    c = _polarity_mean(on, off, q, r)
     lone = (_disk_weight(on, q, r) <= 0.0) | (_disk_weight(off, q, r) <= 0.0)
     c[lone] = q[lone]
     uv = det.uv.copy()
