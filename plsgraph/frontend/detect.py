@@ -374,14 +374,15 @@ def neighbour_distance(uv: np.ndarray) -> np.ndarray:
 
 
 def refine_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, iterations: int = 4,
-                     image: np.ndarray | None = None) -> np.ndarray:
+                     image: np.ndarray | None = None, support: bool = False):
     """Weighted centroids of ``weight`` in disks of ``radius`` (n,) around ``uv`` (n, 2), iterated.
 
     A filled circle and a symmetric rim both have their centroid at the centre; each iteration
     re-centres the disk (mean shift), which converges in a few steps. Pixels are sampled at their
     centres (pixel (x, y) covers [x - 0.5, x + 0.5]), OpenCV's convention. Points whose disk holds
     no weight keep their input position. ``weight`` may be a stack of images (k, h, w), ``image`` (n,)
-    then says which one each point's centroid is taken on (several images in one pass).
+    then says which one each point's centroid is taken on (several images in one pass). With ``support`` also
+    the weight in each point's disk at its input position (n,), as :func:`_disk_weight` gives it.
     """
     uv = np.asarray(uv, dtype=float).copy()
     radius = np.asarray(radius, dtype=float)
@@ -402,7 +403,8 @@ def refine_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, ite
     dx, dy = dxi.astype(np.float32), dyi.astype(np.float32)
     r_sq = (radius**2).astype(np.float32)[:, None]
     base = (which * (hp * wp))[:, None] + (R * wp + R) + (dyi * wp + dxi)[None, :]
-    for _ in range(iterations):
+    first = None
+    for _ in range(max(iterations, 1 if support else 0)):
         c = np.round(uv)
         ci = c.astype(np.intp)
         ci[:, 0] = np.clip(ci[:, 0], 0, w - 1)
@@ -411,12 +413,18 @@ def refine_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, ite
         disk = (dx[None, :] - f[:, :1]) ** 2 + (dy[None, :] - f[:, 1:]) ** 2 <= r_sq
         wt = flat[base + (ci[:, 1] * wp + ci[:, 0])[:, None]] * disk
         s = wt.sum(axis=1, dtype=np.float64)
+        if first is None:
+            first = s
+            if iterations == 0:
+                break
         good = s > 1e-9
         new = ci + np.stack([wt @ dx, wt @ dy], axis=-1).astype(np.float64) / np.where(good, s, 1.0)[:, None]
         step = np.where(good[:, None], new - uv, 0.0)
         uv += step
         if np.max(np.abs(step), initial=0.0) < 1e-3:
             break
+    if support:
+        return uv, (first if first is not None else np.zeros(len(uv)))
     return uv
 
 
@@ -441,12 +449,16 @@ def polarity_centroids(on: np.ndarray, off: np.ndarray, uv: np.ndarray, radius: 
     return out
 
 
-def _polarity_mean(on: np.ndarray, off: np.ndarray, uv: np.ndarray, radius: np.ndarray) -> np.ndarray:
-    """The mean of the ON and the OFF image's centroids (:func:`refine_centroids`), each iterated from ``uv``."""
+def _polarity_mean(on: np.ndarray, off: np.ndarray, uv: np.ndarray, radius: np.ndarray, support: bool = False):
+    """The mean of the ON and the OFF image's centroids (:func:`refine_centroids`), each iterated from ``uv``; with
+    ``support`` also whether each point's disk at ``uv`` lacks one polarity's weight (n,) bool."""
     n = len(uv)
-    c = refine_centroids(np.stack([on, off]), np.concatenate([uv, uv]), np.concatenate([radius, radius]),
-                         image=np.repeat([0, 1], n))
-    return 0.5 * (c[:n] + c[n:])
+    c, s = refine_centroids(np.stack([on, off]), np.concatenate([uv, uv]), np.concatenate([radius, radius]),
+                            image=np.repeat([0, 1], n), support=True)
+    mean = 0.5 * (c[:n] + c[n:])
+    if support:
+        return mean, (s[:n] <= 0.0) | (s[n:] <= 0.0)
+    return mean
 
 
 def _disk_weight(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray) -> np.ndarray:
