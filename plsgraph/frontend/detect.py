@@ -400,6 +400,10 @@ def refine_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, ite
     off = np.arange(-R, R + 1)
     dy, dx = np.meshgrid(off, off, indexing="ij")
     dxi, dyi = dx.ravel(), dy.ravel()
+    # Only the offsets a disk can reach: a point lies within half a pixel on each axis of the pixel its disk is laid
+    # around (outside the image, its disk's part inside lies closer to the edge pixel than its radius).
+    reach = dxi**2 + dyi**2 <= (float(radius.max()) + np.sqrt(0.5)) ** 2
+    dxi, dyi = dxi[reach], dyi[reach]
     dx, dy = dxi.astype(np.float32), dyi.astype(np.float32)
     r_sq = (radius**2).astype(np.float32)[:, None]
     base = (which * (hp * wp))[:, None] + (R * wp + R) + (dyi * wp + dxi)[None, :]
