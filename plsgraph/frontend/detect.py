@@ -408,6 +408,7 @@ def refine_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, ite
     r_sq = (radius**2).astype(np.float32)[:, None]
     base = (which * (hp * wp))[:, None] + (R * wp + R) + (dyi * wp + dxi)[None, :]
     first = None
+    moving = np.ones(len(uv), dtype=bool)  # points of an image whose centroids have not all settled yet
     for _ in range(max(iterations, 1 if support else 0)):
         c = np.round(uv)
         ci = c.astype(np.intp)
@@ -423,10 +424,14 @@ def refine_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, ite
                 break
         good = s > 1e-9
         new = ci + np.stack([wt @ dx, wt @ dy], axis=-1).astype(np.float64) / np.where(good, s, 1.0)[:, None]
-        step = np.where(good[:, None], new - uv, 0.0)
+        step = np.where((good & moving)[:, None], new - uv, 0.0)
         uv += step
-        if np.max(np.abs(step), initial=0.0) < 1e-3:
+        # Each image's points stop together once all of them moved by less than 1e-3 px (as one call per image).
+        big = np.abs(step).max(axis=1, initial=0.0) >= 1e-3
+        if not big.any():
             break
+        if image is not None:
+            moving &= np.isin(which, which[big])
     if support:
         return uv, (first if first is not None else np.zeros(len(uv)))
     return uv
@@ -453,12 +458,13 @@ def polarity_centroids(on: np.ndarray, off: np.ndarray, uv: np.ndarray, radius: 
     return out
 
 
-def _polarity_mean(on: np.ndarray, off: np.ndarray, uv: np.ndarray, radius: np.ndarray, support: bool = False):
+def _polarity_mean(on: np.ndarray, off: np.ndarray, uv: np.ndarray, radius: np.ndarray, support: bool = False,
+                   iterations: int = 4):
     """The mean of the ON and the OFF image's centroids (:func:`refine_centroids`), each iterated from ``uv``; with
     ``support`` also whether each point's disk at ``uv`` lacks one polarity's weight (n,) bool."""
     n = len(uv)
     c, s = refine_centroids(np.stack([on, off]), np.concatenate([uv, uv]), np.concatenate([radius, radius]),
-                            image=np.repeat([0, 1], n), support=True)
+                            iterations=iterations, image=np.repeat([0, 1], n), support=True)
     mean = 0.5 * (c[:n] + c[n:])
     if support:
         return mean, (s[:n] <= 0.0) | (s[n:] <= 0.0)

@@ -183,6 +183,7 @@ BLOB_POLARITY_CENTRES = True
 RIM_POLARITY_CENTRES = True
 RIM_POLARITY_DISK = 1.1
 RIM_POLARITY_BLUR_PX = 0.7
+RIM_CENTROID_ITERATIONS = 4
 
 
 def _circle_radius_share(board: Board) -> float:
@@ -204,9 +205,9 @@ def _rim_centres_by_polarity(det: GridDetection, events: EventStream, board: Boa
 
     q = det.uv[seen]
     r = RIM_POLARITY_DISK * _circle_radius_share(board) * neighbour_distance(q)
-    # The ON and OFF count images over the board's box only: a centroid moves by less than its disk's radius from
-    # the hole centre, and the blur reaches 4 sigma, so the box grown by that much holds every pixel read.
-    grow = 2.0 * float(np.max(r)) + 4.0 * RIM_POLARITY_BLUR_PX + 2.0
+    # The ON and OFF count images over the board's box only: each of the centroids' iterations moves a disk by less
+    # than its radius, and the blur reaches 4 sigma, so the box grown by that much holds every pixel read.
+    grow = (RIM_CENTROID_ITERATIONS + 1) * float(np.max(r)) + 4.0 * RIM_POLARITY_BLUR_PX + 2.0
     x0, y0 = np.maximum(np.floor(q.min(axis=0) - grow).astype(int), 0)
     x1 = min(int(np.ceil(q[:, 0].max() + grow)) + 1, events.width)
     y1 = min(int(np.ceil(q[:, 1].max() + grow)) + 1, events.height)
@@ -220,7 +221,7 @@ def _rim_centres_by_polarity(det: GridDetection, events: EventStream, board: Boa
     on, off = (cv2.GaussianBlur(np.bincount(pix[sel], minlength=n_pix).astype(np.float32).reshape(y1 - y0, x1 - x0),
                                 (0, 0), RIM_POLARITY_BLUR_PX) for sel in (is_on, ~is_on))
     corner = np.array([x0, y0], dtype=float)
-    c, lone = _polarity_mean(on, off, q - corner, r, support=True)
+    c, lone = _polarity_mean(on, off, q - corner, r, support=True, iterations=RIM_CENTROID_ITERATIONS)
     c += corner
     c[lone] = q[lone]
     uv = det.uv.copy()
