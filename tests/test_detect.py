@@ -625,3 +625,57 @@ def test_the_blob_detector_takes_its_centres_from_the_polarity_images(monkeypatc
     assert np.median(np.linalg.norm(det.uv - truth_pixels(T, CIRCLES), axis=1)) < 0.15
     with pytest.raises(InputError):
         detect_circle_grid(img, CIRCLES, CAM, foreground="bright", polarity_images=(img[:10], img))
+
+
+def _reference_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, iterations: int = 4) -> np.ndarray:
+    """refine_centroids written out point by point in float64: the weight of the pixels whose centres lie within the
+    radius, their weighted centroid, iterated; all points stop once every one moved by less than 1e-3 px."""
+    h, w = weight.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    uv = np.asarray(uv, dtype=float).copy()
+    for _ in range(iterations):
+        steps = np.zeros_like(uv)
+        for i, (u, v) in enumerate(uv):
+            if not np.isfinite(u + v):
+                continue
+            m = (xx - u) ** 2 + (yy - v) ** 2 <= radius[i] ** 2
+            s = float(weight[m].astype(np.float64).sum())
+            if s > 1e-9:
+                steps[i] = [float((weight[m] * xx[m]).sum()) / s - u, float((weight[m] * yy[m]).sum()) / s - v]
+        uv += steps
+        if np.max(np.abs(steps)) < 1e-3:
+            break
+    return uv
+
+
+def test_centroids_match_the_point_by_point_reference_anywhere_and_stacked():
+    """refine_centroids (a padded image, only the offsets a disk can reach, float32 reads) gives the reference's centres
+    for points inside the image, on its edges, outside it and far outside, with NaN points kept; a stack of ON and OFF
+    images in one call gives what one call per image gives (each image's points stop as their own call would), and
+    ``support`` is the disk's weight at the start."""
+    from plsgraph.frontend.detect import _disk_weight, _polarity_mean, refine_centroids
+
+    rng = np.random.default_rng(7)
+    worst = 0.0
+    for trial in range(40):
+        h, w = (int(v) for v in rng.integers(20, 70, 2))
+        on = rng.poisson(rng.uniform(0.05, 2.0), (h, w)).astype(np.float32)
+        off = rng.poisson(rng.uniform(0.05, 2.0), (h, w)).astype(np.float32)
+        if trial % 2:
+            on, off = cv2.GaussianBlur(on, (0, 0), 0.7), cv2.GaussianBlur(off, (0, 0), 0.7)
+        n = 12
+        uv = np.column_stack([rng.uniform(-8, w + 8, n), rng.uniform(-8, h + 8, n)])
+        uv[:3] = [[-1e4, 5.0], [w - 0.5 + 0.3, h / 2], [np.nan, 3.0]]
+        r = rng.uniform(1.0, 7.0, n)
+        got = refine_centroids(on, uv, r)
+        ref = _reference_centroids(on, uv, r)
+        assert np.isnan(got[2, 0]) and got[2, 1] == 3.0
+        worst = max(worst, float(np.nanmax(np.abs(got - ref))))
+        both, support = refine_centroids(np.stack([on, off]), np.concatenate([uv, uv]), np.concatenate([r, r]),
+                                         image=np.repeat([0, 1], n), support=True)
+        separate = np.concatenate([refine_centroids(on, uv, r), refine_centroids(off, uv, r)])
+        assert np.nanmax(np.abs(both - separate)) < 1e-5
+        np.testing.assert_allclose(np.nan_to_num(support[:n]), np.nan_to_num(_disk_weight(on, uv, r)), atol=1e-3)
+        mean, lone = _polarity_mean(on, off, uv, r, support=True)
+        assert np.nanmax(np.abs(mean - 0.5 * (separate[:n] + separate[n:]))) < 1e-5
+    assert worst < 1e-4

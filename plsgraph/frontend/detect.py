@@ -410,11 +410,9 @@ def refine_centroids(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray, ite
     first = None
     moving = np.ones(len(uv), dtype=bool)  # points of an image whose centroids have not all settled yet
     for _ in range(max(iterations, 1 if support else 0)):
-        c = np.round(uv)
-        ci = c.astype(np.intp)
-        ci[:, 0] = np.clip(ci[:, 0], 0, w - 1)
-        ci[:, 1] = np.clip(ci[:, 1], 0, h - 1)
-        f = (uv - ci).astype(np.float32)  # the point relative to the pixel its disk is laid around
+        # The pixel each disk is laid around, inside the image (a NaN point's disk, at NaN from it, reads nothing).
+        ci = np.clip(np.where(np.isfinite(uv), np.round(uv), 0.0), 0.0, [w - 1, h - 1]).astype(np.intp)
+        f = np.clip(uv - ci, -1e6, 1e6).astype(np.float32)  # the point relative to the pixel its disk is laid around
         disk = (dx[None, :] - f[:, :1]) ** 2 + (dy[None, :] - f[:, 1:]) ** 2 <= r_sq
         wt = flat[base + (ci[:, 1] * wp + ci[:, 0])[:, None]] * disk
         s = wt.sum(axis=1, dtype=np.float64)
@@ -477,7 +475,7 @@ def _disk_weight(weight: np.ndarray, uv: np.ndarray, radius: np.ndarray) -> np.n
     R = int(np.ceil(np.max(radius, initial=0.0))) + 1
     off = np.arange(-R, R + 1)
     dy, dx = np.meshgrid(off, off, indexing="ij")
-    cx, cy = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
+    cx, cy = (np.where(np.isfinite(a), np.round(a), 0.0).astype(int) for a in (uv[:, 0], uv[:, 1]))
     px = cx[:, None] + dx.ravel()[None, :]
     py = cy[:, None] + dy.ravel()[None, :]
     inside = (px >= 0) & (px < w) & (py >= 0) & (py < h)
