@@ -204,7 +204,7 @@ def flicker_events(stream: EventStream, freqs_hz: tuple[float, ...] = FLICKER_HZ
 
 
 #: Most events :func:`flicker_census` tests: a longer stream is tested on the events of a sample of its pixels.
-FLICKER_CENSUS_EVENTS = 2_000_000
+FLICKER_CENSUS_EVENTS = 500_000
 
 
 def flicker_census(stream: EventStream, budget: int | None = None) -> tuple[float, float | None, int]:
