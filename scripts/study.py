@@ -153,7 +153,7 @@ def _still_windows(run, rec, t_grid, in_view, detected, speed, rate_hz: float) -
             "detected_fraction_robot_moving": float((detected & rest).sum() / max(1, rest.sum()))}
 
 
-def _frontend_metrics(rec, run, rate_hz: float = 30.0) -> dict:
+def _frontend_metrics(rec, run, rate_hz: float) -> dict:
     """Coverage, wrong labels and centre error of the front end's detections against the truth."""
     sim, ev = rec.sim, rec.events
     period = int(round(1e9 / rate_hz))
@@ -343,7 +343,7 @@ def run_one(args: tuple) -> dict:
         except (DegenerateMotionError, InsufficientDataError) as exc:
             row.update(outcome="diagnosis", flagged=True, problems=[str(exc)])
         row["seconds_calibrate"] = round(time.perf_counter() - t1, 2)
-        frontend = _frontend_metrics(rec, run)
+        frontend = _frontend_metrics(rec, run, opts.frontend.rate_hz)  # the windows' grid is the front end's
         row.update(frontend)
         if run.closed_form is not None:
             row.update(_errors(run, rec.truth))
