@@ -33,6 +33,33 @@ MIN_CAMERA_FRAMES = 10  # fewer board detections than this: no calibration is at
 #: surface kind) would not apply. (Not judged on a file's index: a .db3 lists its messages' times, which for events in
 #: long packets fall short of the events' span.)
 MIN_EVENT_SPAN_S = 2.0
+#: The detection rate and the count surface's window length (s) the accuracy docs/validation.md quotes was measured
+#: with. Lower rates and longer windows were measured worse (twentieth session): :func:`detection_rate_warnings`.
+VALIDATED_RATE_HZ = 30.0
+VALIDATED_WINDOW_S = 1.0 / 30.0
+
+
+def detection_rate_warnings(kind: str, rate_hz: float, window_s: float) -> list[str]:
+    """Warnings for a count-surface front end run at a lower detection rate or with longer windows than the
+    defaults the accuracy was measured with: on the independent recordings 20 Hz (50 ms windows) passed three results
+    beyond 3 sigma, and 20 Hz with 33 ms windows made the harsh ones less accurate (docs/validation.md, "Twentieth
+    session"). Other surfaces look back by their own time constant and were not measured so; nothing is said."""
+    if kind != "count":
+        return []
+    out = []
+    slack = 1.0 + 1e-3  # a window typed as 0.0333 s is the default's
+    if window_s > VALIDATED_WINDOW_S * slack:
+        out.append(f"each detection window holds {1e3 * window_s:.0f} ms of events, longer than the "
+                   f"{1e3 * VALIDATED_WINDOW_S:.0f} ms the accuracy was measured with: a fast-moving board blurs, and "
+                   "on independent test recordings 50 ms windows gave results beyond their sigmas; use --window "
+                   f"{VALIDATED_WINDOW_S:.4f} (or the default --rate)")
+    if rate_hz * slack < VALIDATED_RATE_HZ:
+        out.append(f"the board is detected at {rate_hz:g} Hz, below the {VALIDATED_RATE_HZ:g} Hz the accuracy was "
+                   "measured with: fewer detections made the harder test recordings less accurate, some beyond their "
+                   "sigmas")
+    return out
+
+
 SHORT_EVENTS_ADVICE = ("record longer: 20 s or more of driving forwards and backwards while turning (arcs, "
                        "S-curves), with the board in view, the event camera and the odometry recording all the while")
 
@@ -360,6 +387,8 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
     if track.info.get("flicker_hz") is not None:  # the lighting, as the events show it
         run.recording_info.update({k: track.info[k] for k in ("flicker_hz", "flicker_pixels", "flicker_event_share")})
     run.warn(*track.info.get("warnings", []))
+    run.warn(*detection_rate_warnings(str(track.info.get("kind", opts.frontend.surface)), opts.frontend.rate_hz,
+                                      float(track.info.get("window_s", 1.0 / opts.frontend.rate_hz))))
     for k in ("windows", "detected", "skipped", "hot_pixels"):
         if k in track.info:
             run.discarded[f"frontend_{k}"] = to_jsonable(track.info[k])

@@ -177,6 +177,33 @@ def test_closed_form_only_result_has_no_nan_and_says_the_height_is_not_measured(
     assert stat.S_IMODE((out / "calibration.yaml").stat().st_mode) & 0o044  # readable by group/others
 
 
+def test_detection_rate_warnings_name_the_lower_rate_and_the_longer_window():
+    from plsgraph.pipeline import detection_rate_warnings
+
+    assert detection_rate_warnings("count", 30.0, 1.0 / 30.0) == []
+    assert detection_rate_warnings("count", 30.0, 0.0333) == []  # the default, typed
+    assert detection_rate_warnings("count", 60.0, 1.0 / 60.0) == []  # faster and shorter: not what was measured worse
+    slow = detection_rate_warnings("count", 20.0, 0.05)
+    assert len(slow) == 2 and "50 ms" in slow[0] and "20 Hz" in slow[1]
+    kept = detection_rate_warnings("count", 20.0, 0.0333)
+    assert len(kept) == 1 and "20 Hz" in kept[0]
+    assert len(detection_rate_warnings("count", 30.0, 0.1)) == 1  # a longer window alone
+    assert detection_rate_warnings("time_surface", 10.0, 0.15) == []  # decaying surfaces: their own look-back
+
+
+def test_a_lower_detection_rate_is_said_in_the_result(recording, calibrated, tmp_path):
+    """--rate 20 (50 ms windows) was measured less accurate, with results beyond their sigmas on independent test
+    recordings: the result says so; the default run does not."""
+    out = tmp_path / "r20"
+    code = main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--no-refine", "--rate", "20", "--out",
+                 str(out)])
+    assert code == 0
+    warnings = json.loads((out / "report.json").read_text())["warnings"]
+    assert any("50 ms" in w for w in warnings) and any("20 Hz" in w for w in warnings)
+    default = json.loads((calibrated[1] / "report.json").read_text())["warnings"]
+    assert not any("the accuracy was measured with" in w for w in default)
+
+
 def test_swapped_wheels_are_corrected_or_flagged(recording, tmp_path):
     swap = ["--left-joint", "front_right_wheel_joint", "--right-joint", "front_left_wheel_joint"]
     out = tmp_path / "swapped"
