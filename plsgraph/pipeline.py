@@ -43,7 +43,8 @@ def detection_rate_warnings(kind: str, rate_hz: float, window_s: float) -> list[
     """Warnings for a count-surface front end run at a lower detection rate or with longer windows than the
     defaults the accuracy was measured with: on the independent recordings 20 Hz (50 ms windows) passed three results
     beyond 3 sigma, and 20 Hz with 33 ms windows made the harsh ones less accurate (docs/validation.md, "Twentieth
-    session"). Other surfaces look back by their own time constant and were not measured so; nothing is said."""
+    session"). Only the count surface was measured so (the decaying surfaces look back by their time constant, the
+    polarity surfaces were not measured at other rates): for the others nothing is said."""
     if kind != "count":
         return []
     out = []
@@ -52,7 +53,7 @@ def detection_rate_warnings(kind: str, rate_hz: float, window_s: float) -> list[
         out.append(f"each detection window holds {1e3 * window_s:.0f} ms of events, longer than the "
                    f"{1e3 * VALIDATED_WINDOW_S:.0f} ms the accuracy was measured with: a fast-moving board blurs, and "
                    "on independent test recordings 50 ms windows gave results beyond their sigmas; use --window "
-                   f"{VALIDATED_WINDOW_S:.4f} (or the default --rate)")
+                   f"{VALIDATED_WINDOW_S:.4f}")
     if rate_hz * slack < VALIDATED_RATE_HZ:
         out.append(f"the board is detected at {rate_hz:g} Hz, below the {VALIDATED_RATE_HZ:g} Hz the accuracy was "
                    "measured with: fewer detections made the harder test recordings less accurate, some beyond their "

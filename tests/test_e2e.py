@@ -184,9 +184,9 @@ def test_detection_rate_warnings_name_the_lower_rate_and_the_longer_window():
     assert detection_rate_warnings("count", 30.0, 0.0333) == []  # the default, typed
     assert detection_rate_warnings("count", 60.0, 1.0 / 60.0) == []  # faster and shorter: not what was measured worse
     slow = detection_rate_warnings("count", 20.0, 0.05)
-    assert len(slow) == 2 and "50 ms" in slow[0] and "20 Hz" in slow[1]
+    assert len(slow) == 2 and "50 ms" in slow[0] and "detected at 20 Hz" in slow[1]
     kept = detection_rate_warnings("count", 20.0, 0.0333)
-    assert len(kept) == 1 and "20 Hz" in kept[0]
+    assert len(kept) == 1 and "detected at 20 Hz" in kept[0]
     assert len(detection_rate_warnings("count", 30.0, 0.1)) == 1  # a longer window alone
     assert detection_rate_warnings("time_surface", 10.0, 0.15) == []  # decaying surfaces: their own look-back
 
@@ -199,7 +199,7 @@ def test_a_lower_detection_rate_is_said_in_the_result(recording, calibrated, tmp
                  str(out)])
     assert code == 0
     warnings = json.loads((out / "report.json").read_text())["warnings"]
-    assert any("50 ms" in w for w in warnings) and any("20 Hz" in w for w in warnings)
+    assert any("50 ms of events" in w for w in warnings) and any("detected at 20 Hz" in w for w in warnings)
     default = json.loads((calibrated[1] / "report.json").read_text())["warnings"]
     assert not any("the accuracy was measured with" in w for w in default)
 
