@@ -638,3 +638,19 @@ def test_batch_resume_calibrates_only_the_recordings_without_a_result(tmp_path, 
     assert main([*args, "--resume"]) == 1
     assert "--resume: 1 recording(s) already had a result and were not calibrated again (listed as earlier runs): a" \
         in capsys.readouterr().out
+
+
+@pytest.mark.skipif(not SAMPLE.exists(), reason="the sample recording is not in this checkout")
+def test_the_way_to_the_front_end_loads_no_scipy():
+    """Everything calibrate does before the front end starts (the command, reading the recording's other topics, the
+    wheel odometry) leaves scipy unloaded: it costs 0.2 s to load and is loaded while the front end's workers detect,
+    when this process only waits."""
+    code = ("import sys; from pathlib import Path; import plsgraph.cli.main, plsgraph.api; "
+            "from plsgraph import pipeline as P; from plsgraph.options import CalibrationOptions; "
+            f"run = P.Run(Path({str(SAMPLE)!r}), CalibrationOptions.build(None, board='acircles_4x11_a2')); "
+            "rec = P.read_inputs(run); track = P.build_base_track(run, rec); assert len(track.t) > 100; "
+            "print(sorted(m for m in sys.modules if m == 'scipy' or m.startswith('scipy.'))[:5])")
+    env = {**os.environ, "PYTHONPATH": str(Path(plsgraph.__file__).resolve().parent.parent)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"

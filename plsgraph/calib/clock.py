@@ -31,7 +31,6 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.fft import irfft, next_fast_len, rfft
 
 from ..core.tracks import BaseTrack, CameraTrack
 from ..errors import ClockAlignmentError, InsufficientDataError
@@ -135,6 +134,8 @@ def base_rate_signals(base: BaseTrack, rate: float = DEFAULT_RATE_HZ,
 
 def _xcorr(x: np.ndarray, y: np.ndarray, nfft: int) -> np.ndarray:
     """c[m] = sum_i x[i] y[i + k] with k = m - (len(x) - 1), for every k with any overlap."""
+    from scipy.fft import irfft, rfft  # here: loading scipy (0.1 s) stays off the way to the front end
+
     n = x.size + y.size - 1
     return irfft(rfft(x[::-1], nfft) * rfft(y, nfft), nfft)[:n]
 
@@ -155,6 +156,8 @@ def masked_ncc(
         a = np.where(ma > 0, (a - a[ma > 0].mean()) / (a[ma > 0].std() or 1.0), 0.0)
     if mb.sum() > 1:
         b = np.where(mb > 0, (b - b[mb > 0].mean()) / (b[mb > 0].std() or 1.0), 0.0)
+    from scipy.fft import next_fast_len
+
     nfft = next_fast_len(a.size + b.size - 1, real=True)
     n = np.rint(_xcorr(ma, mb, nfft))
     sa, sb = _xcorr(a, mb, nfft), _xcorr(ma, b, nfft)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..core.geometry import interpolate_poses, make_T, rot_z
 from ..core.tracks import BaseTrack, gap_indices
@@ -277,6 +276,8 @@ def base_track_from_odometry(
     norms = np.linalg.norm(quat_xyzw, axis=1)
     if np.any(np.abs(norms - 1.0) > 1e-3):
         raise InputError("odometry: orientation quaternions are not unit length; check the x, y, z, w order")
+    from scipy.spatial.transform import Rotation  # here: scipy.spatial takes 0.2 s to load
+
     R = Rotation.from_quat(quat_xyzw).as_matrix()
     T = make_T(R, position)
     dt = np.diff(t)

@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 import yaml
-from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
 
@@ -56,6 +55,8 @@ def ros_static_transform(T_base_cam: np.ndarray, parent: str = "base_link", chil
     Without ``z_known`` (planar driving never observes the camera height) z is written as 0 with a shell comment
     saying it must be measured.
     """
+    from scipy.spatial.transform import Rotation
+
     T = np.asarray(T_base_cam, dtype=float)
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
     x, y, z = T[:3, 3]
@@ -79,7 +80,7 @@ def frames_note(parent: str, child: str) -> str:
             "the wheels)")
 
 
-def _euler_deg(R: Rotation) -> np.ndarray:
+def _euler_deg(R) -> np.ndarray:
     """Euler angles about the fixed axes x, y, z (deg); at pitch +-90 deg scipy's gimbal-lock warning (the angles are
     still a valid rotation) is not the user's business."""
     import warnings
@@ -100,6 +101,8 @@ def rpy_sigma_deg(R_base_cam: np.ndarray, cov_rot: np.ndarray | None) -> list[fl
     cov = np.asarray(cov_rot, dtype=float)[:3, :3]
     if not np.all(np.isfinite(cov)):
         return [float("nan")] * 3
+    from scipy.spatial.transform import Rotation
+
     R = Rotation.from_matrix(np.asarray(R_base_cam, dtype=float)[:3, :3])
     if abs(_euler_deg(R)[1]) > 89.0:
         return [float("nan")] * 3
@@ -135,6 +138,8 @@ def calibration_dict(
     T = np.asarray(T_base_cam, dtype=float).copy()
     if not z_known:
         T[2, 3] = 0.0
+    from scipy.spatial.transform import Rotation
+
     q = Rotation.from_matrix(T[:3, :3]).as_quat()
     tf = ros_static_transform(T, parent_frame, child_frame, z_known) if ok else (
         "# NOT FOR USE: this result is flagged (see problems); fix the input and calibrate again")
