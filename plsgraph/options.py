@@ -182,10 +182,20 @@ class MountOptions:
     """How the camera is mounted, as far as the user knows, and the frame names written into the robot files."""
 
     upside_down_camera: bool = False
+    #: Said to be upright: a swapped pair of wheel joints is then corrected; unsaid, the camera is taken as upright
+    #: for the checks, but a correction that only an upright camera justifies is flagged (wheel_order, pairing).
+    upright_camera: bool = False
     parent_frame: str = "base_link"
     child_frame: str = "event_camera"
 
+    @property
+    def stated(self) -> bool:
+        """Whether the user said how the camera is mounted (--upright-camera or --upside-down-camera)."""
+        return bool(self.upright_camera or self.upside_down_camera)
+
     def __post_init__(self) -> None:
+        if self.upright_camera and self.upside_down_camera:
+            raise InputError("--upright-camera and --upside-down-camera contradict each other; give one")
         for name in ("parent_frame", "child_frame"):
             v = getattr(self, name)
             if not isinstance(v, str) or not re.fullmatch(r"[A-Za-z0-9_.\-]+(/[A-Za-z0-9_.\-]+)*", v):

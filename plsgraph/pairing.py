@@ -171,6 +171,17 @@ def _require_overlap(cam: np.ndarray, odo: np.ndarray, centre: float, w: float, 
                      "--clock-offset SECONDS")
 
 
+#: The problem of a swapped pair of wheel joints found with the camera's mount unsaid: under planar motion, swapped
+#: wheels under an upright camera and the wheels as named under an upside-down camera are the same recording (the
+#: mirror through the base's x-z plane is a rotation by 180 deg about the base x axis for planar motions), so the
+#: correction rests on an assumption the data cannot check.
+MOUNT_OR_SWAP_PROBLEM = (
+    "the wheel joints as named and an upright camera do not fit the camera's motion, and two explanations fit it "
+    "equally well: the left and right wheel joints are swapped (the camera upright; the result assumes this), or the "
+    "camera is mounted upside down (the wheels as named; the result would be this one rolled by 180 deg). Driving on "
+    "a floor cannot tell them apart: say how the camera is mounted, --upright-camera or --upside-down-camera")
+
+
 def pair_tracks(run: Any) -> None:
     """Check the wheel order and align the clocks; updates ``run.base_track``, ``run.camera_track`` (shifted onto
     the odometry clock), ``run.clock_offset_s`` and ``run.recording_info['clock' / 'wheel_order']``."""
@@ -200,6 +211,9 @@ def pair_tracks(run: Any) -> None:
                      "(--wheel-order flag keeps the wheels as named and flags the result)")
             run.warn(*chk.base_track.info.get("warnings", []))
             alignment = chk.alignment
+            if chk.hypothesis == "swapped" and not opts.mount.stated:
+                run.input_problems.append(MOUNT_OR_SWAP_PROBLEM)
+                info["mount_unstated"] = True
         elif chk.wrong:
             info["corrected"] = False
             run.input_problems.append(chk.message + "; not corrected (--wheel-order flag): fix the joint names "

@@ -132,7 +132,8 @@ def test_wrong_wheels_are_corrected_and_said(sim, wired, caplog):
 
     from plsgraph.pipeline import say_wheel_track_warnings
 
-    run = _run(sim, wired, odometry_file="odometry.mcap")  # another file: the coarse step runs
+    # another file: the coarse step runs; the mount said (swapped wheels are corrected only for a camera said upright)
+    run = _run(sim, wired, odometry_file="odometry.mcap", **({"upright_camera": True} if wired == "swapped" else {}))
     # What the wheels as named said about their own track (as the pipeline passes it on) is not the corrected one's.
     named = "4 odometry step(s) imply more than 3.0 m/s or 6.0 rad/s (first at t=2.000 s); treated as resets"
     run.base_track.info["warnings"].append(named)
@@ -152,6 +153,60 @@ def test_wrong_wheels_are_corrected_and_said(sim, wired, caplog):
     assert c["wheel_order"]["hypothesis"] == wired and c["wheel_order"]["corrected"]
     assert c["clock_alignment"]["coarse"] and c["clock_alignment"]["offset_s"] == pytest.approx(DIFF + sim.td, abs=0.02)
     assert any("corrected" in w for w in res.warnings)
+
+
+def _upside_down(sim, t_shift=EPOCH):
+    """The camera track of the same drive with the camera rolled 180 deg about its optical axis (mounted upside down),
+    and that mount's T_base_cam: what a recording of the upside-down camera gives (the same images turned over)."""
+    c = sim.camera_track()
+    flip = np.diag([-1.0, -1.0, 1.0, 1.0])
+    d = np.diag([-1.0, -1.0, 1.0, -1.0, -1.0, 1.0])  # the pose covariance's x and y components (turn and move) flip
+    cov = None if c.cov is None else d @ c.cov @ d
+    return CameraTrack(c.t + t_shift, c.T_board_cam @ flip, cov=cov), sim.T_base_cam @ flip
+
+
+def test_swapped_wheels_with_the_mount_unsaid_are_corrected_but_flagged(sim):
+    """Swapped wheels under an upright camera fit the camera's motion exactly as the wheels as named under an
+    upside-down camera do: unless the user says how the camera is mounted, the corrected result is flagged."""
+    from plsgraph.pairing import MOUNT_OR_SWAP_PROBLEM
+
+    run = _run(sim, "swapped", clock_offset=DIFF)
+    pair_tracks(run)
+    assert run.recording_info["wheel_order"]["corrected"] and run.recording_info["wheel_order"]["mount_unstated"]
+    res = calibration_result(solve(run, refine=False))
+    assert not res.ok and MOUNT_OR_SWAP_PROBLEM in res.problems
+    assert "--upright-camera" in MOUNT_OR_SWAP_PROBLEM and "--upside-down-camera" in MOUNT_OR_SWAP_PROBLEM
+    assert rotation_error_deg(res.R_base_cam, sim.R_base_cam) < 2.0  # the result is the swapped-wheels one
+
+
+@pytest.mark.parametrize("said", [None, "upside_down_camera", "upright_camera"])
+def test_an_upside_down_camera_on_wheels_as_named_never_passes_as_its_mirror(sim, said):
+    """The camera mounted upside down, the wheels as named: before the mount could be said, the wheel check took the
+    camera for upright, 'corrected' the wheels to swapped and passed (exit 0) a result 180 deg off."""
+    cam, T_true = _upside_down(sim)
+    run = _run(sim, "as_given", clock_offset=DIFF, **({said: True} if said else {}))
+    run.camera_track = cam
+    run.truth = {"T_base_cam": T_true, "td": sim.td + DIFF}
+    pair_tracks(run)
+    res = calibration_result(solve(run, refine=False))
+    err = rotation_error_deg(res.R_base_cam, T_true[:3, :3])
+    if said == "upside_down_camera":  # said right: the wheels as named, the right answer
+        assert run.recording_info["wheel_order"]["hypothesis"] == "as_given"
+        assert res.ok, res.problems
+        assert err < 2.0
+    elif said is None:  # unsaid: the mirror (wheels taken as swapped), flagged with the problem that says what to give
+        from plsgraph.pairing import MOUNT_OR_SWAP_PROBLEM
+
+        assert err > 170.0
+        assert not res.ok and MOUNT_OR_SWAP_PROBLEM in res.problems, res.problems
+    else:  # said wrong: the user's word is taken (wheels corrected to swapped), the mirror of the truth
+        assert run.recording_info["wheel_order"]["hypothesis"] == "swapped"
+        assert err > 170.0
+
+
+def test_the_two_mounts_cannot_both_be_said():
+    with pytest.raises(InputError, match="upright-camera"):
+        CalibrationOptions.build(upright_camera=True, upside_down_camera=True)
 
 
 def test_swapped_wheels_never_pass_silently(sim):

@@ -207,11 +207,19 @@ def test_a_lower_detection_rate_is_said_in_the_result(recording, calibrated, tmp
 def test_swapped_wheels_are_corrected_or_flagged(recording, tmp_path):
     swap = ["--left-joint", "front_right_wheel_joint", "--right-joint", "front_left_wheel_joint"]
     out = tmp_path / "swapped"
-    code = main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--no-refine", *swap])
+    code = main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--no-refine", *swap,
+                 "--upright-camera"])
     rep = json.loads((out / "report.json").read_text())
     assert code == 0 and rep["calibration"]["wheel_order"]["corrected"]  # fixed, and said so
     assert any("swapped" in w for w in rep["warnings"])
     assert np.asarray(rep["calibration"]["T_base_cam"])[2, 1] < -0.5  # the camera is upright again
+    # Unsaid, the same correction is flagged: correct wheels under an upside-down camera look the same.
+    out = tmp_path / "unsaid"
+    code = main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--no-refine", *swap])
+    rep = json.loads((out / "report.json").read_text())
+    assert code == 1 and rep["calibration"]["wheel_order"]["corrected"]
+    assert any("--upright-camera" in p and "--upside-down-camera" in p for p in rep["problems"])
+    assert "ros2 run" not in (out / "calibration.yaml").read_text()
     out = tmp_path / "unchecked"
     code = main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--no-refine", *swap,
                  "--wheel-order", "off"])

@@ -126,8 +126,13 @@ def _add_ecosystem_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--wheel-order", choices=["fix", "flag", "off"], default="fix",
                    help="when the data show swapped wheels or a reversed wheel: fix (default: correct and say so), "
                    "flag (keep them, flag the result), off (do not check)")
-    p.add_argument("--upside-down-camera", action="store_true",
-                   help="the camera is mounted upside down on purpose (else an upside-down result is a problem)")
+    mount = p.add_mutually_exclusive_group()
+    mount.add_argument("--upside-down-camera", action="store_true",
+                       help="the camera is mounted upside down on purpose (else an upside-down result is a problem)")
+    mount.add_argument("--upright-camera", action="store_true",
+                       help="the camera is mounted upright (image 'down' towards the floor): said, a swapped pair of "
+                       "wheel joints is corrected; unsaid, it is flagged, since an upside-down camera on wheels as "
+                       "named looks the same")
     p.add_argument("--parent-frame", default="base_link",
                    help="robot frame in the URDF/launch/TF (default: %(default)s)")
     p.add_argument("--child-frame", default="event_camera",
@@ -290,6 +295,7 @@ def _options(args: argparse.Namespace):
                         truth=args.truth, camera_height=args.camera_height, board_height=args.board_height,
                         odometry_file=args.odometry, clock_align=args.clock_align, clock_offset=args.clock_offset,
                         wheel_order=args.wheel_order, upside_down_camera=args.upside_down_camera,
+                        upright_camera=args.upright_camera,
                         parent_frame=args.parent_frame, child_frame=args.child_frame)
     return CalibrationOptions.build(**settings)
 
