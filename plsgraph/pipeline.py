@@ -432,6 +432,28 @@ def run_closed_form(run: Run) -> Any:
     return cf
 
 
+def _moving_frames(run: Run, td: float) -> CameraTrack:
+    """The camera track the refinement takes: without the frames taken while the wheel odometry says the base stood
+    still (:mod:`plsgraph.odometry.still`; their times on the odometry clock from the closed form's ``td``), unless
+    too few would be left. How many were left out goes to ``run.discarded`` (and a warning from WARN_FRAMES)."""
+    from .gaps import _slice_camera
+    from .odometry.still import MIN_FRAMES_LEFT, WARN_FRAMES, still_base
+
+    cam = run.camera_track
+    still = still_base(cam.t + (td if np.isfinite(td) else 0.0), run.base_track)
+    n = int(still.sum())
+    run.discarded["refinement_frames_base_still"] = 0
+    if n == 0 or len(cam) - n < MIN_FRAMES_LEFT:
+        return cam
+    run.discarded["refinement_frames_base_still"] = n
+    if n >= WARN_FRAMES:
+        run.warn(f"{n} of {len(cam)} camera frames were taken while the wheel odometry says the base stood still, yet "
+                 "the board made events (a chassis that rocks or hums while the robot idles, something moving in "
+                 "view, a flickering lamp); they hold no motion to calibrate against and the refinement leaves them "
+                 "out")
+    return _slice_camera(cam, ~still)
+
+
 def run_refinement(run: Run, progress: ProgressFactory,
                    solution_known: Callable[[Run, Any], None] | None = None) -> Any:
     """The refinement seeded by the run's closed form. ``solution_known(run, solution)``: see :func:`solve`."""
@@ -442,12 +464,13 @@ def run_refinement(run: Run, progress: ProgressFactory,
     t = np.where(np.isfinite(t), t, 0.0)
     seed = make_T(cf.R_base_cam, t)
     user = run.options.refine
+    camera_track = _moving_frames(run, cf.td)
     with _Timer(run, "refinement"), progress("refining (GTSAM)") as bar:
         opts = RefinementOptions(camera_height=user.camera_height, board_height=user.board_height,
                                  workers=run.options.frontend.frontend_workers or min(2, os.cpu_count() or 1))
         scale = cf.odometry_scale or {}
         s0 = (scale.get("speed", 1.0), scale.get("turn_rate", 1.0))  # the closed form's odometry scales: the seed
-        res = refine(run.camera_track, run.base_track, run.camera, seed, cf.td, opts, progress=bar,
+        res = refine(camera_track, run.base_track, run.camera, seed, cf.td, opts, progress=bar,
                      seed_odometry_scale=s0 if all(0.2 < x < 5.0 for x in s0) else None,
                      on_solution=None if solution_known is None else lambda sol: solution_known(run, sol))
     run.warn(*res.warnings)

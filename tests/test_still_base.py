@@ -1,0 +1,59 @@
+"""Frames taken while the wheel odometry says the base stood still are left out of the refinement."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from plsgraph.core.board import load_board
+from plsgraph.core.camera import davis346_default
+from plsgraph.core.tracks import CameraTrack
+from plsgraph.odometry.still import MIN_FRAMES_LEFT, still_base
+from plsgraph.odometry.wheels import base_track_from_wheels
+from plsgraph.options import CalibrationOptions
+from plsgraph.pipeline import Run, _moving_frames
+
+
+def _parked_drive(t_end=12.0, park=(0.0, 3.0), stop=9.0, rate=50.0, tick_m=2e-4):
+    """Wheel angles of a base parked until park[1], driving an arc until ``stop``, parked after; encoder jitter of
+    ``tick_m`` while parked (a tick back and forth)."""
+    t = np.arange(0.0, t_end, 1.0 / rate)
+    moving = (t > park[1]) & (t < stop)
+    r = 0.098
+    left = np.cumsum(np.where(moving, 0.30, 0.0)) / rate / r
+    right = np.cumsum(np.where(moving, 0.40, 0.0)) / rate / r
+    jitter = np.where(moving, 0.0, tick_m / r * (np.arange(t.size) % 2))
+    return t, left + jitter, right
+
+
+def test_still_base_finds_the_parked_stretches_and_their_ends():
+    t, left, right = _parked_drive()
+    base = base_track_from_wheels(t + 100.0, left, right)
+    q = np.array([0.0, 0.2, 1.5, 2.5, 3.1, 3.5, 6.0, 8.9, 9.5, 11.5, 11.97, 12.5]) + 100.0
+    still = still_base(q, base)
+    # parked (the first sample's stretch is cut at the odometry's start and still long enough), driving, parked again
+    # (the last samples' too); past the odometry's end nothing says so.
+    want = [True, True, True, True, False, False, False, False, True, True, True, False]
+    assert still.tolist() == want
+
+
+def test_the_refinement_takes_the_frames_of_a_moving_base_only():
+    t, left, right = _parked_drive()
+    base = base_track_from_wheels(t + 100.0, left, right)
+    tc = np.arange(0.05, 11.9, 1.0 / 30.0) + 100.0
+    cam = CameraTrack(tc, np.broadcast_to(np.eye(4), (tc.size, 4, 4)).copy())
+    run = Run(Path("<built>"), CalibrationOptions.build(board="acircles_4x11_a2"), board=load_board("acircles_4x11_a2"),
+              camera=davis346_default(), camera_track=cam, base_track=base)
+    kept = _moving_frames(run, 0.0)
+    moving = still_base(tc, base)
+    assert 0 < moving.sum() < tc.size and len(kept) == tc.size - moving.sum()
+    assert not np.any(still_base(kept.t, base))
+    assert run.discarded["refinement_frames_base_still"] == moving.sum()
+    assert any("stood still" in w and "leaves them out" in w for w in run.warnings)
+    # Too few frames of a moving base: none are left out (the rest of the pipeline says what is wrong).
+    run2 = Run(Path("<built>"), run.options, board=run.board, camera=run.camera,
+               camera_track=CameraTrack(tc[:MIN_FRAMES_LEFT + 20], cam.T_board_cam[:MIN_FRAMES_LEFT + 20]),
+               base_track=base)
+    assert len(_moving_frames(run2, 0.0)) == MIN_FRAMES_LEFT + 20
+    assert run2.discarded["refinement_frames_base_still"] == 0
