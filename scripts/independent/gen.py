@@ -23,6 +23,9 @@ from mcap_ros2.writer import Writer
 from scipy.spatial.transform import Rotation as Rot
 
 W, H = 346, 260
+# scenario switches (all off by default -> output identical to gen.py)
+SC: dict = dict(park_start=0.0, park_end=0.0, mount_yaw=0.0, mount_pitch=0.0, mount_roll=0.0, cam_z=None,
+                far=False, extend_plan=False, js_rate=None, js_jitter=0.0, lookaway=False)
 EPOCH_NS = 1_700_000_000_000_000_000
 SEP = "=" * 80 + "\n"
 TIME_DEF = "int32 sec\nuint32 nanosec\n"
@@ -62,10 +65,15 @@ def make_params(seed: int, duration: float) -> dict:
     # mount: nominal optical axes, then small roll/pitch/yaw about the base axes
     R_nom = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)
     rpy = np.array([rng.uniform(-4, 4), rng.uniform(-6, 3), rng.uniform(-5, 5)])  # deg about base x, y, z
+    rpy = rpy + np.array([SC["mount_roll"], SC["mount_pitch"], SC["mount_yaw"]])  # extra mount angles
     R_mis = Rot.from_euler("ZYX", [rpy[2], rpy[1], rpy[0]], degrees=True).as_matrix()
     T = np.eye(4)
     T[:3, :3] = R_mis @ R_nom
     T[:3, 3] = [0.15 + rng.uniform(-0.05, 0.05), rng.uniform(-0.05, 0.05), 0.25 + rng.uniform(-0.04, 0.04)]
+    if math.cos(math.radians(SC["mount_yaw"])) < -0.5:  # rear camera sits at the back of the robot
+        T[0, 3] = -T[0, 3]
+    if SC["cam_z"] is not None:  # camera on a mast
+        T[2, 3] = SC["cam_z"] + (T[2, 3] - 0.25)
     p["T_base_cam"], p["mount_rpy_deg"] = T, rpy
     p["td"] = float(rng.choice([-1, 1]) * rng.uniform(0.012, 0.09))
     p["r_eff"] = 0.098 * (1 + rng.uniform(-0.05, 0.05))
@@ -82,32 +90,43 @@ def make_params(seed: int, duration: float) -> dict:
     p["board_centre_h"] = rng.uniform(0.36, 0.46)
     p["room"] = dict(xmin=-7.0, xmax=rng.uniform(1.0, 2.5), ymax=rng.uniform(2.5, 4.0), zmax=2.6)
     p["start"] = dict(d=rng.uniform(1.8, 2.4), phi=rng.uniform(-0.2, 0.2))
+    if SC["far"]:  # board farther away (2.5-3.8 m)
+        p["start"]["d"] = 2.8 + (p["start"]["d"] - 1.8) / 0.6 * 0.6
     return p
 
 
 # ----------------------------------------------------------------------------- trajectory
 def simulate_trajectory(p: dict, rng: np.random.Generator, dt: float):
     """Unicycle (true base motion) driven by a controller that keeps the board in view."""
-    T = p["duration"] + 0.6  # a margin either side
+    mg = 0.3 if abs(p["td"]) < 0.25 else abs(p["td"]) + 0.3  # a large |td| needs a wider margin
+    T = p["duration"] + 2 * mg  # a margin either side
     n = int(round(T / dt)) + 1
-    tt = np.arange(n) * dt - 0.3
+    tt = np.arange(n) * dt - mg
     by = math.radians(p["board_yaw"])
     Bc = np.zeros(2)                          # board grid centre (x, y) in the world
     normal_out = np.array([-math.cos(by), -math.sin(by)])  # from the board towards the robot side
     phi0 = p["start"]["phi"]
     ang = math.atan2(normal_out[1], normal_out[0]) + phi0
     P = Bc + p["start"]["d"] * np.array([math.cos(ang), math.sin(ang)])
-    th = math.atan2(Bc[1] - P[1], Bc[0] - P[0]) + rng.uniform(-0.1, 0.1)
+    myaw = math.radians(SC["mount_yaw"])
+    side = abs(math.cos(myaw)) < 0.5  # sideways camera -> tangential driving mode
+    cy = 1.0 if side else float(np.sign(math.cos(myaw)))
+    th = math.atan2(Bc[1] - P[1], Bc[0] - P[0]) + rng.uniform(-0.1, 0.1) - myaw
     # segment plan
-    segs, t_acc = [], tt[0]
+    segs, t_acc = [], tt[0] + SC["park_start"]
     kinds = ["straight", "spin", "arc", "scurve"]
     order = list(rng.permutation(kinds)) + list(rng.choice(kinds, 12))
+    if SC["extend_plan"]:
+        order += list(np.random.default_rng([p["seed"], 515]).choice(kinds, 40))
+    if SC["lookaway"]:  # two segments where the robot turns the camera far off the board and back
+        order[5], order[10] = "away", "away"
+    d_lo, d_hi = (2.5, 3.8) if SC["far"] else (1.3, 2.9)
     d_cur = p["start"]["d"]
     for k in order:
         dur = rng.uniform(2.0, 3.5)
-        d_new = d_cur if k == "spin" else float(np.clip(d_cur + rng.choice([-1, 1]) * rng.uniform(0.5, 1.2), 1.3, 2.9))
-        if not 1.3 <= d_new <= 2.9 or abs(d_new - d_cur) < 0.3 and k != "spin":
-            d_new = 2.9 if d_cur < 2.1 else 1.35
+        d_new = d_cur if k in ("spin", "away") else float(np.clip(d_cur + rng.choice([-1, 1]) * rng.uniform(0.5, 1.2), d_lo, d_hi))
+        if not d_lo <= d_new <= d_hi or abs(d_new - d_cur) < 0.3 and k not in ("spin", "away"):
+            d_new = d_hi if d_cur < (d_lo + d_hi) / 2 - 0.0 else d_lo + 0.05
         A = rng.uniform(0.2, 0.3)
         u_rate = rng.uniform(0.6, 1.0)
         if p.get("fast"):  # harsh: same draw mapped to a peak rate of 1.0-1.5 rad/s
@@ -129,6 +148,10 @@ def simulate_trajectory(p: dict, rng: np.random.Generator, dt: float):
         tau = t - s["t0"]
         if s["kind"] == "straight":
             psi, dpsi = 0.0, 0.0
+        elif s["kind"] == "away":  # swing the heading ~75 deg off the board and back
+            Tt = s["t1"] - s["t0"]
+            psi = s["sgn"] * 1.3 * math.sin(math.pi * tau / Tt) ** 2
+            dpsi = s["sgn"] * 1.3 * 2 * math.sin(math.pi * tau / Tt) * math.cos(math.pi * tau / Tt) * math.pi / Tt
         elif s["kind"] == "arc":
             ramp = min(1.0, tau / 0.8)
             psi, dpsi = s["sgn"] * 0.2 * ramp, (s["sgn"] * 0.2 / 0.8 if tau < 0.8 else 0.0)
@@ -153,14 +176,22 @@ def simulate_trajectory(p: dict, rng: np.random.Generator, dt: float):
         dbeta = wrap(beta - beta_prev) / dt if i else 0.0
         beta_prev = beta
         phi = wrap(math.atan2(-rel[1], -rel[0]) - ang_n)
-        psi = wrap(th - beta)
+        psi = wrap(th + myaw - beta)
         d_des, psi_des, dpsi_des, phi_des = desired(t)
-        if p.get("fast"):
-            v_cmd = float(np.clip(2.0 * (rho - d_des), -0.8, 0.8))
+        if side:  # drive along base x = sideways to the line of sight: sweep phi, heading trims the distance
+            seg_i = next((k for k, s in enumerate(segs) if t < s["t1"]), len(segs) - 1)
+            phi_sw = (0.45 if seg_i % 2 else -0.45) + phi_des * 0.3
+            v_cmd = float(np.clip(SC.get("side_k", 1.2) * (phi - phi_sw) * (-float(np.sign(math.sin(myaw)))), -0.4, 0.4))
+            corr = float(np.clip(SC.get("side_kd", 0.8) * (rho - d_des) * np.sign(v_cmd) * SC.get("side_ds", 1.0) * (-float(np.sign(math.sin(myaw))))
+                                 * min(1.0, abs(v_cmd) / 0.1), -0.3, 0.3))
         else:
-            v_cmd = float(np.clip(0.9 * (rho - d_des), -0.5, 0.5))
-        # steer the heading offset so that the lateral drift pulls phi back to phi_des
-        corr = float(np.clip(1.5 * (phi - phi_des) * np.sign(v_cmd) * min(1.0, abs(v_cmd) / 0.1), -0.15, 0.15))
+            if p.get("fast"):
+                v_cmd = float(np.clip(2.0 * (rho - d_des), -0.8, 0.8))
+            else:
+                v_cmd = float(np.clip(0.9 * (rho - d_des), -0.5, 0.5))
+            v_cmd *= cy  # rear camera: approaching the board means driving backwards
+            # steer the heading offset so that the lateral drift pulls phi back to phi_des
+            corr = float(np.clip(1.5 * (phi - phi_des) * np.sign(v_cmd * cy) * min(1.0, abs(v_cmd) / 0.1), -0.15, 0.15))
         psi_t = psi_des + corr
         if p.get("fast"):
             om_cmd = float(np.clip(dbeta + dpsi_des + 3.0 * wrap(psi_t - psi), -1.55, 1.55))
@@ -171,6 +202,11 @@ def simulate_trajectory(p: dict, rng: np.random.Generator, dt: float):
             # actuator: first-order lag + acceleration limits
             a_v = np.clip((v_cmd - v) / 0.15, -1.2, 1.2)
             a_w = np.clip((om_cmd - om) / 0.12, -4.0, 4.0)
+        if (SC["park_start"] > 0 and t < SC["park_start"]) or (SC["park_end"] > 0 and t > p["duration"] - SC["park_end"]):  # parked (brakes on)
+            a_v = np.clip((0.0 - v) / 0.15, -1.2, 1.2)
+            a_w = np.clip((0.0 - om) / 0.12, -4.0, 4.0)
+            if abs(v) < 2e-3 and abs(om) < 5e-3:
+                v, om, a_v, a_w = 0.0, 0.0, 0.0, 0.0
         v += a_v * dt
         om += a_w * dt
         # exact unicycle step
@@ -233,8 +269,12 @@ def wheel_measurements(p, rng, tt, V):
     # slip: slowly varying multiplicative error per side + extra skid noise that grows with turning
     sl = ou(0.012, 0.6) + np.abs(om) * ou(0.03, 0.3)
     sr = ou(0.012, 0.6) + np.abs(om) * ou(0.03, 0.3)
-    wl_m = wl * (1 + sl) + rng.normal(0, 0.05, len(tt))
-    wr_m = wr * (1 + sr) + rng.normal(0, 0.05, len(tt))
+    nl, nr = rng.normal(0, 0.05, len(tt)), rng.normal(0, 0.05, len(tt))
+    if SC["park_start"] or SC["park_end"]:  # a standing wheel does not turn (no noise while parked)
+        mv = np.clip((np.abs(v) + 0.3 * np.abs(om)) / 0.02, 0, 1)
+        nl, nr = nl * mv, nr * mv
+    wl_m = wl * (1 + sl) + nl
+    wr_m = wr * (1 + sr) + nr
     ql = np.cumsum(wl_m) * dt + rng.uniform(-50, 50)
     qr = np.cumsum(wr_m) * dt + rng.uniform(-50, 50)
     # joint samples at ~50 Hz (true sampling times), stamped with jitter
@@ -249,6 +289,12 @@ def wheel_measurements(p, rng, tt, V):
     play = rng.normal(0, 0.002, (ts.size, 4))
     pos = np.stack([QL + play[:, 0], QL + play[:, 1], QR + play[:, 2], QR + play[:, 3]], 1)
     vel = np.stack([WL, WL, WR, WR], 1) + rng.normal(0, 0.02, (ts.size, 4))
+    if SC["js_rate"]:  # joint states at a lower rate (every k-th 50 Hz sample)
+        k = max(1, int(round(50.0 / SC["js_rate"])))
+        ts, stamps, pos, vel = ts[::k], stamps[::k], pos[::k], vel[::k]
+    if SC["js_jitter"]:  # extra gaussian stamp jitter (kept monotonic)
+        jr = np.random.default_rng([p["seed"], 2024])
+        stamps = np.maximum.accumulate(stamps + jr.normal(0, SC["js_jitter"], stamps.size) + 1e-6 * np.arange(stamps.size))
     hw = p.get("harsh_wheels")
     if hw:
         hr = hw["rng"]
@@ -256,7 +302,7 @@ def wheel_measurements(p, rng, tt, V):
             q = 2 * np.pi / hw["ticks"]
             pos = np.round(pos / q) * q
             dpos = np.diff(pos, axis=0, prepend=pos[:1])
-            dts = np.diff(ts, prepend=ts[0] - 0.02)[:, None]
+            dts = np.diff(ts, prepend=ts[0] - (ts[1] - ts[0]))[:, None]
             vel = np.round(dpos / q) * q / np.maximum(dts, 1e-3)
         if hw.get("jitter_s"):  # extra stamping jitter: one-sided (late) exponential, made zero-mean
             j = hr.exponential(hw["jitter_s"], ts.size) - hw["jitter_s"]
@@ -656,10 +702,15 @@ def apply_light(scene, h, img, t):
     return (I * light * np.float32(h.get("illum", 1.0))).reshape(img.shape)
 
 # ----------------------------------------------------------------------------- main
+SC_DEFAULT: dict = {}
+
+
 def generate(seed: int, out: Path, duration: float, dt_render: float = 1e-3, packet: float = 0.005, td=None,
              harsh: int = 0, harsh_off=()):
     t_start = time.time()
     self_test_cdr()
+    SC_DEFAULT.update(dict(park_start=0.0, park_end=0.0, mount_yaw=0.0, mount_pitch=0.0, mount_roll=0.0, cam_z=None,
+                      far=False, extend_plan=False, js_rate=None, js_jitter=0.0, lookaway=False))
     p = make_params(seed, duration)
     if td is not None:
         p["td"] = float(td)
@@ -817,6 +868,8 @@ def generate(seed: int, out: Path, duration: float, dt_render: float = 1e-3, pac
         "epoch_ns": EPOCH_NS,
         "segments": [str(s["kind"]) for s in segs],
     }
+    if any(SC[k] != v for k, v in SC_DEFAULT.items()):
+        truth["scenario"] = {k: v for k, v in SC.items()}
     if harsh > 0:
         hh = {k: v for k, v in h.items() if not k.endswith("_rng") and k not in ("hot_idx", "hot_rate", "hot_p_on")}
         if "hot_idx" in h:
@@ -854,7 +907,21 @@ if __name__ == "__main__":
     ap.add_argument("--td", type=float, default=None, help="override the seed's clock offset (s)")
     ap.add_argument("--harsh", type=int, default=0, help="0 clean (default), 1 realistic-bad, 2 very bad")
     ap.add_argument("--harsh-off", default="", help="comma list of effects to switch off: " + ",".join(HARSH_EFFECTS))
+    ap.add_argument("--park-start", type=float, default=0.0, help="parked for the first S seconds")
+    ap.add_argument("--park-end", type=float, default=0.0, help="parked for the last S seconds")
+    ap.add_argument("--mount-yaw", type=float, default=0.0, help="extra camera yaw about base z (deg)")
+    ap.add_argument("--mount-pitch", type=float, default=0.0, help="extra camera pitch about base y (deg, + = down)")
+    ap.add_argument("--mount-roll", type=float, default=0.0, help="extra camera roll about base x (deg)")
+    ap.add_argument("--cam-z", type=float, default=None, help="nominal camera height (m), default 0.25")
+    ap.add_argument("--far", action="store_true", help="board at 2.5-3.8 m")
+    ap.add_argument("--extend-plan", action="store_true", help="enough segments for long recordings")
+    ap.add_argument("--js-rate", type=float, default=None, help="joint state rate (Hz, divides 50)")
+    ap.add_argument("--js-jitter", type=float, default=0.0, help="extra joint stamp jitter sigma (s)")
+    ap.add_argument("--lookaway", action="store_true", help="two segments turning the camera off the board")
     a = ap.parse_args()
+    SC.update(park_start=a.park_start, park_end=a.park_end, mount_yaw=a.mount_yaw, mount_pitch=a.mount_pitch,
+              mount_roll=a.mount_roll, cam_z=a.cam_z, far=a.far, extend_plan=a.extend_plan, js_rate=a.js_rate,
+              js_jitter=a.js_jitter, lookaway=a.lookaway)
     off = tuple(e for e in a.harsh_off.split(",") if e)
     assert all(e in HARSH_EFFECTS for e in off), off
     out = Path(a.out or (f"{os.environ.get('BASE', 'out/independent')}/rec_{a.seed}.mcap" if a.harsh <= 0 else f"{os.environ.get('BASE', 'out/independent')}/rec_h{a.seed}.mcap"))
