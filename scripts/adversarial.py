@@ -247,6 +247,15 @@ def _swapped(w):
     return (o.code, *expect_right_or_flagged(o, w / "swap", ""))
 
 
+@case("4b swapped wheel joints, the camera said upright")
+def _swapped_said(w):
+    o = plsgraph(*cal(SAMPLE, "swapu", "--left-joint", "front_right_wheel_joint", "--right-joint",
+                      "front_left_wheel_joint", "--upright-camera"), cwd=w)
+    if o.code == 2:
+        return o.code, "wheel" in o.err.lower(), last_line(o.err)[:230]
+    return (o.code, *expect_right_or_flagged(o, w / "swapu", ""))
+
+
 @case("5 wrong board (desk-sized): flagged calibration.yaml")
 def _wrong_board(w):
     o = plsgraph("calibrate", SAMPLE, "--board", "acircles_4x11", "--out", "wb", cwd=w)
