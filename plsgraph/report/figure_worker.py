@@ -578,6 +578,9 @@ def serve() -> None:
 
     try:
         _warm_up(_plt())
+        # The figures' pose interpolation (Slerp) and the robot files' rotations: scipy.spatial takes 0.2 s to load,
+        # which the calibrating process leaves to where it is needed; here it loads while warming, not while drawing.
+        import scipy.spatial.transform  # noqa: F401
     except Exception:  # the real figures will say what is wrong
         pass
     import shutil
