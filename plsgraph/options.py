@@ -194,8 +194,12 @@ class MountOptions:
         return bool(self.upright_camera or self.upside_down_camera)
 
     def __post_init__(self) -> None:
+        for name in ("upright_camera", "upside_down_camera"):
+            if not isinstance(getattr(self, name), bool):
+                raise InputError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.upright_camera and self.upside_down_camera:
-            raise InputError("--upright-camera and --upside-down-camera contradict each other; give one")
+            raise InputError("upright_camera and upside_down_camera (--upright-camera, --upside-down-camera) "
+                             "contradict each other; give one")
         for name in ("parent_frame", "child_frame"):
             v = getattr(self, name)
             if not isinstance(v, str) or not re.fullmatch(r"[A-Za-z0-9_.\-]+(/[A-Za-z0-9_.\-]+)*", v):
@@ -228,6 +232,11 @@ class CalibrationOptions:
         the section that has it; unknown names are an error."""
         base = base or cls()
         top = {k: kwargs.pop(k) for k in ("board", "truth") if k in kwargs}
+        # The mount said here replaces the base's (a recording's options file over the batch's flags), unless this
+        # call says both (a contradiction MountOptions refuses).
+        said = [k for k in ("upright_camera", "upside_down_camera") if kwargs.get(k) is True]
+        if len(said) == 1:
+            kwargs.setdefault("upside_down_camera" if said[0] == "upright_camera" else "upright_camera", False)
         sections: dict[str, Any] = {}
         for sec in cls.SECTIONS:
             obj = getattr(base, sec)

@@ -182,6 +182,23 @@ MOUNT_OR_SWAP_PROBLEM = (
     "a floor cannot tell them apart: say how the camera is mounted, --upright-camera or --upside-down-camera")
 
 
+#: The same for a reversed wheel: its magnitudes show that one wheel's joint counts backwards, but which one rests on
+#: the mount (the left one under an upright camera is the right one under an upside-down camera, turned by 180 deg).
+MOUNT_OR_REVERSED_PROBLEM = (
+    "the wheel joints as named do not fit the camera's motion: one wheel's joint counts backwards, and which one "
+    "depends on how the camera is mounted: the {named} wheel's with the camera upright (the result assumes this), or "
+    "the {other} wheel's with the camera upside down (the result would be this one turned by 180 deg). Driving on a "
+    "floor cannot tell them apart: say how the camera is mounted, --upright-camera or --upside-down-camera")
+
+
+def mount_problem(hypothesis: str) -> str:
+    """The problem of a wheel-order correction that rests on the camera's mount alone, the mount unsaid."""
+    if hypothesis == "swapped":
+        return MOUNT_OR_SWAP_PROBLEM
+    named = "left" if hypothesis == "left_reversed" else "right"
+    return MOUNT_OR_REVERSED_PROBLEM.format(named=named, other="right" if named == "left" else "left")
+
+
 def pair_tracks(run: Any) -> None:
     """Check the wheel order and align the clocks; updates ``run.base_track``, ``run.camera_track`` (shifted onto
     the odometry clock), ``run.clock_offset_s`` and ``run.recording_info['clock' / 'wheel_order']``."""
@@ -211,9 +228,9 @@ def pair_tracks(run: Any) -> None:
                      "(--wheel-order flag keeps the wheels as named and flags the result)")
             run.warn(*chk.base_track.info.get("warnings", []))
             alignment = chk.alignment
-            if chk.hypothesis == "swapped" and not opts.mount.stated:
-                run.input_problems.append(MOUNT_OR_SWAP_PROBLEM)
-                info["mount_unstated"] = True
+            info["mount_unstated"] = not opts.mount.stated
+            if not opts.mount.stated:
+                run.input_problems.append(mount_problem(chk.hypothesis))
         elif chk.wrong:
             info["corrected"] = False
             run.input_problems.append(chk.message + "; not corrected (--wheel-order flag): fix the joint names "

@@ -437,10 +437,16 @@ def _moving_frames(run: Run, td: float) -> CameraTrack:
     still (:mod:`plsgraph.odometry.still`; their times on the odometry clock from the closed form's ``td``), unless
     too few would be left. How many were left out goes to ``run.discarded`` (and a warning from WARN_FRAMES)."""
     from .gaps import _slice_camera
-    from .odometry.still import MIN_FRAMES_LEFT, WARN_FRAMES, still_base
+    from .odometry.still import MIN_FRAMES_LEFT, STILL_HALF_S, STILL_MARGIN_S, WARN_FRAMES, still_base
 
     cam = run.camera_track
-    still = still_base(cam.t + (td if np.isfinite(td) else 0.0), run.base_track)
+    to = getattr(run.closed_form, "time_offset", None)
+    trusted = to is not None and bool(to.ok) and not bool(to.at_range_edge) and np.isfinite(td)
+    # A closed-form offset the refinement may replace (its search finds another peak) can be off by tenths of a
+    # second: then only frames still over the whole search range either side count, so that none taken while the
+    # base started or stopped is left out.
+    margin = STILL_MARGIN_S if trusted else STILL_MARGIN_S + float(run.options.closed_form.td_range)
+    still = still_base(cam.t + (td if np.isfinite(td) else 0.0), run.base_track, STILL_HALF_S + margin)
     n = int(still.sum())
     run.discarded["refinement_frames_base_still"] = 0
     if n == 0 or len(cam) - n < MIN_FRAMES_LEFT:

@@ -222,7 +222,8 @@ def robot_sections(run: Run) -> dict[str, Any]:
     out: dict[str, Any] = {"odometry": sec}
     wo = run.recording_info.get("wheel_order")
     if wo is not None:
-        out["wheel_order"] = {k: wo[k] for k in ("hypothesis", "description", "decided", "corrected", "message")
+        out["wheel_order"] = {k: wo[k] for k in ("hypothesis", "description", "decided", "corrected", "mount_unstated",
+                                                     "message")
                               if k in wo}
     clock = run.recording_info.get("clock")
     if clock is not None:

@@ -133,7 +133,7 @@ def test_wrong_wheels_are_corrected_and_said(sim, wired, caplog):
     from plsgraph.pipeline import say_wheel_track_warnings
 
     # another file: the coarse step runs; the mount said (swapped wheels are corrected only for a camera said upright)
-    run = _run(sim, wired, odometry_file="odometry.mcap", **({"upright_camera": True} if wired == "swapped" else {}))
+    run = _run(sim, wired, odometry_file="odometry.mcap", upright_camera=True)
     # What the wheels as named said about their own track (as the pipeline passes it on) is not the corrected one's.
     named = "4 odometry step(s) imply more than 3.0 m/s or 6.0 rad/s (first at t=2.000 s); treated as resets"
     run.base_track.info["warnings"].append(named)
@@ -179,34 +179,46 @@ def test_swapped_wheels_with_the_mount_unsaid_are_corrected_but_flagged(sim):
     assert rotation_error_deg(res.R_base_cam, sim.R_base_cam) < 2.0  # the result is the swapped-wheels one
 
 
+@pytest.mark.parametrize("wired", ["as_given", "left_reversed"])
 @pytest.mark.parametrize("said", [None, "upside_down_camera", "upright_camera"])
-def test_an_upside_down_camera_on_wheels_as_named_never_passes_as_its_mirror(sim, said):
-    """The camera mounted upside down, the wheels as named: before the mount could be said, the wheel check took the
-    camera for upright, 'corrected' the wheels to swapped and passed (exit 0) a result 180 deg off."""
+def test_an_upside_down_camera_never_passes_as_its_mirror(sim, said, wired):
+    """The camera mounted upside down, the wheels as named (or the left one counting backwards): before the mount
+    could be said, the wheel check took the camera for upright, 'corrected' the wheels to swapped (or took the right
+    wheel for the reversed one) and passed (exit 0) a result 180 deg off."""
+    from plsgraph.pairing import mount_problem
+
     cam, T_true = _upside_down(sim)
-    run = _run(sim, "as_given", clock_offset=DIFF, **({said: True} if said else {}))
+    run = _run(sim, wired, clock_offset=DIFF, **({said: True} if said else {}))
     run.camera_track = cam
     run.truth = {"T_base_cam": T_true, "td": sim.td + DIFF}
     pair_tracks(run)
     res = calibration_result(solve(run, refine=False))
     err = rotation_error_deg(res.R_base_cam, T_true[:3, :3])
-    if said == "upside_down_camera":  # said right: the wheels as named, the right answer
-        assert run.recording_info["wheel_order"]["hypothesis"] == "as_given"
+    mirror = {"as_given": "swapped", "left_reversed": "right_reversed"}[wired]
+    wo = res.report["calibration"]["wheel_order"]
+    if said == "upside_down_camera":  # said right: the wheels as they are wired, the right answer
+        assert wo["hypothesis"] == wired
         assert res.ok, res.problems
         assert err < 2.0
-    elif said is None:  # unsaid: the mirror (wheels taken as swapped), flagged with the problem that says what to give
-        from plsgraph.pairing import MOUNT_OR_SWAP_PROBLEM
-
+    elif said is None:  # unsaid: the mirror, flagged with the problem that says what to give
+        assert wo["hypothesis"] == mirror and wo["mount_unstated"]
         assert err > 170.0
-        assert not res.ok and MOUNT_OR_SWAP_PROBLEM in res.problems, res.problems
-    else:  # said wrong: the user's word is taken (wheels corrected to swapped), the mirror of the truth
-        assert run.recording_info["wheel_order"]["hypothesis"] == "swapped"
+        assert not res.ok and mount_problem(mirror) in res.problems, res.problems
+        assert "--upright-camera" in mount_problem(mirror) and "--upside-down-camera" in mount_problem(mirror)
+    else:  # said wrong: the user's word is taken, the mirror of the truth
+        assert wo["hypothesis"] == mirror and not wo.get("mount_unstated", True)
         assert err > 170.0
 
 
-def test_the_two_mounts_cannot_both_be_said():
+def test_the_two_mounts_cannot_both_be_said_and_a_later_one_replaces_the_earlier():
     with pytest.raises(InputError, match="upright-camera"):
         CalibrationOptions.build(upright_camera=True, upside_down_camera=True)
+    with pytest.raises(InputError, match="true or false"):
+        CalibrationOptions.build(upright_camera="no")
+    batch = CalibrationOptions.build(upright_camera=True)  # a batch's flag, then a recording's options file
+    own = CalibrationOptions.build(batch, upside_down_camera=True)
+    assert own.mount.upside_down_camera and not own.mount.upright_camera
+    assert CalibrationOptions.build(batch, wheel_radius=0.1).mount.upright_camera  # unsaid there: the batch's
 
 
 def test_swapped_wheels_never_pass_silently(sim):

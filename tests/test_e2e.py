@@ -218,6 +218,8 @@ def test_swapped_wheels_are_corrected_or_flagged(recording, tmp_path):
     code = main(["calibrate", str(recording), "--board", "acircles_4x11_a2", "--out", str(out), "--no-refine", *swap])
     rep = json.loads((out / "report.json").read_text())
     assert code == 1 and rep["calibration"]["wheel_order"]["corrected"]
+    assert rep["calibration"]["wheel_order"]["mount_unstated"]
+    assert "mount_unstated: true" in (out / "calibration.yaml").read_text()
     assert any("--upright-camera" in p and "--upside-down-camera" in p for p in rep["problems"])
     assert "ros2 run" not in (out / "calibration.yaml").read_text()
     out = tmp_path / "unchecked"

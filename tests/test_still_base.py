@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -45,15 +46,54 @@ def test_the_refinement_takes_the_frames_of_a_moving_base_only():
     cam = CameraTrack(tc, np.broadcast_to(np.eye(4), (tc.size, 4, 4)).copy())
     run = Run(Path("<built>"), CalibrationOptions.build(board="acircles_4x11_a2"), board=load_board("acircles_4x11_a2"),
               camera=davis346_default(), camera_track=cam, base_track=base)
+    run.closed_form = SimpleNamespace(time_offset=SimpleNamespace(ok=True, at_range_edge=False))
     kept = _moving_frames(run, 0.0)
-    moving = still_base(tc, base)
-    assert 0 < moving.sum() < tc.size and len(kept) == tc.size - moving.sum()
+    still = still_base(tc, base)
+    assert 0 < still.sum() < tc.size and len(kept) == tc.size - still.sum()
     assert not np.any(still_base(kept.t, base))
-    assert run.discarded["refinement_frames_base_still"] == moving.sum()
+    assert run.discarded["refinement_frames_base_still"] == still.sum()
     assert any("stood still" in w and "leaves them out" in w for w in run.warnings)
+    # The frames are put on the odometry clock with the offset (t_odom = t_cam + td): the camera stamped 0.5 s early.
+    early = CameraTrack(tc - 0.5, cam.T_board_cam)
+    run.camera_track = early
+    assert np.array_equal(_moving_frames(run, 0.5).t, kept.t - 0.5)
+    # An offset the closed form does not trust: only frames still over the whole search range either side go.
+    run.camera_track = cam
+    run.closed_form = SimpleNamespace(time_offset=SimpleNamespace(ok=False, at_range_edge=False))
+    wide = _moving_frames(run, 0.0)
+    assert len(wide) > len(kept) and set(kept.t) <= set(wide.t)
     # Too few frames of a moving base: none are left out (the rest of the pipeline says what is wrong).
     run2 = Run(Path("<built>"), run.options, board=run.board, camera=run.camera,
                camera_track=CameraTrack(tc[:MIN_FRAMES_LEFT + 20], cam.T_board_cam[:MIN_FRAMES_LEFT + 20]),
                base_track=base)
     assert len(_moving_frames(run2, 0.0)) == MIN_FRAMES_LEFT + 20
     assert run2.discarded["refinement_frames_base_still"] == 0
+
+
+def test_run_refinement_hands_the_refinement_the_moving_frames_only(monkeypatch):
+    import plsgraph.refine.graph as graph
+    from plsgraph.pipeline import run_refinement
+
+    t, left, right = _parked_drive()
+    base = base_track_from_wheels(t + 100.0, left, right)
+    tc = np.arange(0.05, 11.9, 1.0 / 30.0) + 100.0
+    cam = CameraTrack(tc, np.broadcast_to(np.eye(4), (tc.size, 4, 4)).copy())
+    run = Run(Path("<built>"), CalibrationOptions.build(board="acircles_4x11_a2"), board=load_board("acircles_4x11_a2"),
+              camera=davis346_default(), camera_track=cam, base_track=base)
+    run.closed_form = SimpleNamespace(time_offset=SimpleNamespace(ok=True, at_range_edge=False), td=0.0,
+                                      R_base_cam=np.eye(3), t_base_cam=np.zeros(3), odometry_scale={})
+    given = {}
+
+    class Stop(Exception):
+        pass
+
+    def refine(camera_track, *args, **kwargs):
+        given["track"] = camera_track
+        raise Stop
+
+    monkeypatch.setattr(graph, "refine", refine)
+    try:
+        run_refinement(run, lambda *a, **k: __import__("contextlib").nullcontext(lambda *a: None))
+    except Stop:
+        pass
+    assert len(given["track"]) == tc.size - still_base(tc, base).sum() < tc.size

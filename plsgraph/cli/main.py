@@ -214,6 +214,11 @@ def _build_parser() -> argparse.ArgumentParser:
     s.add_argument("--camera-info", type=Path, metavar="FILE[:camN]", help="camera intrinsics file, as for calibrate")
     s.add_argument("--wheel-radius", type=float, default=0.098, help="wheel radius r in m (default: %(default)s)")
     s.add_argument("--track-width", type=float, default=0.37, help="wheel separation b in m (default: %(default)s)")
+    mount = s.add_mutually_exclusive_group()
+    mount.add_argument("--upright-camera", action="store_true",
+                       help="every robot's camera is mounted upright (see calibrate --help; a recording's "
+                       "NAME.options.yaml may say otherwise: upside_down_camera: true)")
+    mount.add_argument("--upside-down-camera", action="store_true", help="every robot's camera is mounted upside down")
     s.add_argument("--jobs", type=int, default=None, help="local worker processes (default: CPU count)")
     s.add_argument("--scheduler", help="Dask scheduler address (tcp://host:port) instead of local processes")
     s.add_argument("--force", action="store_true",
@@ -287,15 +292,15 @@ def _options(args: argparse.Namespace):
         if getattr(args, attr, None)
     }
     settings = dict(board=args.board, camera_info=args.camera_info, wheel_radius=args.wheel_radius,
-                    track_width=args.track_width)
+                    track_width=args.track_width, upright_camera=bool(getattr(args, "upright_camera", False)),
+                    upside_down_camera=bool(getattr(args, "upside_down_camera", False)))
     if hasattr(args, "surface"):  # calibrate, diagnose, compare (batch takes the defaults)
         settings.update(topics=topics, left_joint=args.left_joint, right_joint=args.right_joint,
                         surface=args.surface, rate_hz=args.rate, window_s=args.window, tau_s=args.tau,
                         td_range=args.td_range, method=args.method,
                         truth=args.truth, camera_height=args.camera_height, board_height=args.board_height,
                         odometry_file=args.odometry, clock_align=args.clock_align, clock_offset=args.clock_offset,
-                        wheel_order=args.wheel_order, upside_down_camera=args.upside_down_camera,
-                        upright_camera=args.upright_camera,
+                        wheel_order=args.wheel_order,
                         parent_frame=args.parent_frame, child_frame=args.child_frame)
     return CalibrationOptions.build(**settings)
 
