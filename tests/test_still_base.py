@@ -39,13 +39,21 @@ def test_still_base_finds_the_parked_stretches_and_their_ends():
     assert still.tolist() == want
 
 
-def test_the_refinement_takes_the_frames_of_a_moving_base_only():
+def _built_run() -> Run:
+    """A run of the parked drive's base with a frame every 1/30 s from 0.05 to 11.9 s (on the odometry's clock)."""
     t, left, right = _parked_drive()
     base = base_track_from_wheels(t + 100.0, left, right)
     tc = np.arange(0.05, 11.9, 1.0 / 30.0) + 100.0
     cam = CameraTrack(tc, np.broadcast_to(np.eye(4), (tc.size, 4, 4)).copy())
-    run = Run(Path("<built>"), CalibrationOptions.build(board="acircles_4x11_a2"), board=load_board("acircles_4x11_a2"),
-              camera=davis346_default(), camera_track=cam, base_track=base)
+    board = "acircles_4x11_a2"
+    return Run(Path("<built>"), CalibrationOptions.build(board=board), board=load_board(board),
+               camera=davis346_default(), camera_track=cam, base_track=base)
+
+
+def test_the_refinement_takes_the_frames_of_a_moving_base_only():
+    run = _built_run()
+    base, cam = run.base_track, run.camera_track
+    tc = cam.t
     run.closed_form = SimpleNamespace(time_offset=SimpleNamespace(ok=True, at_range_edge=False))
     kept = _moving_frames(run, 0.0)
     still = still_base(tc, base)
@@ -74,12 +82,9 @@ def test_run_refinement_hands_the_refinement_the_moving_frames_only(monkeypatch)
     import plsgraph.refine.graph as graph
     from plsgraph.pipeline import run_refinement
 
-    t, left, right = _parked_drive()
-    base = base_track_from_wheels(t + 100.0, left, right)
-    tc = np.arange(0.05, 11.9, 1.0 / 30.0) + 100.0
-    cam = CameraTrack(tc, np.broadcast_to(np.eye(4), (tc.size, 4, 4)).copy())
-    run = Run(Path("<built>"), CalibrationOptions.build(board="acircles_4x11_a2"), board=load_board("acircles_4x11_a2"),
-              camera=davis346_default(), camera_track=cam, base_track=base)
+    run = _built_run()
+    base, cam = run.base_track, run.camera_track
+    tc = cam.t
     run.closed_form = SimpleNamespace(time_offset=SimpleNamespace(ok=True, at_range_edge=False), td=0.0,
                                       R_base_cam=np.eye(3), t_base_cam=np.zeros(3), odometry_scale={})
     given = {}
