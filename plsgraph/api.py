@@ -170,7 +170,12 @@ def compare(
     truth_T = None if run.truth is None else np.asarray(run.truth["T_base_cam"], dtype=float)
     # The solvers see the camera track shifted onto the odometry clock; compare their td with the truth's likewise.
     truth_td = None if run.truth is None else float(run.truth.get("td", float("nan"))) - run.clock_offset_s
-    table = compare_solutions(sols, run.refinement, camera_track=run.camera_track, base_track=run.base_track,
+    track = run.camera_track
+    if run.still_frames is not None:  # every solution scored on the frames the refinement took, not a still base's
+        from .gaps import _slice_camera
+
+        track = _slice_camera(track, ~run.still_frames)
+    table = compare_solutions(sols, run.refinement, camera_track=track, base_track=run.base_track,
                               camera=run.camera, truth_T_base_cam=truth_T, truth_td=truth_td)
     failed = {n: m.error for n, m in run.closed_form.methods.items() if m.R_base_cam is None}
     from .gate import problems_of_run

@@ -88,6 +88,9 @@ class Run:
     # the report's event frames (report.coverage.fig_event_frames); None: they are read from the recording
     event_frames: list | None = None
     input_problems: list[str] = field(default_factory=list)  # found before solving, e.g. wheels flagged as wrong
+    # per frame of camera_track: taken while the base stood still, and left out of the refinement (_moving_frames);
+    # None: every frame went to the refinement
+    still_frames: np.ndarray | None = None
 
     def warn(self, *messages: str) -> None:
         """Add warnings once each: a message repeated by several steps (or by several read passes over a damaged
@@ -449,9 +452,11 @@ def _moving_frames(run: Run, td: float) -> CameraTrack:
     still = still_base(cam.t + (td if np.isfinite(td) else 0.0), run.base_track, STILL_HALF_S + margin)
     n = int(still.sum())
     run.discarded["refinement_frames_base_still"] = 0
+    run.still_frames = None
     if n == 0 or len(cam) - n < MIN_FRAMES_LEFT:
         return cam
     run.discarded["refinement_frames_base_still"] = n
+    run.still_frames = still
     if n >= WARN_FRAMES:
         run.warn(f"{n} of {len(cam)} camera frames were taken while the wheel odometry says the base stood still, yet "
                  "the board made events (a chassis that rocks or hums while the robot idles, something moving in "

@@ -313,3 +313,30 @@ def test_levenberg_marquardt_ends_where_a_failed_step_was_expected_to_gain_less_
     values, it, converged = graph_mod._levenberg_marquardt(g, start, RefinementOptions(absolute_tol=1e-12,
                                                                                       relative_tol=1e-12))
     assert solves[:2] == [1.0, 10.0] and 1.0007 <= values.atVector(x)[0] < 1.001
+
+
+def test_the_result_keeps_the_graphs_residuals_the_residual_figure_draws(rich, tmp_path):
+    """The residual figure shows what the refinement fitted: the frames it solved and their residuals at the
+    solution, whose RMS is the result's (drawn from the odometry as recorded instead, a skid-steer robot's turns put
+    tens of pixels on a good calibration)."""
+    from types import SimpleNamespace
+
+    from plsgraph.report.figures import _fig_residuals, _graph_residuals, figure_inputs
+
+    case, res = rich
+    assert res.residual_px.shape == (res.n_frames, case.track.detections.board_points.shape[0], 2)
+    assert res.residual_t.shape == (res.n_frames,) and set(res.residual_t) <= set(case.track.t)
+    r = res.residual_px.astype(float)
+    assert np.sqrt(np.nanmean(np.sum(r**2, axis=-1))) == pytest.approx(res.rms_px_final, rel=1e-5)
+    run = SimpleNamespace(refinement=res, closed_form=None, camera_track=case.track, base_track=case.base,
+                          camera=case.rec.camera, truth=None, still_frames=None)
+    inputs = figure_inputs(run)
+    t, rms, flat = _graph_residuals(inputs.refinement)
+    assert np.array_equal(t, res.residual_t) and rms.size == res.n_frames and np.isfinite(flat).all()
+    assert _fig_residuals(inputs, tmp_path) == "residuals.png"
+    # What on_solution is handed carries them too, the same numbers (the speculative figures are kept only then).
+    sent = {}
+    again = refine(case.track, case.base, case.rec.camera, case.seed_T, case.seed_td,
+                   on_solution=lambda sol: sent.setdefault("sol", sol))
+    assert np.array_equal(sent["sol"].residual_t, again.residual_t)
+    assert np.array_equal(sent["sol"].residual_px, again.residual_px, equal_nan=True)

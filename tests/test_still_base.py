@@ -60,6 +60,7 @@ def test_the_refinement_takes_the_frames_of_a_moving_base_only():
     assert 0 < still.sum() < tc.size and len(kept) == tc.size - still.sum()
     assert not np.any(still_base(kept.t, base))
     assert run.discarded["refinement_frames_base_still"] == still.sum()
+    assert np.array_equal(run.still_frames, still)  # what the residual figure and compare read
     assert any("stood still" in w and "leaves them out" in w for w in run.warnings)
     # The frames are put on the odometry clock with the offset (t_odom = t_cam + td): the camera stamped 0.5 s early.
     early = CameraTrack(tc - 0.5, cam.T_board_cam)
@@ -75,7 +76,7 @@ def test_the_refinement_takes_the_frames_of_a_moving_base_only():
                camera_track=CameraTrack(tc[:MIN_FRAMES_LEFT + 20], cam.T_board_cam[:MIN_FRAMES_LEFT + 20]),
                base_track=base)
     assert len(_moving_frames(run2, 0.0)) == MIN_FRAMES_LEFT + 20
-    assert run2.discarded["refinement_frames_base_still"] == 0
+    assert run2.discarded["refinement_frames_base_still"] == 0 and run2.still_frames is None
 
 
 def test_run_refinement_hands_the_refinement_the_moving_frames_only(monkeypatch):
@@ -102,3 +103,74 @@ def test_run_refinement_hands_the_refinement_the_moving_frames_only(monkeypatch)
     except Stop:
         pass
     assert len(given["track"]) == tc.size - still_base(tc, base).sum() < tc.size
+
+
+def _run_with_detections(rocking_px: float = 6.0) -> tuple[Run, np.ndarray]:
+    """The built run with detections of a board about 8 m ahead of a forward-looking camera, exact while the base moves
+    and ``rocking_px`` off while it stands still; its still frames marked as the refinement's step marks them."""
+    from plsgraph.core.tracks import Detections
+    from plsgraph.refine.residuals import predicted_pixels
+
+    run = _built_run()
+    cam, board = run.camera_track, run.board
+    T_base_cam = np.array([[0, 0, 1, 0], [-1, 0, 0, 0], [0, -1, 0, 0.3], [0, 0, 0, 1]], dtype=float)  # looks along x
+    T_world_board = np.eye(4)
+    c, s = np.cos(0.6), np.sin(0.6)  # the board 8 m away, 34 deg to the left, where the arc turns the camera
+    T_world_board[:3, 3] = (8.0 * c, 8.0 * s, 0.3)
+    T_world_board[:3, :3] = np.array([[-s, 0, c], [c, 0, s], [0, -1, 0]], dtype=float)  # facing the start
+    pts = board.points
+    blank = Detections(cam.t, np.zeros((cam.t.size, len(pts), 2)), pts)
+    uv, ok = predicted_pixels(blank, run.base_track, run.camera, T_base_cam, 0.0, T_world_board)
+    assert ok.all() and np.isfinite(uv).all()
+    still = still_base(cam.t, run.base_track)
+    uv[still] += rocking_px
+    run.camera_track = CameraTrack(cam.t, cam.T_board_cam, detections=Detections(cam.t, uv, pts))
+    run.still_frames = still
+    run.refinement = SimpleNamespace(T_base_cam=T_base_cam, R_base_cam=T_base_cam[:3, :3], td=0.0,
+                                     T_world_board=T_world_board, observability=None)
+    return run, still
+
+
+def test_the_residual_figure_draws_still_base_frames_apart_and_leaves_them_out_of_the_distribution(tmp_path):
+    from plsgraph.report.figures import _fig_residuals, figure_inputs, frame_residuals
+
+    run, still = _run_with_detections()
+    ref = run.refinement
+    t, rms, flat, flagged = frame_residuals(run, ref.T_base_cam, ref.td, ref.T_world_board)
+    assert np.array_equal(flagged, still) and np.array_equal(t, run.camera_track.t)
+    assert np.allclose(rms[still], 6.0 * np.sqrt(2)) and np.allclose(rms[~still], 0.0, atol=1e-9)
+    # The distribution holds the frames the refinement took, every point of them and nothing of a still base.
+    assert flat.shape == (int((~still).sum()) * len(run.board.points), 2)
+    assert np.abs(flat).max() < 1e-9
+    # The figure inputs carry the mask to the figure worker.
+    assert np.array_equal(figure_inputs(run).still_frames, still)
+    assert _fig_residuals(run, tmp_path) == "residuals.png" and (tmp_path / "residuals.png").stat().st_size > 0
+    # Without the mask (no frame left out) every frame is in the distribution.
+    run.still_frames = None
+    assert len(frame_residuals(run, ref.T_base_cam, ref.td, ref.T_world_board)[2]) == still.size * len(
+        run.board.points)
+
+
+def test_compare_scores_every_solution_on_the_frames_the_refinement_took(monkeypatch):
+    import plsgraph.api as api
+    import plsgraph.refine.compare as compare
+
+    run, still = _run_with_detections()
+    run.closed_form = SimpleNamespace(methods={"pls": SimpleNamespace(R_base_cam=np.eye(3), error=None)})
+    given = {}
+
+    class Stop(Exception):
+        pass
+
+    def compare_solutions(solutions, refinement, *, camera_track, **kwargs):
+        given["track"] = camera_track
+        raise Stop
+
+    monkeypatch.setattr(api, "run_recording", lambda *a, **k: run)
+    monkeypatch.setattr(compare, "compare_solutions", compare_solutions)
+    try:
+        api.compare("<built>", options=run.options)
+    except Stop:
+        pass
+    assert np.array_equal(given["track"].t, run.camera_track.t[~still])
+    assert len(given["track"].detections) == int((~still).sum())

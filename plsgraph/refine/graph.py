@@ -372,6 +372,10 @@ class RefinementResult:
     # When the refinement was solved from two time offsets (see _two_starts): both starts and ends, which was kept,
     # how the two answers differ in sigmas, and the axes on which they differ while the data hardly prefer either.
     two_starts: dict | None = None
+    # The frames solved (camera times, (m,)) and their reprojection residuals at the solution (m, N, 2: predicted -
+    # detected, px, NaN where a point was not detected), as the graph has them: the report's residual figure
+    residual_t: np.ndarray | None = None
+    residual_px: np.ndarray | None = None
 
     @property
     def R_base_cam(self) -> np.ndarray:
@@ -1908,7 +1912,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                                           (C_anc, td_anc, R_anc), scale0, t_opt, detector_var)
         try:
             if not solution_sent:
-                solution_sent = _send_solution(on_solution, values)
+                solution_sent = _send_solution(on_solution, values, prob.frame_t[rows], batch)
             # Check again at the solution; a direction found only now is frozen and the solve starts over.
             new = _unobservable_at(graph, values, opt, frozen, warnings)[0]
         except BaseException:
@@ -1946,7 +1950,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         T_knots = np.stack([values.atPose3(int(k)).matrix() for k in keys])
         dof = max(1, 2 * n_pts - 6 * keys.size - 13)
         sig = np.broadcast_to(np.asarray(_pixel_sigma(prob, rows, opt), dtype=float), (rows.size,))
-        res_now = np.nan_to_num(batch.evaluate_all(values, False).residual)
+        res_raw = batch.evaluate_all(values, False).residual
+        res_now = np.nan_to_num(res_raw)
         chi2 = float(np.sum((res_now / sig[:, None, None]) ** 2) / dof)
         if not np.isfinite(final_error):
             converged = False
@@ -1986,7 +1991,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                                           prob, frozen, rejected, vib_var, odo_var, planar_var, (C_anc, td_anc, R_anc),
                                           scale0, t_opt, detector_var)
         if not solution_sent:
-            _send_solution(on_solution, values)
+            _send_solution(on_solution, values, prob.frame_t[rows], batch)
     except BaseException:
         if knots_job is not None:
             knots_job.discard()
@@ -2192,6 +2197,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                     "knot_sensitivity_s": t_knots, "total_s": time.perf_counter() - t_start},
             seed_T_base_cam=C_seed,
             seed_td=td_given,
+            residual_t=prob.frame_t[rows].copy(),
+            residual_px=res_raw.astype(np.float32),
             odometry=odometry_report(values, joint, base_track.info, opt, scale0, joint_data)
             if prob.steps is not None else None,
             disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_ref, opt,
@@ -2365,15 +2372,19 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
 KNOT_WARN_FACTOR = 2.0
 
 
-def _send_solution(on_solution: Callable[[SimpleNamespace], None] | None, values: gtsam.Values) -> bool:
-    """``on_solution`` (see :func:`refine`) called with the solution in ``values``; whether it was called. What it
-    raises is logged: work beside the refinement must not cost it."""
+def _send_solution(on_solution: Callable[[SimpleNamespace], None] | None, values: gtsam.Values,
+                   frame_t: np.ndarray, batch: FrameBatch) -> bool:
+    """``on_solution`` (see :func:`refine`) called with the solution in ``values`` (and the residuals of the frames
+    ``frame_t`` the ``batch`` holds, as the result keeps them); whether it was called. What it raises is logged: work
+    beside the refinement must not cost it."""
     if on_solution is None:
         return False
     C = values.atPose3(KEY_CAM).matrix()
     try:
+        residual = batch.evaluate_all(values, False).residual.astype(np.float32)
         on_solution(SimpleNamespace(T_base_cam=C, R_base_cam=C[:3, :3], td=float(values.atVector(KEY_TD)[0]),
-                                    T_world_board=values.atPose3(KEY_BOARD).matrix(), observability=None))
+                                    T_world_board=values.atPose3(KEY_BOARD).matrix(), observability=None,
+                                    residual_t=frame_t.copy(), residual_px=residual))
     except Exception as exc:  # noqa: BLE001
         from ..core.processes import reraise_interrupt
 

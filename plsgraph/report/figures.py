@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..core.geometry import rotation_error_deg
-from ..refine.residuals import residuals
+from ..refine.residuals import predicted_pixels
 from .coverage import coverage_table
 from .files import html_report, html_table, status_colour, write_text
 
@@ -32,14 +32,23 @@ def _plt():
 
 
 def frame_residuals(run: Any, T_base_cam: np.ndarray, td: float, T_world_board: np.ndarray):
-    """Per-frame reprojection RMS (px) and all residual vectors (n, 2) of the detections under a calibration."""
+    """Per-frame reprojection under a calibration: times (m,), RMS (px, m), the residual vectors (k, 2) of the frames
+    the refinement took, and per frame whether it was left out as one taken while the base stood still
+    (``run.still_frames``)."""
     det = run.camera_track.detections
     if det is None or len(det) == 0:
-        return np.zeros(0), np.zeros(0), np.zeros((0, 2))
-    t, r = residuals(det, run.base_track, run.camera, T_base_cam, td, T_world_board)
+        return np.zeros(0), np.zeros(0), np.zeros((0, 2)), np.zeros(0, dtype=bool)
+    uv, ok = predicted_pixels(det, run.base_track, run.camera, T_base_cam, td, T_world_board)
+    r = uv - det.uv[ok]
     rms = np.sqrt(np.nanmean(np.sum(r**2, axis=-1), axis=1))
-    flat = r.reshape(-1, 2)
-    return t, rms, flat[np.all(np.isfinite(flat), axis=1)]
+    mask = getattr(run, "still_frames", None)  # per frame of the camera track
+    if mask is None or len(mask) != len(run.camera_track.t):
+        still = np.zeros(int(np.count_nonzero(ok)), dtype=bool)
+    else:
+        mask = np.asarray(mask, dtype=bool)
+        still = (mask if len(det) == len(mask) else np.isin(det.t, run.camera_track.t[mask]))[ok]
+    flat = r[~still].reshape(-1, 2)
+    return det.t[ok], rms, flat[np.all(np.isfinite(flat), axis=1)], still
 
 
 #: Resolution of the report's figures. They are made at it, not only saved at it: the layout then measures each
@@ -86,24 +95,57 @@ def _fig_trajectories(run: Any, out: Path) -> str | None:
     return _save(plt, fig, out, "trajectories.png")
 
 
+def _graph_residuals(ref: Any):
+    """The refinement's own residuals at its solution (see :class:`~plsgraph.refine.graph.RefinementResult`): times,
+    per-frame RMS (px) and the finite residual vectors (k, 2); None when the result does not carry them."""
+    r = getattr(ref, "residual_px", None)
+    t = getattr(ref, "residual_t", None)
+    if r is None or t is None or len(t) != len(r):
+        return None
+    r = np.asarray(r, dtype=float)
+    e2 = np.sum(r**2, axis=-1)
+    n = np.sum(np.isfinite(e2), axis=1)
+    rms = np.sqrt(np.nansum(e2, axis=1) / np.maximum(n, 1))
+    flat = r.reshape(-1, 2)
+    return np.asarray(t, dtype=float), rms, flat[np.all(np.isfinite(flat), axis=1)]
+
+
 def _fig_residuals(run: Any, out: Path) -> str | None:
+    """Per-frame RMS and the distribution of the residuals the refinement ended with: the graph's own (the base
+    between its knots as solved, the odometry's effective radius and track), which report.json's RMS is. A result
+    without them: the detections under the calibration and the odometry as recorded, the frames of a still base
+    drawn apart."""
     ref = run.refinement
     if ref is None:
         return None
-    t, rms, r = frame_residuals(run, ref.T_base_cam, ref.td, ref.T_world_board)
+    mask = getattr(run, "still_frames", None)
+    n_still = 0 if mask is None else int(np.count_nonzero(mask))
+    graph = _graph_residuals(ref)
+    if graph is not None:
+        t, rms, r = graph
+        still = np.zeros(t.size, dtype=bool)
+    else:
+        t, rms, r, still = frame_residuals(run, ref.T_base_cam, ref.td, ref.T_world_board)
     if rms.size == 0:
         return None
     plt = _plt()
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(8.5, 3.4), dpi=DPI)
-    a1.plot(t - t[0], rms, ".", ms=3)
+    t0 = float(run.camera_track.t[0]) if len(run.camera_track.t) else float(t[0])
+    a1.plot(t[~still] - t0, rms[~still], ".", ms=3)
+    if still.any():  # rocking or humming while the base stood still: drawn apart, the refinement left them out
+        a1.plot(t[still] - t0, rms[still], ".", ms=3, color="0.65",
+                label=f"base still: left out ({int(still.sum())})")
+        a1.legend(fontsize=7)
     a1.set_xlabel("camera time (s)")
     a1.set_ylabel("frame RMS (px)")
-    a1.set_title("reprojection RMS per frame")
+    a1.set_title("reprojection RMS per frame" + (f" ({n_still} of a still base left out)"
+                                                  if n_still and graph is not None else ""),
+                 fontsize=10 if n_still and graph is not None else None)
     lim = max(1.0, float(np.nanpercentile(np.abs(r), 99))) if r.size else 1.0
     a2.hist2d(r[:, 0], r[:, 1], bins=60, range=[[-lim, lim], [-lim, lim]], cmap="Blues")
     a2.set_xlabel("u residual (px)")
     a2.set_ylabel("v residual (px)")
-    a2.set_title("residual distribution")
+    a2.set_title("residual distribution" + (" (frames refined)" if still.any() else ""))
     return _save(plt, fig, out, "residuals.png")
 
 
@@ -210,7 +252,9 @@ def figure_inputs(run: Any, refinement: Any = None) -> SimpleNamespace:
             obs = SimpleNamespace(axes=[SimpleNamespace(name=a.name, ratio=a.ratio, status=a.status)
                                         for a in ref.observability.axes])
         refinement = SimpleNamespace(T_base_cam=ref.T_base_cam, R_base_cam=ref.R_base_cam, td=ref.td,
-                                     T_world_board=ref.T_world_board, observability=obs)
+                                     T_world_board=ref.T_world_board, observability=obs,
+                                     residual_t=getattr(ref, "residual_t", None),
+                                     residual_px=getattr(ref, "residual_px", None))
     closed_form = None
     if cf is not None:
         to = cf.time_offset
@@ -224,7 +268,8 @@ def figure_inputs(run: Any, refinement: Any = None) -> SimpleNamespace:
     return SimpleNamespace(camera_track=run.camera_track, base_track=run.base_track, camera=run.camera,
                            refinement=refinement, closed_form=closed_form, truth=truth,
                            clock_offset_s=getattr(run, "clock_offset_s", 0.0), log_path=getattr(run, "log_path", None),
-                           event_frames=getattr(run, "event_frames", None))
+                           event_frames=getattr(run, "event_frames", None),
+                           still_frames=getattr(run, "still_frames", None))
 
 
 def render_figures(out: Path, run: Any, which: Any = None) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
