@@ -10,6 +10,7 @@ import html
 import json
 import math
 import os
+import signal
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -388,7 +389,6 @@ class staged_output:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         import shutil
-        import signal
         import threading
 
         stage, self.stage = self.stage, None
@@ -396,28 +396,49 @@ class staged_output:
             shutil.rmtree(stage, ignore_errors=True)
             return
         # Swap the finished stage in; an interrupt is held back for the two renames so that it cannot leave the
-        # target missing between them.
-        main = threading.current_thread() is threading.main_thread()
-        if main:
-            old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM, signal.SIGHUP})
+        # target missing between them, nor end the run with a message that says the earlier result was kept when the
+        # new one is in place. Held by swapping the handlers (Python runs them in the main thread whichever thread the
+        # signal reached), not by a signal mask: a mask holds a signal sent to the process only in the masking thread,
+        # and the kernel hands it to any other (a BLAS worker thread, the figure worker's writer), whose handler then
+        # interrupts the main thread between the renames all the same.
+        held: list[int] = []
+        saved: dict = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in HELD_SIGNALS:
+                saved[sig] = signal.signal(sig, lambda signum, frame: held.append(signum))
         old = None
         try:
             if self.out.exists():
                 old = Path(tempfile.mkdtemp(dir=stage.parent, prefix=f".{self.out.name}.old-"))
                 os.rename(self.out, old / "previous")
             os.rename(stage, self.out)
-            JUST_WRITTEN.append(self.out)  # an interrupt held back by the mask arrives with the result in place
+            JUST_WRITTEN.append(self.out)  # an interrupt held back arrives with the result in place
         except BaseException:
             if old is not None and (old / "previous").exists() and not self.out.exists():
                 os.rename(old / "previous", self.out)
             shutil.rmtree(stage, ignore_errors=True)
             raise
         finally:
-            if main:
-                signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
-        JUST_WRITTEN.remove(self.out)  # no interrupt came with the swap
+            for sig, handler in saved.items():
+                signal.signal(sig, handler)
         if old is not None:
             shutil.rmtree(old, ignore_errors=True)
+        for sig in held:  # what arrived during the swap, now, with the new result in place
+            _deliver(sig, saved[sig])
+        JUST_WRITTEN.remove(self.out)  # no interrupt came with the swap
+
+
+#: The signals :class:`staged_output` holds back while it swaps a result in.
+HELD_SIGNALS = tuple(getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+
+def _deliver(sig: int, handler) -> None:
+    """Hand a signal held back to the handler it would have reached: a Python handler is called (it may raise, e.g.
+    KeyboardInterrupt), the default action is taken by raising the signal again, an ignored one is dropped."""
+    if callable(handler):
+        handler(sig, None)
+    elif handler != signal.SIG_IGN:  # SIG_DFL, or a handler not set from Python
+        signal.raise_signal(sig)
 
 
 def write_yaml(path: Path, data: Mapping) -> None:
