@@ -292,3 +292,16 @@ def test_a_time_offset_search_that_ends_at_its_border_flags_the_result(monkeypat
     res = calibrate_closed_form(cam, base, compare=False)
     assert res.td_at_border and any("border of +-100 ms" in w for w in res.warnings)
     assert any("agree at no time offset" in p for p in problems_of(res, None))
+
+
+def test_a_distance_scale_names_the_board_print_as_well_as_the_wheels():
+    """A red-team recording: a board printed at 94 % of its YAML's size came out as wheels 6 % larger, with a sigma of
+    1 %, and the only warning spoke of the odometry. The two look the same; the warning now says so."""
+    from plsgraph.calib.closed_form import _scale_warnings
+
+    info = {"wheel_radius": 0.098, "track_width": 0.37}
+    (msg,) = _scale_warnings(1.062, 0.768, info)
+    assert "+6.2 %" in msg and "printed" in msg and "skid-steer" in msg
+    (turn_only,) = _scale_warnings(1.01, 0.70, info)  # a skid-steer robot's turns alone: nothing of the board
+    assert "printed" not in turn_only
+    assert _scale_warnings(1.01, 0.99, info) == []

@@ -302,6 +302,11 @@ def _scale_warnings(s_v: float, s_w: float, info: dict) -> list[str]:
                 "odometry section)")
         if s_w < 1 - SCALE_WARN:
             msg += " (skid-steer robots turn less than their geometric track width predicts)"
+    if abs(s_v - 1) > SCALE_WARN:
+        msg += (f". The distances differ by {100 * (s_v - 1):+.1f} %: tyres (pressure, wear) or a wrong "
+                "--wheel-radius, or a board printed at another size than its YAML says (e.g. scaled to fit the "
+                "page), which looks the same and which the radius's sigma does not hold: measure the printed circle "
+                "spacing once")
     return [msg]
 
 
