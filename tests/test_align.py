@@ -137,3 +137,35 @@ def test_wheels_that_stand_still_while_the_camera_moves_are_named_not_the_drivin
                                     rec.wheel_radius, rec.track_width)
     with pytest.raises(DegenerateMotionError, match="wheel odometry shows no motion .* while the camera turned"):
         estimate_time_offset(cam, frozen)
+
+
+def _periodic_drive(td: float, share: float = 0.8, seed: int = 0, T: float = 20.0):
+    """A base whose turn rate is a 1 s oscillation (``share`` of its variance) over a slow random turning, and a camera
+    on it seeing the base's poses ``td`` late: an offset of 0.8 s aliases to -0.2 s, inside a +-0.5 s search."""
+    from plsgraph.core.geometry import inv_T
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, T + 2.0, 0.01)
+    slow = np.convolve(rng.normal(size=t.size), np.ones(60) / 60, mode="same")
+    slow *= np.sqrt(1 - share) / slow.std()
+    omega = 0.8 * (np.sqrt(2 * share) * np.sin(2 * np.pi * t / 1.0) + slow)
+    v = 0.3 + 0.1 * np.sin(2 * np.pi * t / 3.7)
+    r, b = 0.1, 0.4
+    base = base_track_from_wheels(t, np.cumsum((v - omega * b / 2) / r) * 0.01,
+                                  np.cumsum((v + omega * b / 2) / r) * 0.01, r, b)
+    tc = np.arange(1.0, T, 1 / 30)
+    C = make_T(np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float), np.array([0.1, 0.0, 0.3]))
+    B = make_T(np.eye(3), np.array([3.0, 0.0, 0.5]))
+    return base, CameraTrack(tc, inv_T(B) @ base.poses_at(tc + td) @ C)
+
+
+def test_a_poor_peak_inside_the_range_says_the_offset_may_lie_outside_it():
+    """A red-team recording: clocks 0.8 s apart searched in +-0.5 s peaked inside the range at -0.18 s with a
+    correlation of 0.73, which passed as a good peak; the flagged result never said the range may be too narrow."""
+    base, cam = _periodic_drive(0.8)
+    res = estimate_time_offset(cam, base, td_range=(-0.5, 0.5))
+    assert not res.at_range_edge and abs(res.td + 0.2) < 0.02 and 0.5 < res.score < 0.9
+    assert any("correlation of only" in w and "--td-range" in w for w in res.warnings)
+    wide = estimate_time_offset(cam, base, td_range=(-1.0, 1.0))
+    assert abs(wide.td - 0.8) < 3e-3 and wide.score > 0.99
+    assert not any("correlation of only" in w for w in wide.warnings)
