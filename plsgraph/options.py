@@ -163,14 +163,23 @@ class ClosedFormSettings:
 
 @dataclass(frozen=True)
 class RefineSettings:
-    """User measurements the refinement can use: the camera height, or the board origin's height."""
+    """User measurements the refinement can use: the camera height, or the board origin's height; and how well the
+    focal length is known."""
 
     camera_height: float | None = None
     board_height: float | None = None
+    #: How well the camera intrinsics' focal length is known (relative, one sigma): the lever arm along the optical
+    #: axis moves with it (about 2 cm per 1 % for a board 2-3 m away), and the sigmas hold this much of it. 0: they
+    #: hold none (the focal length taken as exact); the move per 1 % is reported either way.
+    focal_sigma: float = 0.005
 
     def __post_init__(self) -> None:
         _finite_or_none("--camera-height", "camera_height", self.camera_height)
         _finite_or_none("--board-height", "board_height", self.board_height)
+        if (isinstance(self.focal_sigma, bool) or not isinstance(self.focal_sigma, int | float)
+                or not 0.0 <= self.focal_sigma <= 0.2):
+            raise InputError(f"focal_sigma (--focal-sigma) must be a number from 0 to 0.2 (relative: 0.005 is 0.5 %), "
+                             f"got {self.focal_sigma!r}")
         _metres_within("--camera-height", "camera_height", self.camera_height, -1.0, 3.0,
                        "a camera's height above a ground robot's base frame")
         _metres_within("--board-height", "board_height", self.board_height, 0.0, 5.0,

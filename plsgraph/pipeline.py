@@ -478,6 +478,7 @@ def run_refinement(run: Run, progress: ProgressFactory,
     camera_track = _moving_frames(run, cf.td)
     with _Timer(run, "refinement"), progress("refining (GTSAM)") as bar:
         opts = RefinementOptions(camera_height=user.camera_height, board_height=user.board_height,
+                                 focal_sigma_rel=user.focal_sigma,
                                  workers=run.options.frontend.frontend_workers or min(2, os.cpu_count() or 1))
         scale = cf.odometry_scale or {}
         s0 = (scale.get("speed", 1.0), scale.get("turn_rate", 1.0))  # the closed form's odometry scales: the seed

@@ -195,7 +195,8 @@ def truth_errors(run: Run) -> dict | None:
 
 
 def robot_sections(run: Run) -> dict[str, Any]:
-    """calibration.yaml's ``odometry`` section (the wheel geometry the data support), ``wheel_order`` and ``clock``."""
+    """calibration.yaml's ``odometry`` section (the wheel geometry the data support), ``wheel_order``, ``focal_length``
+    (what the focal length's accuracy is worth) and ``clock``."""
     odo = run.options.odometry
     refined = odometry_section(run)
     scale = dict(getattr(run.closed_form, "odometry_scale", None) or {})
@@ -225,6 +226,18 @@ def robot_sections(run: Run) -> dict[str, Any]:
         out["wheel_order"] = {k: wo[k] for k in ("hypothesis", "description", "decided", "corrected", "mount_unstated",
                                                      "message")
                               if k in wo}
+    sens = None if run.refinement is None else (getattr(run.refinement, "inflation", None) or {}).get(
+        "focal_length_sensitivity")
+    if sens and sens.get("focal_change"):
+        per = 0.01 / float(sens["focal_change"])
+        out["focal_length"] = {
+            "move_per_percent": {f"{a}_m" if a in "xyz" else ("td_s" if a == "td" else f"{a}_deg"):
+                                 per * float(sens[a]) * (1.0 if a in ("x", "y", "z", "td") else 180.0 / np.pi)
+                                 for a in ("roll", "pitch", "yaw", "x", "y", "td")},
+            "sigma_in_sigmas": float(sens.get("focal_sigma_in_sigmas") or 0.0),
+            "note": "how far the calibration moves for a focal length 1 % longer than the camera info's (first order); "
+                    "the sigmas hold a focal-length error of sigma_in_sigmas (relative, --focal-sigma; 0: none)",
+        }
     clock = run.recording_info.get("clock")
     if clock is not None:
         out["clock_alignment"] = {k: clock[k] for k in ("coarse", "rule", "offset_s", "score", "second_peak_ratio",

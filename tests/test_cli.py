@@ -654,3 +654,22 @@ def test_the_way_to_the_front_end_loads_no_scipy():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
+
+
+def test_focal_sigma_is_checked_and_reaches_the_refinement(monkeypatch):
+    """--focal-sigma: a relative accuracy from 0 to 0.2 (0.5 % by default), handed to the refinement."""
+    import pytest as _pytest
+
+    from plsgraph.errors import InputError
+    from plsgraph.options import CalibrationOptions
+
+    assert CalibrationOptions.build(board="acircles_4x11_a2").refine.focal_sigma == 0.005
+    assert CalibrationOptions.build(board="acircles_4x11_a2", focal_sigma=0).refine.focal_sigma == 0
+    for bad in (-0.01, 0.5, float("nan"), True, "1%"):
+        with _pytest.raises(InputError, match="focal_sigma"):
+            CalibrationOptions.build(board="acircles_4x11_a2", focal_sigma=bad)
+    import plsgraph.cli.main as cli
+
+    args = cli._build_parser().parse_args(["calibrate", "rec.mcap", "--board", "acircles_4x11_a2", "--out", "o",
+                                          "--focal-sigma", "0.01"])
+    assert cli._options(args).refine.focal_sigma == 0.01

@@ -340,3 +340,32 @@ def test_the_result_keeps_the_graphs_residuals_the_residual_figure_draws(rich, t
                    on_solution=lambda sol: sent.setdefault("sol", sol))
     assert np.array_equal(sent["sol"].residual_t, again.residual_t)
     assert np.array_equal(sent["sol"].residual_px, again.residual_px, equal_nan=True)
+
+
+def test_the_focal_lengths_sensitivity_is_the_move_a_longer_focal_length_makes_and_enters_the_sigmas(rich):
+    """A red-team recording whose camera info had the focal length 4 % long came out with the lever arm 59 mm off at
+    4.9 sigma: a constant depth error of every view is a lever arm along the optical axis, and no sigma held it. The
+    first-order move for 1 % is reported, and --focal-sigma's share of it is added to each variance."""
+    import dataclasses
+
+    from plsgraph.core.camera import CameraModel
+
+    case, res = rich
+    sens = res.inflation["focal_length_sensitivity"]
+    assert sens["focal_change"] == 0.01 and sens["focal_sigma_in_sigmas"] == 0.0
+    cam = case.rec.camera
+    K = cam.K.copy()
+    K[:2, :2] *= 1.01
+    longer = refine(case.track, case.base, CameraModel(cam.width, cam.height, K, cam.dist), case.seed_T, case.seed_td)
+    moved = longer.T_base_cam[:3, 3] - res.T_base_cam[:3, 3]  # base axes x, y, z
+    assert abs(sens["x"]) > 5e-3  # a board 1-3 m away: centimetres per percent
+    assert moved[0] == pytest.approx(sens["x"], rel=0.2, abs=1e-3)
+    assert moved[1] == pytest.approx(sens["y"], rel=0.2, abs=1e-3)
+    # In the sigmas: the variance plus (move per unit x 0.5 %)^2, the estimate as it was.
+    held = refine(case.track, case.base, cam, case.seed_T, case.seed_td,
+                  dataclasses.replace(RefinementOptions(), focal_sigma_rel=0.005))
+    assert np.allclose(held.T_base_cam, res.T_base_cam, atol=1e-9) and held.td == pytest.approx(res.td, abs=1e-12)
+    sig0, sig1 = np.sqrt(np.diag(res.cov_base_axes)), np.sqrt(np.diag(held.cov_base_axes))
+    want = np.hypot(sig0[3], 0.5 * abs(sens["x"]))
+    assert sig1[3] == pytest.approx(want, rel=1e-6)
+    assert held.inflation["focal_length_sensitivity"]["focal_sigma_in_sigmas"] == 0.005

@@ -104,6 +104,9 @@ def _add_recording_options(p: argparse.ArgumentParser, need_out: bool) -> None:
     p.add_argument("--board-height", type=float,
                    help="height of the board's origin above the floor in m, if measured: makes the camera height "
                    "observable through the board")
+    p.add_argument("--focal-sigma", type=float, default=0.005, metavar="REL",
+                   help="how well the camera info's focal length is known, relative (default %(default)s = 0.5 %%): "
+                   "the lever arm along the camera's axis moves with it, and the sigmas hold it; 0 takes it as exact")
     _add_ecosystem_options(p)
     if need_out:
         p.add_argument("--out", type=Path, required=True,
@@ -299,6 +302,7 @@ def _options(args: argparse.Namespace):
                         surface=args.surface, rate_hz=args.rate, window_s=args.window, tau_s=args.tau,
                         td_range=args.td_range, method=args.method,
                         truth=args.truth, camera_height=args.camera_height, board_height=args.board_height,
+                        focal_sigma=args.focal_sigma,
                         odometry_file=args.odometry, clock_align=args.clock_align, clock_offset=args.clock_offset,
                         wheel_order=args.wheel_order,
                         parent_frame=args.parent_frame, child_frame=args.child_frame)

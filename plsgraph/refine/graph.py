@@ -240,6 +240,15 @@ class RefinementOptions:
     # (docs/refinement.md, "A second opinion on the lever arm: the frame jackknife").
     frame_jackknife_segments: int = 10
     add_frame_jackknife: bool = True
+    # The calibration's move for a focal length this much (relative) longer than the camera model's, to first order
+    # (focal_sensitivity; RefinementResult.inflation["focal_length_sensitivity"]): what the CameraInfo's accuracy is
+    # worth in each axis. 0: not computed. The lever arm along the optical axis moves by about the board's distance
+    # times the focal length's relative error (a constant depth error of every view looks like a lever arm), 2-3 cm
+    # per 1 % (docs/refinement.md, "The focal length in the sigmas").
+    focal_sensitivity_rel: float = 0.01
+    # How well the focal length is known (relative, one sigma): each reported variance gets (move per unit relative
+    # focal error x focal_sigma_rel)^2 added, an error source independent of the data's. 0: none.
+    focal_sigma_rel: float = 0.0
     # Second opinion on T_base_cam and td: the same refinement (same seed, same frames) with the knots this many
     # times denser; the change it makes is a sensitivity to how the trajectory between knots is modelled, and the
     # larger sigma is reported per axis (RefinementResult.inflation["knot_spacing_sensitivity"]). On recordings from
@@ -2043,6 +2052,16 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                     warnings.append(f"the jackknife over stretches of frames could not be solved ({exc}); the "
                                     "sigmas hold only the marginal covariance and the noise model's sensitivity, not "
                                     "errors shared by stretches of frames")
+        focal_move = None
+        if converged and opt.marginals and opt.focal_sensitivity_rel > 0:
+            try:
+                extra = ([make_subspace_prior(KEY_CAM, KEY_TD, C0, [td_seed], np.array(frozen) @ J0, _FREEZE_SIGMA)]
+                         if frozen else [])
+                focal_move = focal_sensitivity(prob, rows, td_bracket, opt, values, (C_anc, td_anc, R_anc),
+                                               dict(odo_var=odo_var, planar_var=planar_var, vib_var=vib_var), extra,
+                                               opt.focal_sensitivity_rel)
+            except (RuntimeError, np.linalg.LinAlgError) as exc:
+                log.info("refine: the focal length's sensitivity could not be solved (%s)", exc)
         t_jk = time.perf_counter() - t_jk
         sensitivity = None
         if held_solution is not None and (_largest(odo_var) > 1.0 or max(planar_var) > 1.0):
@@ -2095,6 +2114,13 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                 k_all = k_all * k
                 if np.any(k[[2, 3, 4, 6]] > KNOT_WARN_FACTOR):
                     warnings.append(knot_warning(knot_sensitivity, knot_spacing))
+            if focal_move is not None and opt.focal_sigma_rel > 0 and opt.focal_sensitivity_rel > 0:
+                # The focal length's own uncertainty, independent of the data's: added to each variance.
+                sig = np.sqrt(np.diag(cov_base))
+                extra = np.abs(focal_move) / opt.focal_sensitivity_rel * opt.focal_sigma_rel
+                k = np.sqrt(1.0 + (extra / np.maximum(sig, 1e-300)) ** 2)
+                cov_base = cov_base * np.outer(k, k)
+                k_all = k_all * k
             if joint is not None and opt.propagate_to_odometry:
                 joint = odometry_given_calibration(joint, k_all, opt.td_model_sigma)
             Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
@@ -2224,6 +2250,10 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                        "knot_spacing_sensitivity": None if knot_sensitivity is None else dict(zip(
                            ("roll", "pitch", "yaw", "x", "y", "z", "td"), knot_sensitivity.tolist(), strict=True)),
                        "knot_spacing_s": knot_spacing,
+                       "focal_length_sensitivity": None if focal_move is None else {
+                           "focal_change": float(opt.focal_sensitivity_rel),
+                           "focal_sigma_in_sigmas": float(opt.focal_sigma_rel), **dict(zip(
+                               ("roll", "pitch", "yaw", "x", "y", "z", "td"), focal_move.tolist(), strict=True))},
                        "sigma_before_knot_spacing": None if sigma_before_knots is None else dict(zip(
                            ("roll", "pitch", "yaw", "x", "y", "z", "td"), sigma_before_knots.tolist(), strict=True))},
             td_searched=None if td_ref == td_given else float(td_search),
@@ -2366,6 +2396,35 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
         return None
     g = loo.shape[0]
     return np.sqrt((g - 1) / g * np.sum((loo - loo.mean(axis=0)) ** 2, axis=0))
+
+
+def focal_sensitivity(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: RefinementOptions,
+                      values: gtsam.Values, graph_args: tuple, graph_kwargs: dict, extra: list,
+                      rel: float = 0.01) -> np.ndarray | None:
+    """How far the calibration moves (7,: base axes, as :func:`frame_jackknife`) for a focal length ``rel`` (relative)
+    longer than the camera model's, to first order: one Gauss-Newton step from the solution ``values`` on the graph
+    built with the focal lengths scaled (the same frames, brackets, noise and robust weights; ``graph_args`` /
+    ``graph_kwargs`` as :func:`_build_graph` takes them, ``extra`` factors added, e.g. the held directions' prior),
+    less the step on the graph as it is (~0 at a converged solution). A focal length errs alike in x and y, so both
+    are scaled. None when a step cannot be solved."""
+    import dataclasses
+
+    cam = prob.frames.camera
+    K = cam.K.copy()
+    K[0, 0] *= 1.0 + rel
+    K[1, 1] *= 1.0 + rel
+    longer = dataclasses.replace(prob, frames=dataclasses.replace(prob.frames, camera=dataclasses.replace(cam, K=K)))
+    C = values.atPose3(KEY_CAM).matrix()
+    J = user_axes_jacobian(C[:3, :3])
+    steps = []
+    for p in (prob, longer):
+        g = _build_graph(p, rows, td_bracket, opt, *graph_args, **graph_kwargs)[0]
+        for f in extra:
+            g.add(f)
+        d = g.linearize(values).optimize()
+        steps.append(J @ np.r_[d.at(KEY_CAM), d.at(KEY_TD)])
+    move = steps[1] - steps[0]
+    return move if np.all(np.isfinite(move)) else None
 
 
 #: A warning says so when the knots' spacing moves yaw, x, y or td by more than this many times its other sigmas.

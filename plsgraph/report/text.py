@@ -67,6 +67,9 @@ def calibration_text(report: dict) -> str:
         if tilt is not None:
             lines.append(f"floor          the base tilted {tilt:.2f} deg RMS along the drive (about 0.03 on a level "
                          "floor); roll and pitch are measured against the floor's mean plane")
+        focal = focal_line((ref.get("inflation") or {}).get("focal_length_sensitivity"))
+        if focal:
+            lines.append(focal)
     if c["observability"]:
         lines.append("observability:")
         for o in c["observability"]:
@@ -124,3 +127,19 @@ def comparison_text(c: Any) -> str:
     if getattr(c, "warnings", ()):
         text += f"\n\nwarnings ({len(c.warnings)}):\n" + "\n".join(f"  - {w}" for w in c.warnings[:12])
     return text
+
+
+def focal_line(sens: dict | None) -> str | None:
+    """The summary's line on the focal length: how far x and y move for 1 % of it, and how much the sigmas hold."""
+    if not sens or not sens.get("focal_change"):
+        return None
+    per = 0.01 / float(sens["focal_change"])  # the move per 1 %
+    held = float(sens.get("focal_sigma_in_sigmas") or 0.0)
+    moves = ", ".join(f"{a} by {_mm(1e3 * per * float(sens[a]))} mm" for a in ("x", "y") if sens.get(a) is not None)
+    said = (f"the sigmas hold a {100 * held:.2g} % focal-length error (--focal-sigma)" if held > 0 else
+            "the sigmas take the focal length as exact (--focal-sigma 0)")
+    return f"focal length   1 % longer would move {moves}; {said}"
+
+
+def _mm(v: float) -> str:
+    return f"{v:+.0f}" if abs(v) >= 9.5 else f"{v:+.1f}"
