@@ -2036,6 +2036,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             except (RuntimeError, np.linalg.LinAlgError) as exc:
                 warnings.append(f"marginal covariances could not be computed ({exc}); no uncertainty is reported")
         jackknife = None
+        jk_steps: dict = {}  # the jackknife's step on the whole graph, which the focal length's sensitivity shares
         t_jk = time.perf_counter()
         if converged and opt.marginals and opt.frame_jackknife_segments >= 2:
             jk_graph = final_graph
@@ -2045,7 +2046,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             try:
                 # The graph's first factors are the frames' reprojection factors, one per frame with points.
                 n_rep = sum(1 for i in range(len(batch.frames)) if batch.n_valid(i) > 0)
-                jackknife = frame_jackknife(jk_graph, values, n_rep, opt.frame_jackknife_segments)
+                jackknife = frame_jackknife(jk_graph, values, n_rep, opt.frame_jackknife_segments, jk_steps)
             except (RuntimeError, np.linalg.LinAlgError) as exc:
                 log.info("refine: frame jackknife failed (%s)", exc)
                 if opt.add_frame_jackknife:
@@ -2059,7 +2060,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                          if frozen else [])
                 focal_move = focal_sensitivity(prob, rows, td_bracket, opt, values, (C_anc, td_anc, R_anc),
                                                dict(odo_var=odo_var, planar_var=planar_var, vib_var=vib_var), extra,
-                                               opt.focal_sensitivity_rel)
+                                               opt.focal_sensitivity_rel, jk_steps.get("whole"))
             except (RuntimeError, np.linalg.LinAlgError) as exc:
                 log.info("refine: the focal length's sensitivity could not be solved (%s)", exc)
         t_jk = time.perf_counter() - t_jk
@@ -2366,7 +2367,8 @@ def turn_scale_jackknife(T_knots: np.ndarray, steps: PlanarSteps, knot_idx: np.n
     return _stretch_ratio_jackknife(z, m, segments, MIN_JACKKNIFE_STRETCH_RAD)
 
 
-def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 10) -> np.ndarray | None:
+def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 10,
+                    steps: dict | None = None) -> np.ndarray | None:
     """Jackknife sigma (7,) of the calibration, in base axes (rotation about base x, y, z in rad, translation along
     them in m, td in s), over ``segments`` consecutive stretches of the camera frames.
 
@@ -2375,6 +2377,8 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
     stretch's factors, one Gauss-Newton step (its linear system solved) is that stretch's leave-one-out change of the
     calibration, to first order. The spread of those changes holds errors shared within a stretch, which the
     marginal covariance, counting each frame as independent, does not. None with fewer than two frames per stretch.
+    ``steps`` (a dict), when given, gets the step on the whole graph (7,) as ``"whole"``: :func:`focal_sensitivity`
+    takes it as its own.
     """
     if segments < 2 or n_frames < 2 * segments:
         return None
@@ -2391,6 +2395,8 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
         return J @ np.r_[d.at(KEY_CAM), d.at(KEY_TD)]
 
     base = step(set())  # ~0 at a converged solution; taken out of each stretch's step
+    if steps is not None:
+        steps["whole"] = base
     loo = np.array([step(set(part.tolist())) - base for part in np.array_split(np.arange(n_frames), segments)])
     if not np.all(np.isfinite(loo)):
         return None
@@ -2400,13 +2406,13 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
 
 def focal_sensitivity(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: RefinementOptions,
                       values: gtsam.Values, graph_args: tuple, graph_kwargs: dict, extra: list,
-                      rel: float = 0.01) -> np.ndarray | None:
+                      rel: float = 0.01, whole_step: np.ndarray | None = None) -> np.ndarray | None:
     """How far the calibration moves (7,: base axes, as :func:`frame_jackknife`) for a focal length ``rel`` (relative)
     longer than the camera model's, to first order: one Gauss-Newton step from the solution ``values`` on the graph
     built with the focal lengths scaled (the same frames, brackets, noise and robust weights; ``graph_args`` /
     ``graph_kwargs`` as :func:`_build_graph` takes them, ``extra`` factors added, e.g. the held directions' prior),
-    less the step on the graph as it is (~0 at a converged solution). A focal length errs alike in x and y, so both
-    are scaled. None when a step cannot be solved."""
+    less the step on the graph as it is (~0 at a converged solution; ``whole_step``, when the frame jackknife solved
+    it already). A focal length errs alike in x and y, so both are scaled. None when a step cannot be solved."""
     import dataclasses
 
     cam = prob.frames.camera
@@ -2416,12 +2422,14 @@ def focal_sensitivity(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: 
     longer = dataclasses.replace(prob, frames=dataclasses.replace(prob.frames, camera=dataclasses.replace(cam, K=K)))
     C = values.atPose3(KEY_CAM).matrix()
     J = user_axes_jacobian(C[:3, :3])
-    steps = []
-    for p in (prob, longer):
-        g = _build_graph(p, rows, td_bracket, opt, *graph_args, **graph_kwargs)[0]
+    steps = [] if whole_step is None else [np.asarray(whole_step, dtype=float)]
+    for p in ((prob, longer) if whole_step is None else (longer,)):
+        g, batch, _ = _build_graph(p, rows, td_bracket, opt, *graph_args, **graph_kwargs)
         for f in extra:
             g.add(f)
-        d = g.linearize(values).optimize()
+        with batch.evaluated_at(values, jacobians=True):  # every frame at once (see _levenberg_marquardt)
+            lin = g.linearize(values)
+        d = lin.optimize()
         steps.append(J @ np.r_[d.at(KEY_CAM), d.at(KEY_TD)])
     move = steps[1] - steps[0]
     return move if np.all(np.isfinite(move)) else None
