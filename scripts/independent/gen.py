@@ -25,7 +25,9 @@ from scipy.spatial.transform import Rotation as Rot
 W, H = 346, 260
 # scenario switches (all off by default -> output identical to gen.py)
 SC: dict = dict(park_start=0.0, park_end=0.0, mount_yaw=0.0, mount_pitch=0.0, mount_roll=0.0, cam_z=None,
-                far=False, extend_plan=False, js_rate=None, js_jitter=0.0, lookaway=False)
+                far=False, extend_plan=False, js_rate=None, js_jitter=0.0, lookaway=False,
+                board_bump=None, board_scale=1.0, gentle=None, diff_drive=False, second_board=None, walker=None,
+                board_drift=None, cinfo_nodist=False, cinfo_focal=1.0, wheel_asym=0.0)
 EPOCH_NS = 1_700_000_000_000_000_000
 SEP = "=" * 80 + "\n"
 TIME_DEF = "int32 sec\nuint32 nanosec\n"
@@ -78,6 +80,8 @@ def make_params(seed: int, duration: float) -> dict:
     p["td"] = float(rng.choice([-1, 1]) * rng.uniform(0.012, 0.09))
     p["r_eff"] = 0.098 * (1 + rng.uniform(-0.05, 0.05))
     p["b_eff"] = 0.37 * rng.uniform(1.3, 1.8)
+    if SC["diff_drive"]:  # two-wheel differential drive: no skid, effective track ~ nominal
+        p["b_eff"] = 0.37 * (1 + np.random.default_rng([seed, 3031]).uniform(-0.01, 0.01))
     # sensor
     p["C"] = rng.uniform(0.2, 0.3)
     p["C_mismatch"] = rng.uniform(0.05, 0.10)
@@ -120,6 +124,8 @@ def simulate_trajectory(p: dict, rng: np.random.Generator, dt: float):
         order += list(np.random.default_rng([p["seed"], 515]).choice(kinds, 40))
     if SC["lookaway"]:  # two segments where the robot turns the camera far off the board and back
         order[5], order[10] = "away", "away"
+    if SC["gentle"] is not None:  # low yaw excitation: no spins, turning amplitudes scaled by the factor
+        order = ["straight" if k == "spin" else k for k in order]
     d_lo, d_hi = (2.5, 3.8) if SC["far"] else (1.3, 2.9)
     d_cur = p["start"]["d"]
     for k in order:
@@ -134,6 +140,10 @@ def simulate_trajectory(p: dict, rng: np.random.Generator, dt: float):
         Pd = 2 * np.pi * A / u_rate      # peak rate 0.6-1.0 rad/s (level 0)
         segs.append(dict(kind=k, t0=t_acc, t1=t_acc + dur, d0=d_cur, d1=d_new, A=A, P=Pd,
                          sgn=rng.choice([-1, 1]), phi_des=rng.uniform(-0.35, 0.35)))
+        if SC["gentle"] is not None:
+            segs[-1]["A"] *= SC["gentle"]
+            segs[-1]["phi_des"] *= SC["gentle"]
+            segs[-1]["arc"] = 0.2 * SC["gentle"]
         d_cur, t_acc = d_new, t_acc + dur
         if t_acc > tt[-1]:
             break
@@ -154,7 +164,8 @@ def simulate_trajectory(p: dict, rng: np.random.Generator, dt: float):
             dpsi = s["sgn"] * 1.3 * 2 * math.sin(math.pi * tau / Tt) * math.cos(math.pi * tau / Tt) * math.pi / Tt
         elif s["kind"] == "arc":
             ramp = min(1.0, tau / 0.8)
-            psi, dpsi = s["sgn"] * 0.2 * ramp, (s["sgn"] * 0.2 / 0.8 if tau < 0.8 else 0.0)
+            aa = s.get("arc", 0.2)
+            psi, dpsi = s["sgn"] * aa * ramp, (s["sgn"] * aa / 0.8 if tau < 0.8 else 0.0)
         else:
             w = 2 * np.pi / s["P"]
             amp = s["A"] if s["kind"] == "spin" else 0.7 * s["A"]
@@ -255,6 +266,9 @@ def wheel_measurements(p, rng, tt, V):
     v, om = V[:, 0], V[:, 1]
     wl = (v - om * b / 2) / r
     wr = (v + om * b / 2) / r
+    if SC["wheel_asym"]:  # left wheels' effective radius r (1 + a/2), right r (1 - a/2) (a tyre low on one side)
+        wl = (v - om * b / 2) / (r * (1 + SC["wheel_asym"] / 2))
+        wr = (v + om * b / 2) / (r * (1 - SC["wheel_asym"] / 2))
 
     def ou(sigma, tau):
         a = math.exp(-dt / tau)
@@ -267,8 +281,14 @@ def wheel_measurements(p, rng, tt, V):
         return out
 
     # slip: slowly varying multiplicative error per side + extra skid noise that grows with turning
-    sl = ou(0.012, 0.6) + np.abs(om) * ou(0.03, 0.3)
-    sr = ou(0.012, 0.6) + np.abs(om) * ou(0.03, 0.3)
+    sl_a = ou(0.012, 0.6)
+    sl_b = ou(0.03, 0.3)
+    sl = sl_a + np.abs(om) * sl_b
+    sr_a = ou(0.012, 0.6)
+    sr_b = ou(0.03, 0.3)
+    sr = sr_a + np.abs(om) * sr_b
+    if SC["diff_drive"]:  # no skid: the turning slip is a fifth (the same draws, scaled)
+        sl, sr = sl_a + np.abs(om) * 0.2 * sl_b, sr_a + np.abs(om) * 0.2 * sr_b
     nl, nr = rng.normal(0, 0.05, len(tt)), rng.normal(0, 0.05, len(tt))
     if SC["park_start"] or SC["park_end"]:  # a standing wheel does not turn (no noise while parked)
         mv = np.clip((np.abs(v) + 0.3 * np.abs(om)) / 0.02, 0, 1)
@@ -336,13 +356,34 @@ class Scene:
         yb = np.array([0.0, 0.0, -1.0])                      # down
         xb = np.cross(yb, zb)                                # right as seen from the front
         R_wb = np.stack([xb, yb, zb], 1)
-        gc = np.array([(2 * (B_COLS - 1) + 1) * B_S / 2, (B_ROWS - 1) * B_S / 2, 0.0])  # grid centre, board frame
+        sc = SC["board_scale"]  # the printed board's true size relative to the board file (1 = as nominal)
+        self.bs, self.bd = B_S * sc, B_DIAM * sc
+        gc = np.array([(2 * (B_COLS - 1) + 1) * self.bs / 2, (B_ROWS - 1) * self.bs / 2, 0.0])  # grid centre, board frame
         centre_w = np.array([0.0, 0.0, p["board_centre_h"]])
         t_wb = centre_w - R_wb @ gc
         self.T_world_board = np.eye(4)
         self.T_world_board[:3, :3], self.T_world_board[:3, 3] = R_wb, t_wb
-        self.bw_half, self.bh_half = 0.26, 0.34  # white backing (A2 print on a foam board), 0.52 x 0.68 m
+        self.bw_half, self.bh_half = 0.26 * sc, 0.34 * sc  # white backing (A2 print on a foam board), 0.52 x 0.68 m
         self.gc = gc
+        self.T_world_board0 = self.T_world_board.copy()
+        self.extra_boards = []  # further boards of the same pattern (drawn first, the main board on top)
+        if SC["second_board"] is not None:  # (DY, DX, DYAW): a second, identical board beside the first
+            dy, dx, dyaw = SC["second_board"]
+            T2 = np.eye(4)
+            T2[:3, :3] = Rot.from_euler("z", dyaw, degrees=True).as_matrix() @ R_wb
+            T2[:3, 3] = centre_w + np.array([dx, dy, 0.0]) - T2[:3, :3] @ gc
+            self.extra_boards.append(T2)
+        self.T_bumped = None
+        if SC["board_bump"] is not None:  # (T, DX, DYAW[, DN]): board shifted along its x / normal, yawed about its centre
+            bt, bdx, byaw = SC["board_bump"][:3]
+            bdn = SC["board_bump"][3] if len(SC["board_bump"]) > 3 else 0.0
+            Rb = Rot.from_euler("z", byaw, degrees=True).as_matrix() @ R_wb
+            Tb = np.eye(4)
+            Tb[:3, :3] = Rb
+            Tb[:3, 3] = centre_w + bdx * xb + bdn * zb - Rb @ gc
+            self.T_bumped, self.bump_t = Tb, float(bt)
+        self.t_now = None
+        self.R_wb, self.centre_w = R_wb, centre_w
         self.white, self.black = 0.85, 0.07
         # room textures in one atlas (1 cm texels)
         rm = p["room"]
@@ -374,6 +415,21 @@ class Scene:
             atlas[r0:r0 + tex.shape[0], : tex.shape[1]] = tex
         self.atlas = atlas
         self.u0, self.v0, self.row_off = map(lambda a: np.array(a, np.float32), (self.u0, self.v0, self.row_off))
+
+    def drifted_board(self, t):
+        """--board-drift DYAW,DPITCH: the board turns linearly (0 at world t = 0, full at the end) about the vertical
+        through its centre and leans back about its bottom edge (top away from the robot)."""
+        dyaw, dpitch = SC["board_drift"]
+        a = float(np.clip(t / self.p["duration"], 0, 1))
+        R_wb, gc = self.R_wb, self.gc
+        Ry = Rot.from_euler("z", a * dyaw, degrees=True).as_matrix()
+        Rp = Rot.from_rotvec(-math.radians(a * dpitch) * R_wb[:, 0]).as_matrix()  # about the board's x axis, top away
+        bottom = self.centre_w + R_wb @ np.array([0.0, self.bh_half, 0.0])  # bottom edge centre (board y is down)
+        R = Ry @ Rp @ R_wb
+        c = Ry @ (Rp @ (self.centre_w - bottom) + bottom - self.centre_w) + self.centre_w
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, c - R @ gc
+        return T
 
     def _texture(self, rng, tw, th, name):
         tex = np.full((th, tw), 0.22 if name != "floor" else 0.28, np.float32)
@@ -435,15 +491,44 @@ class Scene:
         my = (vv - self.v0[sid]) * f32(1 / self.res) + f32(self.pad) + self.row_off[sid]
         I_room = cv2.remap(self.atlas, mx.reshape(H, W), my.reshape(H, W), cv2.INTER_LINEAR,
                            borderMode=cv2.BORDER_REPLICATE).ravel()
+        I = I_room
+        for T2 in self.extra_boards:
+            I = self._board(I, T2, C, wx, wy, wz, t_room)
+        I = self._board(I, self.T_world_board, C, wx, wy, wz, t_room)
+        if SC["walker"] is not None and self.t_now is not None:
+            I = self._walker(I, C, wx, wy, wz, t_room)
+        img = I.reshape(H, W)
+        return cv2.GaussianBlur(img, (0, 0), 0.55)  # lens PSF
+
+    def _walker(self, I, C, wx, wy, wz, t_room):
+        """A person (0.45 m wide, 1.75 m tall dark slab facing the robot) walking across in front of the board."""
+        f32 = np.float32
+        t0, t1, xw = SC["walker"]
+        if not t0 <= self.t_now <= t1:
+            return I
+        yw = -2.0 + 4.0 * (self.t_now - t0) / (t1 - t0)  # from y = -2 to +2 m at world x = xw
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            s = f32(xw - C[0]) / wx
+        hy, hz = f32(C[1]) + wy * s, f32(C[2]) + wz * s
+        m = (wx != 0) & (s > 0) & (s < t_room) & (np.abs(hy - f32(yw)) < 0.225) & (hz > 0) & (hz < 1.75)
+        if not m.any():
+            return I
+        I = I.copy()
+        k = np.nonzero(m)[0]
+        stripe = (np.floor((hz[k] + 0.3 * hy[k]) / f32(0.12)) % 2).astype(f32)
+        I[k] = f32(0.10) + f32(0.06) * stripe + f32(0.25) * (hz[k] > 1.5)
+        return I
+
+    def _board(self, I_cur, Tb, C, wx, wy, wz, t_room):
+        f32 = np.float32
         # board plane
-        Tb = self.T_world_board
         nb, Ob, xb, yb = Tb[:3, 2], Tb[:3, 3], Tb[:3, 0], Tb[:3, 1]
         rn = f32(nb[0]) * wx + f32(nb[1]) * wy + f32(nb[2]) * wz
         q = C - Ob
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             sb = f32(-(q @ nb)) / rn
         valid = (rn > 0) & (sb > 0) & (sb < t_room)
-        I = I_room
+        I = I_cur
         if valid.any():
             k = np.nonzero(valid)[0]
             s_, wxk, wyk, wzk = sb[k], wx[k], wy[k], wz[k]
@@ -453,20 +538,19 @@ class Scene:
             du = f32(self.bw_half) - np.abs(bu - f32(self.gc[0]))
             dv = f32(self.bh_half) - np.abs(bv - f32(self.gc[1]))
             alpha = np.clip(f32(0.5) + np.minimum(du, dv) / fp, 0, 1)
-            i = np.clip(np.rint(bv * f32(1 / B_S)), 0, B_ROWS - 1)
+            i = np.clip(np.rint(bv * f32(1 / self.bs)), 0, B_ROWS - 1)
             odd = i % 2
-            j = np.clip(np.rint((bu * f32(1 / B_S) - odd) * f32(0.5)), 0, B_COLS - 1)
-            ex = bu - (2 * j + odd) * f32(B_S)
-            ey = bv - i * f32(B_S)
+            j = np.clip(np.rint((bu * f32(1 / self.bs) - odd) * f32(0.5)), 0, B_COLS - 1)
+            ex = bu - (2 * j + odd) * f32(self.bs)
+            ey = bv - i * f32(self.bs)
             dc = np.sqrt(ex * ex + ey * ey)
-            cov = np.clip(f32(0.5) - (dc - f32(B_DIAM / 2)) / fp, 0, 1)
+            cov = np.clip(f32(0.5) - (dc - f32(self.bd / 2)) / fp, 0, 1)
             I_board = f32(self.white) + f32(self.black - self.white) * cov
-            I = I_room.copy()
-            I[k] = alpha * I_board + (1 - alpha) * I_room[k]
+            I = I_cur.copy()
+            I[k] = alpha * I_board + (1 - alpha) * I_cur[k]
             if getattr(self, "keep_hit", False):
-                self.last_board[k] = alpha
-        img = I.reshape(H, W)
-        return cv2.GaussianBlur(img, (0, 0), 0.55)  # lens PSF
+                self.last_board[k] = np.maximum(self.last_board[k], alpha)
+        return I
 
 
 # ----------------------------------------------------------------------------- DVS
@@ -710,7 +794,9 @@ def generate(seed: int, out: Path, duration: float, dt_render: float = 1e-3, pac
     t_start = time.time()
     self_test_cdr()
     SC_DEFAULT.update(dict(park_start=0.0, park_end=0.0, mount_yaw=0.0, mount_pitch=0.0, mount_roll=0.0, cam_z=None,
-                      far=False, extend_plan=False, js_rate=None, js_jitter=0.0, lookaway=False))
+                      far=False, extend_plan=False, js_rate=None, js_jitter=0.0, lookaway=False,
+                      board_bump=None, board_scale=1.0, gentle=None, diff_drive=False, second_board=None, walker=None,
+                      board_drift=None, cinfo_nodist=False, cinfo_focal=1.0, wheel_asym=0.0))
     p = make_params(seed, duration)
     if td is not None:
         p["td"] = float(td)
@@ -726,6 +812,11 @@ def generate(seed: int, out: Path, duration: float, dt_render: float = 1e-3, pac
     td = p["td"]
     K, D = p["K"], p["D"]
     K_info = p["K_info"]
+    if SC["cinfo_focal"] != 1.0:  # the CameraInfo's focal lengths off by a factor (a user's wrong intrinsics)
+        K_info = K_info.copy()
+        K_info[0, 0] *= SC["cinfo_focal"]
+        K_info[1, 1] *= SC["cinfo_focal"]
+    D_info = np.zeros(5) if SC["cinfo_nodist"] else D  # a driver's default CameraInfo with no distortion
     out.parent.mkdir(parents=True, exist_ok=True)
     w = Writer(str(out))
     s_ev = w.register_msgdef("dvs_msgs/msg/EventArray", EVENT_ARRAY_DEF)
@@ -740,6 +831,9 @@ def generate(seed: int, out: Path, duration: float, dt_render: float = 1e-3, pac
     # queue of non-event messages (log_time, kind, payload)
     queue = []
     names = ["front_left_wheel", "rear_left_wheel", "front_right_wheel", "rear_right_wheel"]
+    if SC["diff_drive"]:  # two wheels
+        names = ["left_wheel_joint", "right_wheel_joint"]
+        jpos, jvel = jpos[:, [0, 2]], jvel[:, [0, 2]]
     for k in range(stamps.size):
         ns = EPOCH_NS + int(round(stamps[k] * 1e9))
         queue.append((ns, "js", {"header": {"stamp": stamp(ns), "frame_id": ""}, "name": names,
@@ -750,7 +844,7 @@ def generate(seed: int, out: Path, duration: float, dt_render: float = 1e-3, pac
     for tc in np.arange(0.05, duration, 1.0):  # camera info at 1 Hz on the camera clock
         ns = EPOCH_NS + int(round((tc) * 1e9))
         queue.append((ns, "ci", {"header": {"stamp": stamp(ns), "frame_id": "dvs_optical"}, "height": H, "width": W,
-                                 "distortion_model": "plumb_bob", "d": [float(a) for a in D],
+                                 "distortion_model": "plumb_bob", "d": [float(a) for a in D_info],
                                  "k": [float(a) for a in K_info.ravel()], "r": [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0],
                                  "p": [float(a) for a in Pm.ravel()], "binning_x": 0, "binning_y": 0,
                                  "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0,
@@ -784,6 +878,12 @@ def generate(seed: int, out: Path, duration: float, dt_render: float = 1e-3, pac
         ts_l, ix_l, p_l = [], [], []
         for i in range(c0, c1):
             r0 = time.time()
+            if SC["board_drift"] is not None:
+                scene.T_world_board = scene.drifted_board(float(tt[i]))
+            if SC["walker"] is not None or scene.T_bumped is not None:
+                scene.t_now = float(tt[i])
+                if scene.T_bumped is not None and tt[i] >= scene.bump_t:  # the board is bumped and stays there
+                    scene.T_world_board = scene.T_bumped
             img = scene.render(scene.camera_pose(X[i], None if vib is None else vib[i]))
             if lit:
                 img = apply_light(scene, h, img, tt[i])
@@ -859,7 +959,7 @@ def generate(seed: int, out: Path, duration: float, dt_render: float = 1e-3, pac
         "track_width_eff": p["b_eff"],
         "K": p["K"].tolist(),
         "D": p["D"].tolist(),
-        "T_world_board": scene.T_world_board.tolist(),
+        "T_world_board": scene.T_world_board0.tolist(),
         "contrast": p["C"], "contrast_mismatch": p["C_mismatch"], "refractory_s": p["refractory"],
         "ba_rate_hz": p["ba_rate"], "n_hot": p["n_hot"],
         "duration_s": duration,
@@ -869,7 +969,14 @@ def generate(seed: int, out: Path, duration: float, dt_render: float = 1e-3, pac
         "segments": [str(s["kind"]) for s in segs],
     }
     if any(SC[k] != v for k, v in SC_DEFAULT.items()):
-        truth["scenario"] = {k: v for k, v in SC.items()}
+        truth["scenario"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in SC.items()}
+    if scene.T_bumped is not None:
+        truth["T_world_board_after_bump"] = scene.T_bumped.tolist()
+        truth["board_bump_t_world_s"] = scene.bump_t
+    if SC["board_drift"] is not None:
+        truth["T_world_board_at_end"] = scene.drifted_board(duration).tolist()
+    if scene.extra_boards:
+        truth["T_world_board_second"] = scene.extra_boards[0].tolist()
     if harsh > 0:
         hh = {k: v for k, v in h.items() if not k.endswith("_rng") and k not in ("hot_idx", "hot_rate", "hot_p_on")}
         if "hot_idx" in h:
@@ -893,7 +1000,7 @@ def generate(seed: int, out: Path, duration: float, dt_render: float = 1e-3, pac
     base = out.with_suffix("")
     Path(str(base) + ".indep_truth.yaml").write_text(yaml.safe_dump(truth, sort_keys=False))
     extra = {} if harsh <= 0 else dict(K_info=K_info, harsh=harsh, **({} if vib is None else {"vib": vib}))
-    np.savez(str(base) + ".indep_traj.npz", tt=tt, X=X, V=V, T_world_board=scene.T_world_board,
+    np.savez(str(base) + ".indep_traj.npz", tt=tt, X=X, V=V, T_world_board=scene.T_world_board0,
              T_base_cam=p["T_base_cam"], K=K, D=D, td=td, epoch_ns=EPOCH_NS, **extra)
     print(f"seed {seed}: {n_events} events ({n_events / duration:.0f}/s), {time.time() - t_start:.0f}s")
     return truth
@@ -918,7 +1025,31 @@ if __name__ == "__main__":
     ap.add_argument("--js-rate", type=float, default=None, help="joint state rate (Hz, divides 50)")
     ap.add_argument("--js-jitter", type=float, default=0.0, help="extra joint stamp jitter sigma (s)")
     ap.add_argument("--lookaway", action="store_true", help="two segments turning the camera off the board")
+    ap.add_argument("--board-bump", default=None,
+                    help="T,DX,DYAW[,DN]: at world time T s the board shifts DX m along its x axis (and DN m along its "
+                         "normal, away from the robot) and turns DYAW deg about the vertical through its centre, and stays")
+    ap.add_argument("--board-scale", type=float, default=1.0,
+                    help="true size of the printed board relative to the board file (e.g. 0.94: printed 'fit to page')")
+    ap.add_argument("--gentle", type=float, default=None,
+                    help="low yaw excitation: no spins; turning amplitudes and lateral targets scaled by this factor")
+    ap.add_argument("--diff-drive", action="store_true",
+                    help="two-wheel differential drive: effective track = nominal (+-1 %%), turning slip a fifth, two joints")
+    ap.add_argument("--second-board", default=None,
+                    help="DY,DX,DYAW: a second identical board, its centre DY m (world y) and DX m (farther) from the first's, yawed DYAW deg")
+    ap.add_argument("--walker", default=None,
+                    help="T0,T1,X: a person (dark 0.45 x 1.75 m) walks across at world x = X (board at 0, robot at x < 0) from T0 to T1 s")
+    ap.add_argument("--board-drift", default=None,
+                    help="DYAW,DPITCH: over the recording the board turns DYAW deg about the vertical through its centre "
+                         "and leans back DPITCH deg about its bottom edge, linearly (an easel slowly giving way)")
+    ap.add_argument("--cinfo-nodist", action="store_true", help="CameraInfo distortion coefficients all zero (the lens keeps its own)")
+    ap.add_argument("--cinfo-focal", type=float, default=1.0, help="CameraInfo focal lengths times this factor")
+    ap.add_argument("--wheel-asym", type=float, default=0.0,
+                    help="left/right effective wheel radius differ: left r (1 + A/2), right r (1 - A/2)")
     a = ap.parse_args()
+    fl = lambda v: None if v is None else tuple(float(x) for x in v.split(","))
+    SC.update(board_bump=fl(a.board_bump), board_scale=a.board_scale, gentle=a.gentle, diff_drive=a.diff_drive,
+              second_board=fl(a.second_board), walker=fl(a.walker), board_drift=fl(a.board_drift),
+              cinfo_nodist=a.cinfo_nodist, cinfo_focal=a.cinfo_focal, wheel_asym=a.wheel_asym)
     SC.update(park_start=a.park_start, park_end=a.park_end, mount_yaw=a.mount_yaw, mount_pitch=a.mount_pitch,
               mount_roll=a.mount_roll, cam_z=a.cam_z, far=a.far, extend_plan=a.extend_plan, js_rate=a.js_rate,
               js_jitter=a.js_jitter, lookaway=a.lookaway)
