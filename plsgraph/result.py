@@ -231,8 +231,8 @@ def robot_sections(run: Run) -> dict[str, Any]:
     if sens and sens.get("focal_change"):
         per = 0.01 / float(sens["focal_change"])
         out["focal_length"] = {
-            "move_per_percent": {f"{a}_m" if a in "xyz" else ("td_s" if a == "td" else f"{a}_deg"):
-                                 per * float(sens[a]) * (1.0 if a in ("x", "y", "z", "td") else 180.0 / np.pi)
+            "move_per_percent": {f"{a}_m" if a in ("x", "y") else ("td_s" if a == "td" else f"{a}_deg"):
+                                 per * float(sens[a]) * (1.0 if a in ("x", "y", "td") else 180.0 / np.pi)
                                  for a in ("roll", "pitch", "yaw", "x", "y", "td")},
             "sigma_in_sigmas": float(sens.get("focal_sigma_in_sigmas") or 0.0),
             "note": "how far the calibration moves for a focal length 1 % longer than the camera info's (first order); "

@@ -369,3 +369,11 @@ def test_the_focal_lengths_sensitivity_is_the_move_a_longer_focal_length_makes_a
     want = np.hypot(sig0[3], 0.5 * abs(sens["x"]))
     assert sig1[3] == pytest.approx(want, rel=1e-6)
     assert held.inflation["focal_length_sensitivity"]["focal_sigma_in_sigmas"] == 0.005
+    # The effective wheel radius moves with the focal length too (the camera's distances do): its scale's variance
+    # gets the same share, and the extrinsic's correlations hold the shared sign (a rank-one term).
+    s_v = 0.5 * sens["speed_scale"]
+    assert abs(sens["speed_scale"]) > 3e-3
+    assert held.odometry["speed_scale_sigma"] ** 2 == pytest.approx(res.odometry["speed_scale_sigma"] ** 2 + s_v**2,
+                                                                      rel=0.05)
+    move = np.array([sens[a] for a in ("roll", "pitch", "yaw", "x", "y", "z", "td")]) * 0.5
+    assert np.allclose(held.cov_base_axes - res.cov_base_axes, np.outer(move, move), atol=1e-12)

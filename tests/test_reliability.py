@@ -1019,3 +1019,28 @@ def test_a_linked_out_folder_has_its_target_replaced_and_an_interrupted_run_leav
     with pytest.raises(KeyboardInterrupt):
         write_result_folder(tmp_path / "new" / "deep" / "cal", interrupted)
     assert not (tmp_path / "new").exists()
+
+
+def test_the_swap_puts_every_signal_handler_back_however_it_ends(tmp_path, monkeypatch):
+    """A review: the handlers that hold signals back during the swap were put in before its try and back one by one;
+    a swap that fails (here a rename refused) must leave the handlers it found, and a later Ctrl-C must still reach
+    Python's own."""
+    import os
+    import signal
+
+    import plsgraph.report.files as files
+    from plsgraph.report.output import write_result_folder
+
+    before = {s: signal.getsignal(s) for s in files.HELD_SIGNALS}
+    real_rename = os.rename
+
+    def rename(src, dst):
+        if Path(dst) == tmp_path / "out":
+            raise OSError("refused")
+        real_rename(src, dst)
+
+    monkeypatch.setattr(files.os, "rename", rename)
+    with pytest.raises(OSError, match="refused"):
+        write_result_folder(tmp_path / "out", lambda stage: (stage / "calibration.yaml").write_text("new\n") and {})
+    assert {s: signal.getsignal(s) for s in files.HELD_SIGNALS} == before
+    assert not (tmp_path / "out").exists()

@@ -486,7 +486,8 @@ def estimate_time_offset(
         warnings.append(f"weak peak: {method} score {score:.2f} < {min_score}; the time offset is poorly determined")
     elif method == "correlation" and score < POOR_CORRELATION and not edge:
         warnings.append(
-            f"the time offset's best shift in [{lo}, {hi}] s matches the camera's turns to the odometry's with a "
+            f"the time offset's best shift in [{lo}, {hi}] s matches the camera's "
+            f"{'speeds' if used == 'linear' else 'turns'} to the odometry's with a "
             f"correlation of only {score:.2f} (a recording whose clocks are within the range gives 0.95 or more): the "
             "clocks may differ by more than the range (widen td_range, --td-range), or the odometry does not follow "
             "the robot's motion"

@@ -1568,7 +1568,9 @@ def _difference(a: RefinementResult, b: RefinementResult) -> np.ndarray:
 
 def _sigma_before_knots(res: RefinementResult) -> np.ndarray:
     """The result's per-axis sigma (AXES order) before the knot-spacing second opinion was added."""
-    before = (res.inflation or {}).get("sigma_before_knot_spacing")
+    inflation = res.inflation or {}
+    # (Before the focal length's share too, which both starts share: a result finished without the knots' opinion.)
+    before = inflation.get("sigma_before_knot_spacing") or inflation.get("sigma_before_focal_length")
     if before is not None:
         return np.array([before[a] for a in AXES])
     return np.sqrt(np.diag(res.cov_base_axes))
@@ -1819,6 +1821,9 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
     for pas in range(opt.max_passes):
         graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C_anc, td_anc, R_anc, odo_var=odo_var,
                                           planar_var=planar_var, vib_var=vib_var)
+        # What the graph is built with: variances adapted below by less than 1.25 do not rebuild it, and the second
+        # opinions taken on it (the jackknife's, the focal length's) must see the graph the solution is of.
+        graph_built = (prob, dict(odo_var=odo_var, planar_var=planar_var, vib_var=vib_var))
         if initial_error is None:
             initial_error = float(graph.error(values))
             rms0 = _frame_rms(batch, values)[1]
@@ -1951,6 +1956,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         else:
             final_graph, batch, keys = _build_graph(prob, rows, td_bracket, opt, C_anc, td_anc, R_anc,
                                                     odo_var=odo_var, planar_var=planar_var, vib_var=vib_var)
+            graph_built = (prob, dict(odo_var=odo_var, planar_var=planar_var, vib_var=vib_var))
         final_error = float(final_graph.error(values))
         per, rms, n_pts = _frame_rms(batch, values)
         C = values.atPose3(KEY_CAM).matrix()
@@ -2054,15 +2060,19 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                                     "sigmas hold only the marginal covariance and the noise model's sensitivity, not "
                                     "errors shared by stretches of frames")
         focal_move = None
-        if converged and opt.marginals and opt.focal_sensitivity_rel > 0:
+        focal_tried = bool(converged and opt.marginals and opt.focal_sensitivity_rel > 0)
+        if focal_tried:
             try:
                 extra = ([make_subspace_prior(KEY_CAM, KEY_TD, C0, [td_seed], np.array(frozen) @ J0, _FREEZE_SIGMA)]
                          if frozen else [])
-                focal_move = focal_sensitivity(prob, rows, td_bracket, opt, values, (C_anc, td_anc, R_anc),
-                                               dict(odo_var=odo_var, planar_var=planar_var, vib_var=vib_var), extra,
-                                               opt.focal_sensitivity_rel, jk_steps.get("whole"))
-            except (RuntimeError, np.linalg.LinAlgError) as exc:
+                # On the graph the solution and the jackknife's step are of: the same problem and variances.
+                focal_move = focal_sensitivity(graph_built[0], rows, td_bracket, opt, values, (C_anc, td_anc, R_anc),
+                                               graph_built[1], extra, opt.focal_sensitivity_rel, jk_steps.get("whole"))
+            except (RuntimeError, np.linalg.LinAlgError, PlsgraphError) as exc:
                 log.info("refine: the focal length's sensitivity could not be solved (%s)", exc)
+            if focal_move is None and opt.focal_sigma_rel > 0 and cov_base is not None:
+                warnings.append("the calibration's sensitivity to the focal length could not be solved; the sigmas "
+                                "do not hold the focal length's uncertainty (--focal-sigma)")
         t_jk = time.perf_counter() - t_jk
         sensitivity = None
         if held_solution is not None and (_largest(odo_var) > 1.0 or max(planar_var) > 1.0):
@@ -2078,6 +2088,8 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
         t_in = time.perf_counter()
         warnings = list(warnings)
         knot_sensitivity = knot_spacing = sigma_before_knots = None
+        sigma_before_focal = focal_m = None
+        cov_base_shared = cov_base  # without the focal length's share, which the closed form and both starts share
         held: list[dict] = []  # what the data said of the directions held at the seed (held_directions)
         t_knots = time.perf_counter()
         if job is not None:
@@ -2115,15 +2127,17 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                 k_all = k_all * k
                 if np.any(k[[2, 3, 4, 6]] > KNOT_WARN_FACTOR):
                     warnings.append(knot_warning(knot_sensitivity, knot_spacing))
+            sigma_before_focal = np.sqrt(np.diag(cov_base))
+            cov_base_shared = cov_base
             if focal_move is not None and opt.focal_sigma_rel > 0 and opt.focal_sensitivity_rel > 0:
-                # The focal length's own uncertainty, independent of the data's: added to each variance.
-                sig = np.sqrt(np.diag(cov_base))
-                extra = np.abs(focal_move) / opt.focal_sensitivity_rel * opt.focal_sigma_rel
-                k = np.sqrt(1.0 + (extra / np.maximum(sig, 1e-300)) ** 2)
-                cov_base = cov_base * np.outer(k, k)
-                k_all = k_all * k
+                # The focal length's own uncertainty, independent of the data's and shared by every axis with its
+                # sign: the rank-one covariance of its move (the odometry scales' part is added below).
+                focal_m = focal_move / opt.focal_sensitivity_rel * opt.focal_sigma_rel
+                cov_base = cov_base + np.outer(focal_m[:7], focal_m[:7])
             if joint is not None and opt.propagate_to_odometry:
                 joint = odometry_given_calibration(joint, k_all, opt.td_model_sigma)
+            if joint is not None and focal_m is not None and focal_m.size == joint.shape[0]:
+                joint = joint + np.outer(focal_m, focal_m)
             Ji = np.linalg.inv(user_axes_jacobian(C[:3, :3]))
             cov = Ji @ cov_base @ Ji.T
             report = observability_report(cov_base, prior_info, converged=True, regularized=True,
@@ -2228,7 +2242,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             residual_px=res_raw.astype(np.float32),
             odometry=odometry_report(values, joint, base_track.info, opt, scale0, joint_data)
             if prob.steps is not None else None,
-            disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base, C_seed, td_ref, opt,
+            disagreement={} if cov_base is None else disagreement_with_seed(C, td, cov_base_shared, C_seed, td_ref, opt,
                                                                               rotation=compare_rotation),
             inflation={**inflation, "odometry_variance_factor": _slip(odo_var),
                        **({"odometry_variance_factors": dict(zip(("heading", "distance", "tilt")[:len(odo_var)],
@@ -2253,8 +2267,11 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                        "knot_spacing_s": knot_spacing,
                        "focal_length_sensitivity": None if focal_move is None else {
                            "focal_change": float(opt.focal_sensitivity_rel),
-                           "focal_sigma_in_sigmas": float(opt.focal_sigma_rel), **dict(zip(
-                               ("roll", "pitch", "yaw", "x", "y", "z", "td"), focal_move.tolist(), strict=True))},
+                           "focal_sigma_in_sigmas": float(opt.focal_sigma_rel) if focal_m is not None else 0.0,
+                           **dict(zip(("roll", "pitch", "yaw", "x", "y", "z", "td", "speed_scale", "turn_scale"),
+                                      focal_move.tolist(), strict=False))},
+                       "sigma_before_focal_length": None if sigma_before_focal is None else dict(zip(
+                           ("roll", "pitch", "yaw", "x", "y", "z", "td"), sigma_before_focal.tolist(), strict=True)),
                        "sigma_before_knot_spacing": None if sigma_before_knots is None else dict(zip(
                            ("roll", "pitch", "yaw", "x", "y", "z", "td"), sigma_before_knots.tolist(), strict=True))},
             td_searched=None if td_ref == td_given else float(td_search),
@@ -2377,8 +2394,8 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
     stretch's factors, one Gauss-Newton step (its linear system solved) is that stretch's leave-one-out change of the
     calibration, to first order. The spread of those changes holds errors shared within a stretch, which the
     marginal covariance, counting each frame as independent, does not. None with fewer than two frames per stretch.
-    ``steps`` (a dict), when given, gets the step on the whole graph (7,) as ``"whole"``: :func:`focal_sensitivity`
-    takes it as its own.
+    ``steps`` (a dict), when given, gets the step on the whole graph as ``"whole"`` (7,, then the odometry scales'
+    when the graph has them): :func:`focal_sensitivity` takes it as its own.
     """
     if segments < 2 or n_frames < 2 * segments:
         return None
@@ -2386,17 +2403,21 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
     C = values.atPose3(KEY_CAM).matrix()
     J = user_axes_jacobian(C[:3, :3])
 
-    def step(drop: set[int]) -> np.ndarray:
+    def solve(drop: set[int]):
         g = gtsam.GaussianFactorGraph()
         for i in range(lin.size()):
             if i not in drop:
                 g.push_back(lin.at(i))
-        d = g.optimize()
+        return g.optimize()
+
+    def step(drop: set[int]) -> np.ndarray:
+        d = solve(drop)
         return J @ np.r_[d.at(KEY_CAM), d.at(KEY_TD)]
 
-    base = step(set())  # ~0 at a converged solution; taken out of each stretch's step
+    whole = solve(set())
+    base = J @ np.r_[whole.at(KEY_CAM), whole.at(KEY_TD)]  # ~0 at a converged solution; out of each stretch's step
     if steps is not None:
-        steps["whole"] = base
+        steps["whole"] = np.r_[base, whole.at(KEY_SCALE) if values.exists(KEY_SCALE) else np.zeros(0)]
     loo = np.array([step(set(part.tolist())) - base for part in np.array_split(np.arange(n_frames), segments)])
     if not np.all(np.isfinite(loo)):
         return None
@@ -2407,7 +2428,8 @@ def frame_jackknife(graph, values: gtsam.Values, n_frames: int, segments: int = 
 def focal_sensitivity(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: RefinementOptions,
                       values: gtsam.Values, graph_args: tuple, graph_kwargs: dict, extra: list,
                       rel: float = 0.01, whole_step: np.ndarray | None = None) -> np.ndarray | None:
-    """How far the calibration moves (7,: base axes, as :func:`frame_jackknife`) for a focal length ``rel`` (relative)
+    """How far the calibration moves (7,: base axes, as :func:`frame_jackknife`; then the odometry's speed and turn
+    scales when the graph has them) for a focal length ``rel`` (relative)
     longer than the camera model's, to first order: one Gauss-Newton step from the solution ``values`` on the graph
     built with the focal lengths scaled (the same frames, brackets, noise and robust weights; ``graph_args`` /
     ``graph_kwargs`` as :func:`_build_graph` takes them, ``extra`` factors added, e.g. the held directions' prior),
@@ -2422,6 +2444,11 @@ def focal_sensitivity(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: 
     longer = dataclasses.replace(prob, frames=dataclasses.replace(prob.frames, camera=dataclasses.replace(cam, K=K)))
     C = values.atPose3(KEY_CAM).matrix()
     J = user_axes_jacobian(C[:3, :3])
+    scales = values.exists(KEY_SCALE)
+
+    def step(d) -> np.ndarray:
+        return np.r_[J @ np.r_[d.at(KEY_CAM), d.at(KEY_TD)], d.at(KEY_SCALE) if scales else np.zeros(0)]
+
     steps = [] if whole_step is None else [np.asarray(whole_step, dtype=float)]
     for p in ((prob, longer) if whole_step is None else (longer,)):
         g, batch, _ = _build_graph(p, rows, td_bracket, opt, *graph_args, **graph_kwargs)
@@ -2429,8 +2456,9 @@ def focal_sensitivity(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: 
             g.add(f)
         with batch.evaluated_at(values, jacobians=True):  # every frame at once (see _levenberg_marquardt)
             lin = g.linearize(values)
-        d = lin.optimize()
-        steps.append(J @ np.r_[d.at(KEY_CAM), d.at(KEY_TD)])
+        steps.append(step(lin.optimize()))
+    if steps[0].size != steps[1].size:
+        return None
     move = steps[1] - steps[0]
     return move if np.all(np.isfinite(move)) else None
 

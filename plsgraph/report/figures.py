@@ -105,7 +105,7 @@ def _graph_residuals(ref: Any):
     r = np.asarray(r, dtype=float)
     e2 = np.sum(r**2, axis=-1)
     n = np.sum(np.isfinite(e2), axis=1)
-    rms = np.sqrt(np.nansum(e2, axis=1) / np.maximum(n, 1))
+    rms = np.where(n > 0, np.sqrt(np.nansum(e2, axis=1) / np.maximum(n, 1)), np.nan)  # no point: no RMS
     flat = r.reshape(-1, 2)
     return np.asarray(t, dtype=float), rms, flat[np.all(np.isfinite(flat), axis=1)]
 

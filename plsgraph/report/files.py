@@ -403,11 +403,24 @@ class staged_output:
         # interrupts the main thread between the renames all the same.
         held: list[int] = []
         saved: dict = {}
-        if threading.current_thread() is threading.main_thread():
-            for sig in HELD_SIGNALS:
-                saved[sig] = signal.signal(sig, lambda signum, frame: held.append(signum))
+        swapping = [True]
+
+        def hold(signum, frame) -> None:
+            """During the swap: kept. After it (a handler not put back yet): passed on to the one it replaced."""
+            if swapping[0]:
+                held.append(signum)
+            else:
+                _deliver(signum, saved[signum])
+
         old = None
         try:
+            if threading.current_thread() is threading.main_thread():
+                for sig in HELD_SIGNALS:
+                    handler = signal.getsignal(sig)
+                    if handler is None:  # set outside Python: it could not be put back, so it is left as it is
+                        continue
+                    saved[sig] = handler
+                    signal.signal(sig, hold)
             if self.out.exists():
                 old = Path(tempfile.mkdtemp(dir=stage.parent, prefix=f".{self.out.name}.old-"))
                 os.rename(self.out, old / "previous")
@@ -419,6 +432,7 @@ class staged_output:
             shutil.rmtree(stage, ignore_errors=True)
             raise
         finally:
+            swapping[0] = False  # from here a signal reaches its own handler, whichever is installed
             for sig, handler in saved.items():
                 signal.signal(sig, handler)
         if old is not None:
