@@ -354,6 +354,35 @@ def test_skid_steer_track_is_estimated_and_fixes_the_lever_arm():
     assert txy_h > 2 * txy and rot_h > rot, (rot_h, txy_h, td_h)
 
 
+def test_the_trajectories_figure_draws_the_camera_through_the_base_as_refined():
+    """On a skid-steer robot the recorded odometry turns 1.5x too far; the camera drawn through it drifts from the
+    camera through the board (PnP) although the calibration is right. Through the base as the refinement solved it
+    (its knots, with the effective track) the two paths agree within centimetres."""
+    from types import SimpleNamespace
+
+    import plsgraph
+    from plsgraph.report.figures import trajectory_paths
+
+    rec, base, track, _ = _case("skid_steer")
+    run = plsgraph.calibrate_tracks(track, base, rec.camera, board="acircles_4x11_a2").run
+    paths = trajectory_paths(run)
+    assert set(paths) == {"odometry", "camera_pnp", "camera_base", "base_refined"}
+    ref = run.refinement
+    plain = SimpleNamespace(T_world_board=ref.T_world_board, T_base_cam=ref.T_base_cam, td=ref.td)  # no knots
+    raw = trajectory_paths(SimpleNamespace(base_track=run.base_track, camera_track=run.camera_track, refinement=plain))
+    assert "base_refined" not in raw
+
+    def drift(q):  # the paths' gap over half a second (a single PnP position is several cm noisy here)
+        d = q["camera_base"] - q["camera_pnp"]
+        assert d.shape == (len(track.t), 2)
+        k = np.ones(15) / 15
+        return np.hypot(np.convolve(d[:, 0], k, "valid"), np.convolve(d[:, 1], k, "valid"))
+
+    refined, recorded = drift(paths), drift(raw)
+    assert np.median(refined) < 0.04 and refined.max() < 0.15, (np.median(refined), refined.max())
+    assert np.median(recorded) > 2.5 * np.median(refined), (np.median(recorded), np.median(refined))
+
+
 def test_the_odometry_intrinsics_sigmas_hold_the_calibrations_inflated_uncertainty():
     """Cause: the odometry intrinsics' sigmas came from the marginal alone, while the calibration's sigmas carry second
     opinions. On an independent recording (h101) the lever arm's forward sigma was 100 mm by the frame jackknife and

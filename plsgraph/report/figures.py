@@ -72,19 +72,51 @@ def _save(plt, fig, out: Path, name: str) -> str:
     return name
 
 
+def trajectory_paths(run: Any) -> dict[str, np.ndarray]:
+    """The top-view paths the trajectories figure draws (world x, y; metres): ``odometry`` (the base as recorded);
+    with a refinement, ``camera_pnp`` (the camera through the board's pose and each detection) and ``camera_base``
+    (the camera through the base at each detection's time and ``T_base_cam``): the base as the refinement solved it
+    (its knots, which carry the odometry's effective radius and track) where the result holds them, else the
+    odometry as recorded; ``base_refined`` the knots themselves. Where the calibration fits, ``camera_base`` runs
+    through ``camera_pnp``: on a skid-steer robot the recorded odometry's turns are off by its effective track, so
+    a path through it drifts from the PnP one while the calibration is right."""
+    from ..core.geometry import PoseInterpolator
+
+    paths = {"odometry": run.base_track.T_world_base[:, :2, 3]}
+    ref = run.refinement
+    if ref is None:
+        return paths
+    paths["camera_pnp"] = (ref.T_world_board @ run.camera_track.T_board_cam)[:, :2, 3]
+    t_odom = run.camera_track.t + ref.td
+    knot_t = np.asarray(getattr(ref, "knot_t", ()), dtype=float)
+    knots = getattr(ref, "T_world_base", None)
+    if knot_t.size >= 2 and knots is not None and len(knots) == knot_t.size:
+        ok = (t_odom >= knot_t[0]) & (t_odom <= knot_t[-1])
+        T_wb = PoseInterpolator(knot_t, np.asarray(knots, dtype=float))(t_odom[ok])
+        paths["base_refined"] = np.asarray(knots, dtype=float)[:, :2, 3]
+    else:
+        ok = (t_odom >= run.base_track.t[0]) & (t_odom <= run.base_track.t[-1])
+        T_wb = run.base_track.poses_at(t_odom[ok])
+    paths["camera_base"] = (T_wb @ ref.T_base_cam)[:, :2, 3]
+    return paths
+
+
 def _fig_trajectories(run: Any, out: Path) -> str | None:
     ref = run.refinement
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5.2, 4.2), dpi=DPI)
-    bt = run.base_track.T_world_base[:, :3, 3]
-    ax.plot(bt[:, 0], bt[:, 1], "-", lw=1, color="#555", label="base (odometry)")
+    paths = trajectory_paths(run)
+    bt = paths["odometry"]
+    ax.plot(bt[:, 0], bt[:, 1], "-", lw=1, color="#999" if "base_refined" in paths else "#555",
+            label="base (odometry as recorded)")
+    if "base_refined" in paths:
+        br = paths["base_refined"]
+        ax.plot(br[:, 0], br[:, 1], "-", lw=1, color="#333", label="base (as refined)")
     if ref is not None:
-        T_wc_vis = ref.T_world_board @ run.camera_track.T_board_cam
-        t_odom = run.camera_track.t + ref.td
-        ok = (t_odom >= run.base_track.t[0]) & (t_odom <= run.base_track.t[-1])
-        T_wc_odo = run.base_track.poses_at(t_odom[ok]) @ ref.T_base_cam
-        ax.plot(T_wc_odo[:, 0, 3], T_wc_odo[:, 1, 3], "-", lw=1.5, color="#1565c0", label="camera via odometry")
-        ax.plot(T_wc_vis[:, 0, 3], T_wc_vis[:, 1, 3], ".", ms=2, color="#e65100", label="camera via board (PnP)")
+        cb, cv = paths["camera_base"], paths["camera_pnp"]
+        ax.plot(cb[:, 0], cb[:, 1], "-", lw=1.5, color="#1565c0",
+                label="camera via refined base" if "base_refined" in paths else "camera via odometry")
+        ax.plot(cv[:, 0], cv[:, 1], ".", ms=2, color="#e65100", label="camera via board (PnP)")
         b = ref.T_world_board[:3, 3]
         ax.plot([b[0]], [b[1]], "ks", label="board origin")
     ax.set_xlabel("world x (m)")
