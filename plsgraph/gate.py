@@ -36,6 +36,8 @@ _CONTRADICTION_CAUSES = ("check the camera intrinsics (a focal length a percent 
 ROT_DISAGREE_DEG = 5.0  # + 3 sigma of the refined rotation; the closed form is within ~4.5 deg on simulations
 XY_DISAGREE_M = 0.10  # + 3 sigma of the refined x/y; the closed form's lever arm is within ~8 cm
 TD_DISAGREE_S = 0.025  # + 3 sigma of the refined td; the closed form's offset is within ~10 ms without gaps
+# --- lens distortion (calib.lens: the board views' k1, k2 against the camera model's) ------------------------------
+LENS_MOVE_LIMIT = 2.0  # the calibration's move to the views' distortion, in its sigmas, on any of MOTION_DIRECTIONS
 # --- wheel order -----------------------------------------------------------------------------------------------
 UPSIDE_DOWN_LIMIT = 0.5  # base-z component of the camera's image 'down' axis above which the camera is upside down
 # --- gaps ------------------------------------------------------------------------------------------------------
@@ -338,6 +340,48 @@ def upside_down_problems(T_base_cam: np.ndarray, allow: bool) -> list[str]:
     ]
 
 
+def _lens_moves(ref: Any) -> list[tuple[str, float, float]]:
+    """(axis, move, sigma) of the calibration's first-order move to the board views' lens distortion (the refinement's
+    ``inflation["lens_distortion_move"]``) on MOTION_DIRECTIONS; empty when not measured."""
+    move = ((getattr(ref, "inflation", None) or {}).get("lens_distortion_move") if ref is not None else None)
+    cov = getattr(ref, "cov_base_axes", None) if ref is not None else None
+    if not move or cov is None:
+        return []
+    sig = np.sqrt(np.clip(np.diag(cov), 0, None))
+    index = dict(zip(("roll", "pitch", "yaw", "x", "y", "z", "td"), range(7), strict=True))
+    return [(a, float(move[a]), float(sig[index[a]])) for a in MOTION_DIRECTIONS
+            if a in move and np.isfinite(move[a]) and sig[index[a]] > 0]
+
+
+def _move_text(axis: str, move: float, sigma: float) -> str:
+    if axis in ("roll", "pitch", "yaw"):
+        amount = f"{np.degrees(move):+.2f} deg"
+    elif axis == "td":
+        amount = f"{1e3 * move:+.1f} ms"
+    else:
+        amount = f"{1e3 * move:+.0f} mm"
+    return f"{axis} {amount} ({abs(move) / sigma:.1f} sigma)"
+
+
+def lens_move_text(ref: Any) -> str:
+    """The calibration's move to the board views' lens distortion, largest in sigmas first ("" when not measured)."""
+    moves = sorted(_lens_moves(ref), key=lambda m: -abs(m[1]) / m[2])
+    return ", ".join(_move_text(*m) for m in moves[:3])
+
+
+def lens_problems(ref: Any) -> list[str]:
+    """A problem when the board views' lens distortion would move the calibration by more than LENS_MOVE_LIMIT of its
+    sigmas on any axis: the camera model's distortion is wrong by more than the result's uncertainty allows."""
+    far = [m for m in _lens_moves(ref) if abs(m[1]) > LENS_MOVE_LIMIT * m[2]]
+    if not far:
+        return []
+    k = ref.inflation["lens_distortion_move"].get("k1_k2", [float("nan")] * 2)
+    far.sort(key=lambda m: -abs(m[1]) / m[2])
+    return [f"the board views want another lens distortion (k1 {k[0]:+.3f}, k2 {k[1]:+.3f}) than the camera "
+            f"intrinsics', and with it the calibration would move by {', '.join(_move_text(*m) for m in far)}: "
+            "more than its sigmas allow; pass the camera's calibrated distortion with --camera-info"]
+
+
 def problems_of(
     closed_form: Any,
     refinement: Any,
@@ -354,6 +398,7 @@ def problems_of(
     if closed_form is not None:
         problems += _closed_form_problems(closed_form, refinement)
     problems += _refinement_problems(closed_form, refinement, base_track)
+    problems += lens_problems(refinement)
     problems += gap_problems(base_track, camera_track)
     if T_base_cam is None:
         if refinement is not None and refinement.converged:

@@ -91,6 +91,8 @@ class Run:
     # per frame of camera_track: taken while the base stood still, and left out of the refinement (_moving_frames);
     # None: every frame went to the refinement
     still_frames: np.ndarray | None = None
+    # the lens distortion checked against the board views (calib.lens.LensCheck; None: not checked or too few views)
+    lens: Any = None
 
     def warn(self, *messages: str) -> None:
         """Add warnings once each: a message repeated by several steps (or by several read passes over a damaged
@@ -496,8 +498,11 @@ def run_refinement(run: Run, progress: ProgressFactory,
     user = run.options.refine
     camera_track = _moving_frames(run, cf.td)
     with _Timer(run, "refinement"), progress("refining (GTSAM)") as bar:
+        run.lens = lens_check(run)
         opts = RefinementOptions(camera_height=user.camera_height, board_height=user.board_height,
                                  focal_sigma_rel=user.focal_sigma,
+                                 lens_distortion_views=(tuple(float(x) for x in run.lens.views)
+                                                        if run.lens is not None and run.lens.significant else None),
                                  workers=run.options.frontend.frontend_workers or min(2, os.cpu_count() or 1))
         scale = cf.odometry_scale or {}
         s0 = (scale.get("speed", 1.0), scale.get("turn_rate", 1.0))  # the closed form's odometry scales: the seed
@@ -505,6 +510,7 @@ def run_refinement(run: Run, progress: ProgressFactory,
                      seed_odometry_scale=s0 if all(0.2 < x < 5.0 for x in s0) else None,
                      on_solution=None if solution_known is None else lambda sol: solution_known(run, sol))
     run.warn(*res.warnings)
+    run.warn(*lens_warnings(run.lens, res))
     from .gate import path_warnings
 
     run.warn(*path_warnings(res, run.base_track))  # slip one radius and track do not describe (not a problem)
@@ -513,6 +519,41 @@ def run_refinement(run: Run, progress: ProgressFactory,
     run.discarded["refinement_frames_long_span"] = int(res.n_frames_long_span)
     run.refinement = res
     return res
+
+
+def lens_check(run: Run) -> Any:
+    """The camera model's radial distortion against the board views (:mod:`plsgraph.calib.lens`) on every frame the
+    front end found the board in; None when there are too few such views or the check fails."""
+    from .calib.lens import distortion_from_views
+
+    det = run.camera_track.detections if run.camera_track is not None else None
+    if det is None or run.camera is None:
+        return None
+    try:
+        return distortion_from_views(det.uv, det.board_points, run.camera)
+    except Exception as exc:  # noqa: BLE001 - a check beside the calibration must not cost it
+        from .core.processes import reraise_interrupt
+
+        reraise_interrupt(exc)
+        log.warning("the lens distortion could not be checked against the board views: %s", exc)
+        return None
+
+
+def lens_warnings(lens: Any, refinement: Any) -> list[str]:
+    """A warning when the board views want another radial distortion than the camera model's (the gate flags the
+    result when what it moves is beyond the sigmas: :func:`plsgraph.gate.lens_problems`)."""
+    if lens is None or not lens.significant:
+        return []
+    from .gate import lens_move_text
+
+    moved = lens_move_text(refinement)
+    return [f"the board views want another lens distortion than the camera intrinsics': k1 {lens.views[0]:+.3f}, k2 "
+            f"{lens.views[1]:+.3f} against {lens.given[0]:+.3f}, {lens.given[1]:+.3f}, which moves a point at the "
+            f"board's outer image radius by {lens.shift_px:+.2f} px ({abs(lens.shift_px) / lens.shift_sigma_px:.0f} "
+            f"times the views' scatter, {lens.n_frames} views)" + (f"; with it the calibration would move by {moved}"
+                                                                   if moved else "")
+            + "; check the camera info's distortion coefficients (a camera info published without them, or another "
+            "lens's)"]
 
 
 def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress,

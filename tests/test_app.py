@@ -172,7 +172,8 @@ def _solution(run, rotate_deg: float = 0.0):
     if rotate_deg:
         T = T @ make_T(so3_exp(np.array([0.0, 0.0, np.radians(rotate_deg)])), np.zeros(3))
     return SimpleNamespace(T_base_cam=T, R_base_cam=T[:3, :3], td=ref.td, T_world_board=ref.T_world_board,
-                           observability=None, residual_t=ref.residual_t, residual_px=ref.residual_px)
+                           observability=None, residual_t=ref.residual_t, residual_px=ref.residual_px,
+                           knot_t=ref.knot_t, T_world_base=ref.T_world_base)
 
 
 @pytest.mark.parametrize("rotate_deg", [0.0, 2.0])

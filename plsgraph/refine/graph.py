@@ -246,6 +246,11 @@ class RefinementOptions:
     # times the focal length's relative error (a constant depth error of every view looks like a lever arm), 2-3 cm
     # per 1 % (docs/refinement.md, "The focal length in the sigmas").
     focal_sensitivity_rel: float = 0.01
+    # The radial distortion (k1, k2) the board views fit (plsgraph.calib.lens, when they disagree with the camera
+    # model's): the calibration's first-order move to it is measured as the focal length's is
+    # (RefinementResult.inflation["lens_distortion_move"]), and the gate flags a result it would carry beyond its
+    # sigmas. None: not measured.
+    lens_distortion_views: tuple[float, float] | None = None
     # How well the focal length is known (relative, one sigma): each reported variance gets (move per unit relative
     # focal error x focal_sigma_rel)^2 added, an error source independent of the data's. 0: none.
     focal_sigma_rel: float = 0.0
@@ -322,6 +327,9 @@ class RefinementOptions:
         if not (np.isfinite(self.pixel_variance_floor) and 0 < self.pixel_variance_floor <= 1):
             raise InputError("refinement option pixel_variance_floor must be in (0, 1], got "
                              f"{self.pixel_variance_floor}")
+        k = self.lens_distortion_views
+        if k is not None and (len(k) != 2 or not all(np.isfinite(float(x)) for x in k)):
+            raise InputError(f"refinement option lens_distortion_views must be two finite numbers (k1, k2), got {k!r}")
         if self.knot_rate_hz is not None and not self.knot_rate_hz > 0:
             raise InputError("knot_rate_hz must be positive or None (every odometry sample)")
         if self.optimizer not in ("lm", "gtsam-lm", "dogleg"):
@@ -1926,7 +1934,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                                           (C_anc, td_anc, R_anc), scale0, t_opt, detector_var)
         try:
             if not solution_sent:
-                solution_sent = _send_solution(on_solution, values, prob.frame_t[rows], batch)
+                solution_sent = _send_solution(on_solution, values, prob.frame_t[rows], batch, prob.knot_t)
             # Check again at the solution; a direction found only now is frozen and the solve starts over.
             new = _unobservable_at(graph, values, opt, frozen, warnings)[0]
         except BaseException:
@@ -2006,7 +2014,7 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                                           prob, frozen, rejected, vib_var, odo_var, planar_var, (C_anc, td_anc, R_anc),
                                           scale0, t_opt, detector_var)
         if not solution_sent:
-            _send_solution(on_solution, values, prob.frame_t[rows], batch)
+            _send_solution(on_solution, values, prob.frame_t[rows], batch, prob.knot_t)
     except BaseException:
         if knots_job is not None:
             knots_job.discard()
@@ -2073,6 +2081,19 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
             if focal_move is None and opt.focal_sigma_rel > 0 and cov_base is not None:
                 warnings.append("the calibration's sensitivity to the focal length could not be solved; the sigmas "
                                 "do not hold the focal length's uncertainty (--focal-sigma)")
+        lens_move = None
+        if converged and opt.marginals and opt.lens_distortion_views is not None:
+            cam0 = prob.frames.camera
+            dist = np.asarray(cam0.dist, dtype=float).copy()
+            dist[:2] = opt.lens_distortion_views
+            try:
+                extra = ([make_subspace_prior(KEY_CAM, KEY_TD, C0, [td_seed], np.array(frozen) @ J0, _FREEZE_SIGMA)]
+                         if frozen else [])
+                lens_move = camera_sensitivity(graph_built[0], rows, td_bracket, opt, values, (C_anc, td_anc, R_anc),
+                                               graph_built[1], extra, replace(cam0, dist=dist),
+                                               jk_steps.get("whole"))
+            except (RuntimeError, np.linalg.LinAlgError, PlsgraphError) as exc:
+                log.info("refine: the lens distortion's move could not be solved (%s)", exc)
         t_jk = time.perf_counter() - t_jk
         sensitivity = None
         if held_solution is not None and (_largest(odo_var) > 1.0 or max(planar_var) > 1.0):
@@ -2270,6 +2291,10 @@ def _refine_from(camera_track: CameraTrack, base_track: BaseTrack, camera: Camer
                            "focal_sigma_in_sigmas": float(opt.focal_sigma_rel) if focal_m is not None else 0.0,
                            **dict(zip(("roll", "pitch", "yaw", "x", "y", "z", "td", "speed_scale", "turn_scale"),
                                       focal_move.tolist(), strict=False))},
+                       "lens_distortion_move": None if lens_move is None else {
+                           "k1_k2": [float(x) for x in opt.lens_distortion_views],
+                           **dict(zip(("roll", "pitch", "yaw", "x", "y", "z", "td", "speed_scale", "turn_scale"),
+                                      lens_move.tolist(), strict=False))},
                        "sigma_before_focal_length": None if sigma_before_focal is None else dict(zip(
                            ("roll", "pitch", "yaw", "x", "y", "z", "td"), sigma_before_focal.tolist(), strict=True)),
                        "sigma_before_knot_spacing": None if sigma_before_knots is None else dict(zip(
@@ -2429,19 +2454,26 @@ def focal_sensitivity(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: 
                       values: gtsam.Values, graph_args: tuple, graph_kwargs: dict, extra: list,
                       rel: float = 0.01, whole_step: np.ndarray | None = None) -> np.ndarray | None:
     """How far the calibration moves (7,: base axes, as :func:`frame_jackknife`; then the odometry's speed and turn
-    scales when the graph has them) for a focal length ``rel`` (relative)
-    longer than the camera model's, to first order: one Gauss-Newton step from the solution ``values`` on the graph
-    built with the focal lengths scaled (the same frames, brackets, noise and robust weights; ``graph_args`` /
-    ``graph_kwargs`` as :func:`_build_graph` takes them, ``extra`` factors added, e.g. the held directions' prior),
-    less the step on the graph as it is (~0 at a converged solution; ``whole_step``, when the frame jackknife solved
-    it already). A focal length errs alike in x and y, so both are scaled. None when a step cannot be solved."""
-    import dataclasses
-
+    scales when the graph has them) for a focal length ``rel`` (relative) longer than the camera model's, to first
+    order (:func:`camera_sensitivity`). A focal length errs alike in x and y, so both are scaled."""
     cam = prob.frames.camera
     K = cam.K.copy()
     K[0, 0] *= 1.0 + rel
     K[1, 1] *= 1.0 + rel
-    longer = dataclasses.replace(prob, frames=dataclasses.replace(prob.frames, camera=dataclasses.replace(cam, K=K)))
+    return camera_sensitivity(prob, rows, td_bracket, opt, values, graph_args, graph_kwargs, extra,
+                              replace(cam, K=K), whole_step)
+
+
+def camera_sensitivity(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: RefinementOptions,
+                       values: gtsam.Values, graph_args: tuple, graph_kwargs: dict, extra: list,
+                       camera: CameraModel, whole_step: np.ndarray | None = None) -> np.ndarray | None:
+    """How far the calibration moves (7,: base axes, as :func:`frame_jackknife`; then the odometry's speed and turn
+    scales when the graph has them) with ``camera`` in place of the camera model, to first order: one Gauss-Newton
+    step from the solution ``values`` on the graph built with it (the same frames, brackets, noise and robust weights;
+    ``graph_args`` / ``graph_kwargs`` as :func:`_build_graph` takes them, ``extra`` factors added, e.g. the held
+    directions' prior), less the step on the graph as it is (~0 at a converged solution; ``whole_step``, when the
+    frame jackknife solved it already). None when a step cannot be solved."""
+    other = replace(prob, frames=replace(prob.frames, camera=camera))
     C = values.atPose3(KEY_CAM).matrix()
     J = user_axes_jacobian(C[:3, :3])
     scales = values.exists(KEY_SCALE)
@@ -2450,7 +2482,7 @@ def focal_sensitivity(prob: _Problem, rows: np.ndarray, td_bracket: float, opt: 
         return np.r_[J @ np.r_[d.at(KEY_CAM), d.at(KEY_TD)], d.at(KEY_SCALE) if scales else np.zeros(0)]
 
     steps = [] if whole_step is None else [np.asarray(whole_step, dtype=float)]
-    for p in ((prob, longer) if whole_step is None else (longer,)):
+    for p in ((prob, other) if whole_step is None else (other,)):
         g, batch, _ = _build_graph(p, rows, td_bracket, opt, *graph_args, **graph_kwargs)
         for f in extra:
             g.add(f)
@@ -2468,10 +2500,10 @@ KNOT_WARN_FACTOR = 2.0
 
 
 def _send_solution(on_solution: Callable[[SimpleNamespace], None] | None, values: gtsam.Values,
-                   frame_t: np.ndarray, batch: FrameBatch) -> bool:
+                   frame_t: np.ndarray, batch: FrameBatch, knot_t: np.ndarray) -> bool:
     """``on_solution`` (see :func:`refine`) called with the solution in ``values`` (and the residuals of the frames
-    ``frame_t`` the ``batch`` holds, as the result keeps them); whether it was called. What it raises is logged: work
-    beside the refinement must not cost it."""
+    ``frame_t`` the ``batch`` holds, and the base at the knots ``knot_t``, as the result keeps them); whether it was
+    called. What it raises is logged: work beside the refinement must not cost it."""
     if on_solution is None:
         return False
     C = values.atPose3(KEY_CAM).matrix()
@@ -2479,7 +2511,9 @@ def _send_solution(on_solution: Callable[[SimpleNamespace], None] | None, values
         residual = batch.evaluate_all(values, False).residual.astype(np.float32)
         on_solution(SimpleNamespace(T_base_cam=C, R_base_cam=C[:3, :3], td=float(values.atVector(KEY_TD)[0]),
                                     T_world_board=values.atPose3(KEY_BOARD).matrix(), observability=None,
-                                    residual_t=frame_t.copy(), residual_px=residual))
+                                    residual_t=frame_t.copy(), residual_px=residual, knot_t=knot_t.copy(),
+                                    T_world_base=np.stack([values.atPose3(knot_key(i)).matrix()
+                                                           for i in range(knot_t.size)])))
     except Exception as exc:  # noqa: BLE001
         from ..core.processes import reraise_interrupt
 

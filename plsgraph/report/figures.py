@@ -275,7 +275,8 @@ def _coverage(name: str, run: Any, out: Path) -> str | None:
 def figure_inputs(run: Any, refinement: Any = None) -> SimpleNamespace:
     """What the figures read of a run, and nothing else: plain arrays and the two tracks (it pickles, to be drawn
     in another process). ``refinement`` (T_base_cam, R_base_cam, td, T_world_board, observability) stands in for
-    the run's own, e.g. a solution before its second opinions."""
+    the run's own, e.g. a solution before its second opinions (its knots, knot_t and T_world_base, where it has
+    them)."""
     ref, cf = run.refinement if refinement is None else refinement, run.closed_form
     refinement = None
     if ref is not None:
@@ -286,7 +287,9 @@ def figure_inputs(run: Any, refinement: Any = None) -> SimpleNamespace:
         refinement = SimpleNamespace(T_base_cam=ref.T_base_cam, R_base_cam=ref.R_base_cam, td=ref.td,
                                      T_world_board=ref.T_world_board, observability=obs,
                                      residual_t=getattr(ref, "residual_t", None),
-                                     residual_px=getattr(ref, "residual_px", None))
+                                     residual_px=getattr(ref, "residual_px", None),
+                                     knot_t=getattr(ref, "knot_t", None),
+                                     T_world_base=getattr(ref, "T_world_base", None))
     closed_form = None
     if cf is not None:
         to = cf.time_offset

@@ -1,0 +1,125 @@
+"""The camera model's lens distortion checked against the board views (plsgraph.calib.lens), the calibration's move
+to the views' distortion (refine.graph.camera_sensitivity) and the gate's flag."""
+
+import dataclasses
+from functools import lru_cache
+
+import numpy as np
+import pytest
+
+import plsgraph
+from plsgraph.calib import lens
+from plsgraph.errors import InputError
+from plsgraph.frontend.pose import camera_track_from_detections
+from plsgraph.odometry.wheels import base_track_from_wheels
+from plsgraph.refine.graph import RefinementOptions
+from plsgraph.sim.realism import only
+from plsgraph.sim.robot import simulate_robot
+
+BOARD = "acircles_4x11_a2"
+
+
+@lru_cache(maxsize=1)
+def _drive():
+    """A 15 s rich drive seen through a lens with k1 -0.06, k2 +0.02 (as an independent recording whose camera info
+    left them out), 0.3 px detections, nominal odometry."""
+    fx = only("lens_distortion")
+    fx = dataclasses.replace(fx, sensor=dataclasses.replace(fx.sensor, k1=-0.06, k2=0.02))
+    rec = simulate_robot("rich", duration=15.0, seed=5, realism=fx)
+    base = base_track_from_wheels(rec.wheel_t, rec.wheel_left, rec.wheel_right, rec.wheel_radius_nominal,
+                                  rec.track_width_nominal)
+    return rec, base, rec.detections(0.3, seed=15)
+
+
+def _no_distortion(camera):
+    return dataclasses.replace(camera, dist=np.zeros(5))
+
+
+def test_the_views_find_the_lens_a_camera_model_without_distortion_leaves_out():
+    rec, _, det = _drive()
+    assert rec.camera.dist[0] == pytest.approx(-0.06) and rec.camera.dist[1] == pytest.approx(0.02)
+    wrong = lens.distortion_from_views(det.uv, det.board_points, _no_distortion(rec.camera))
+    right = lens.distortion_from_views(det.uv, det.board_points, rec.camera)
+    assert wrong is not None and right is not None
+    assert wrong.n_frames == lens.MAX_FRAMES
+    # The views' k1 and k2 against the lens's (k1 and k2 trade off against each other; the displacement where the
+    # board was seen is what is determined)
+    sig = np.sqrt(np.diag(wrong.cov))
+    assert np.all(np.abs(wrong.views - rec.camera.dist[:2]) < np.maximum(4 * sig, [0.01, 0.03])), (wrong.views, sig)
+    truth_shift = lens._radial_px(rec.camera, rec.camera.dist[:2], wrong.radius)
+    assert wrong.shift_px == pytest.approx(truth_shift, abs=max(3 * wrong.shift_sigma_px, 0.05))
+    assert truth_shift < -0.5  # barrel: points pulled inwards, by more than half a pixel at the board's outer radii
+    assert wrong.significant and wrong.rms_px < 0.5  # per point (both coordinates): 0.3 px each gives 0.42
+    # With the lens's own coefficients the views agree with the camera model
+    assert not right.significant, right.to_dict()
+    assert abs(right.shift_px) < 3 * max(right.shift_sigma_px, 0.03)
+    d = wrong.to_dict()
+    assert d["significant"] is True and d["frames"] == lens.MAX_FRAMES and len(d["k1_k2_views"]) == 2
+    np.testing.assert_array_equal(wrong.camera(rec.camera).dist[:2], wrong.views)
+    np.testing.assert_array_equal(wrong.camera(rec.camera).dist[2:], rec.camera.dist[2:])
+
+
+def test_too_few_views_or_broken_input_gives_no_check():
+    rec, _, det = _drive()
+    few = det.uv[: lens.MIN_FRAMES - 1]
+    assert lens.distortion_from_views(few, det.board_points, rec.camera) is None
+    assert lens.distortion_from_views(det.uv[:, :5], det.board_points, rec.camera) is None  # shapes disagree
+    empty = np.full_like(det.uv, np.nan)
+    assert lens.distortion_from_views(empty, det.board_points, rec.camera) is None
+
+
+def test_the_lens_option_is_checked():
+    with pytest.raises(InputError, match="lens_distortion_views"):
+        RefinementOptions(lens_distortion_views=(0.1, float("nan")))
+    with pytest.raises(InputError, match="lens_distortion_views"):
+        RefinementOptions(lens_distortion_views=(0.1,))
+
+
+def test_a_camera_model_without_its_distortion_is_flagged_with_the_move_it_makes():
+    """A camera info published without the lens's distortion: the fit looks good and the lever arm is off by several
+    sigmas. The board views name the distortion, the refinement measures what it moves (one Gauss-Newton step), and
+    the move agrees with calibrating again with the views' distortion; the result is flagged."""
+    rec, base, det = _drive()
+    wrong_cam = _no_distortion(rec.camera)
+    track = camera_track_from_detections(det, wrong_cam)
+    r = plsgraph.calibrate_tracks(track, base, wrong_cam, board=BOARD)
+    ref = r.run.refinement
+    check = r.run.lens
+    assert check is not None and check.significant
+    move = ref.inflation["lens_distortion_move"]
+    assert move["k1_k2"] == pytest.approx(list(check.views))
+    assert not r.ok
+    assert any("lens distortion" in p and "--camera-info" in p for p in r.problems), r.problems
+    assert any("board views want another lens distortion" in w for w in r.warnings)
+    # The move, against calibrating again with the views' distortion (the same detections)
+    views_cam = check.camera(rec.camera)
+    again = plsgraph.calibrate_tracks(camera_track_from_detections(det, views_cam), base, views_cam, board=BOARD)
+    d_x = again.run.refinement.T_base_cam[0, 3] - ref.T_base_cam[0, 3]
+    assert abs(move["x"]) > 0.03  # centimetres: what the missing distortion costs here
+    assert move["x"] == pytest.approx(d_x, rel=0.3), (move["x"], d_x)
+    # and the error it leaves: the result's x error is mostly the move
+    err_x = ref.T_base_cam[0, 3] - rec.T_base_cam[0, 3]
+    assert abs(err_x + move["x"]) < 0.5 * abs(err_x), (err_x, move["x"])
+    # Checked again with its views' distortion, the camera model agrees with the views and nothing is flagged on it
+    assert again.run.lens is not None and not again.run.lens.significant
+    assert not any("lens distortion" in p for p in again.problems)
+
+
+def test_the_gate_reads_the_move_against_the_sigmas():
+    from types import SimpleNamespace
+
+    from plsgraph.gate import LENS_MOVE_LIMIT, lens_move_text, lens_problems
+
+    cov = np.diag(np.array([0.1, 0.1, 1.0, 10.0, 10.0, 1000.0, 5.0]) ** 2 * np.array([3e-4] * 3 + [1e-6] * 3 + [1e-6]))
+    sig = np.sqrt(np.diag(cov))
+    inside = {"k1_k2": [-0.1, 0.05], "roll": 0.0, "pitch": 0.0, "yaw": 0.0, "x": (LENS_MOVE_LIMIT - 0.1) * sig[3],
+              "y": 0.0, "z": 0.0, "td": 0.0}
+    beyond = dict(inside, x=(LENS_MOVE_LIMIT + 0.1) * sig[3], z=100.0)  # z is not judged (unobservable)
+    ok = SimpleNamespace(inflation={"lens_distortion_move": inside}, cov_base_axes=cov)
+    bad = SimpleNamespace(inflation={"lens_distortion_move": beyond}, cov_base_axes=cov)
+    assert lens_problems(ok) == []
+    (p,) = lens_problems(bad)
+    assert "x +" in p and "2.1 sigma" in p and "k1 -0.100" in p
+    assert lens_move_text(bad).startswith("x +")
+    assert lens_problems(SimpleNamespace(inflation={}, cov_base_axes=cov)) == []
+    assert lens_problems(SimpleNamespace(inflation={"lens_distortion_move": beyond}, cov_base_axes=None)) == []
