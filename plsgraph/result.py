@@ -196,7 +196,8 @@ def truth_errors(run: Run) -> dict | None:
 
 def robot_sections(run: Run) -> dict[str, Any]:
     """calibration.yaml's ``odometry`` section (the wheel geometry the data support), ``wheel_order``, ``focal_length``
-    (what the focal length's accuracy is worth) and ``clock``."""
+    (what the focal length's accuracy is worth), ``lens_distortion`` (the board views' check of the camera info's) and
+    ``clock``."""
     odo = run.options.odometry
     refined = odometry_section(run)
     scale = dict(getattr(run.closed_form, "odometry_scale", None) or {})
@@ -238,6 +239,20 @@ def robot_sections(run: Run) -> dict[str, Any]:
             "note": "how far the calibration moves for a focal length 1 % longer than the camera info's (first order); "
                     "the sigmas hold a focal-length error of sigma_in_sigmas (relative, --focal-sigma; 0: none)",
         }
+    lens = getattr(run, "lens", None)
+    if lens is not None:
+        sec = {**lens.to_dict(), "note": "the radial distortion the board views fit with the rest of the intrinsics "
+               "held, against the camera info's; shift_px: the two models' difference at the board's outer image "
+               "radius (radius_normalised), with its jackknife sigma; significant: beyond 3 sigma and 0.3 px"}
+        move = None if run.refinement is None else (getattr(run.refinement, "inflation", None) or {}).get(
+            "lens_distortion_move")
+        if move:
+            sec["calibration_move"] = {
+                f"{a}_m" if a in ("x", "y") else ("td_s" if a == "td" else f"{a}_deg"):
+                float(move[a]) * (1.0 if a in ("x", "y", "td") else 180.0 / np.pi)
+                for a in ("roll", "pitch", "yaw", "x", "y", "td")}
+            sec["note"] += "; calibration_move: how far the calibration moves with the views' k1, k2 (first order)"
+        out["lens_distortion"] = sec
     clock = run.recording_info.get("clock")
     if clock is not None:
         out["clock_alignment"] = {k: clock[k] for k in ("coarse", "rule", "offset_s", "score", "second_peak_ratio",

@@ -91,6 +91,11 @@ def test_a_camera_model_without_its_distortion_is_flagged_with_the_move_it_makes
     assert not r.ok
     assert any("lens distortion" in p and "--camera-info" in p for p in r.problems), r.problems
     assert any("board views want another lens distortion" in w for w in r.warnings)
+    from plsgraph.result import robot_sections
+
+    sec = robot_sections(r.run)["lens_distortion"]
+    assert sec["significant"] is True and sec["calibration_move"]["x_m"] == pytest.approx(move["x"])
+    assert sec["k1_k2_views"] == pytest.approx(list(check.views))
     # The move, against calibrating again with the views' distortion (the same detections)
     views_cam = check.camera(rec.camera)
     again = plsgraph.calibrate_tracks(camera_track_from_detections(det, views_cam), base, views_cam, board=BOARD)
