@@ -128,3 +128,30 @@ def test_the_gate_reads_the_move_against_the_sigmas():
     assert lens_move_text(bad).startswith("x +")
     assert lens_problems(SimpleNamespace(inflation={}, cov_base_axes=cov)) == []
     assert lens_problems(SimpleNamespace(inflation={"lens_distortion_move": beyond}, cov_base_axes=None)) == []
+
+
+def test_the_views_distortion_is_written_as_a_camera_file_for_a_second_run(tmp_path):
+    """camera_from_board_views.yaml: the camera model with the views' k1, k2, which --camera-info reads back; written
+    only when the views disagree with the camera model."""
+    from types import SimpleNamespace
+
+    from plsgraph.io.camera_files import load_camera_file
+    from plsgraph.report.robot_files import LENS_CAMERA_NAME, write_lens_camera
+
+    rec, _, det = _drive()
+    wrong_cam = _no_distortion(rec.camera)
+    check = lens.distortion_from_views(det.uv, det.board_points, wrong_cam)
+    result = SimpleNamespace(run=SimpleNamespace(lens=check, camera=wrong_cam, log_path=tmp_path / "rec.mcap"))
+    (path,) = write_lens_camera(tmp_path, result)
+    assert path == tmp_path / LENS_CAMERA_NAME
+    back = load_camera_file(path)
+    np.testing.assert_allclose(back.K, wrong_cam.K, rtol=1e-12)
+    np.testing.assert_allclose(back.dist[:2], check.views, rtol=1e-12)
+    assert (back.width, back.height) == (wrong_cam.width, wrong_cam.height)
+    assert "rec.mcap" in path.read_text()
+    agreeing = lens.distortion_from_views(det.uv, det.board_points, rec.camera)
+    other = tmp_path / "other"
+    other.mkdir()
+    assert write_lens_camera(other, SimpleNamespace(run=SimpleNamespace(lens=agreeing, camera=rec.camera,
+                                                                        log_path="x"))) == []
+    assert write_lens_camera(other, SimpleNamespace(run=None)) == [] and not any(other.iterdir())

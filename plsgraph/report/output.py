@@ -48,7 +48,7 @@ def write_calibration(out: Path, result: Any, figures: Any = None, earlier: Path
     import time
 
     from .figures import write_html_report
-    from .robot_files import write_robot_files
+    from .robot_files import write_lens_camera, write_robot_files
 
     report = result.report
     out.mkdir(parents=True, exist_ok=True)
@@ -61,6 +61,7 @@ def write_calibration(out: Path, result: Any, figures: Any = None, earlier: Path
     waited = time.perf_counter() - t0
     write_calibration_yaml(out / "calibration.yaml", report["calibration"])
     robot = write_robot_files(out, result)  # a flagged result gets comment-only files that say why
+    robot += write_lens_camera(out, result)  # the board views' distortion, for a second run
     if not report.get("ok", True) and keep_earlier_calibration(earlier, out) is not None:
         report["previous_calibration"] = PREVIOUS_CALIBRATION
     else:

@@ -130,6 +130,43 @@ def launch_text(T_base_cam: np.ndarray, parent: str, child: str, *, ok: bool = T
     ])
 
 
+LENS_CAMERA_NAME = "camera_from_board_views.yaml"
+
+
+def lens_camera_text(camera: Any, lens: Any, recording: str) -> str:
+    """A camera file (plsgraph / ROS camera_calibration YAML, as --camera-info reads it) of ``camera`` with the radial
+    distortion the board views fit (``lens``, a :class:`plsgraph.calib.lens.LensCheck`), for a second run."""
+    import numpy as np
+
+    cam = lens.camera(camera)
+    K = [float(x) for x in np.asarray(cam.K, dtype=float).ravel()]
+    D = [float(x) for x in np.asarray(cam.dist, dtype=float).ravel()]
+    return "\n".join([
+        "# The camera intrinsics of the recording with the radial distortion (k1, k2) the board views fit, the rest as",
+        "# the recording's camera model had it. Written because the views disagreed with that model's distortion by",
+        f"# {lens.shift_px:+.2f} px ({abs(lens.shift_px) / max(lens.shift_sigma_px, 1e-12):.0f} sigma) at the board's "
+        f"outer image radius ({lens.n_frames} views of {recording}).",
+        "# A calibration of the camera itself is the better source; this one comes from a moving board's event",
+        "# detections. Calibrate again with: plsgraph calibrate ... --camera-info THIS_FILE",
+        f"width: {int(cam.width)}",
+        f"height: {int(cam.height)}",
+        "distortion_model: plumb_bob",
+        f"K: [{', '.join(repr(x) for x in K)}]",
+        f"D: [{', '.join(repr(x) for x in D)}]",
+        "",
+    ])
+
+
+def write_lens_camera(out: Path, result: Any) -> list[Path]:
+    """camera_from_board_views.yaml when the board views disagree with the camera model's distortion (else nothing)."""
+    run = getattr(result, "run", None)
+    lens = getattr(run, "lens", None) if run is not None else None
+    if lens is None or not lens.significant or getattr(run, "camera", None) is None:
+        return []
+    write_text(out / LENS_CAMERA_NAME, lens_camera_text(run.camera, lens, Path(str(run.log_path)).name))
+    return [out / LENS_CAMERA_NAME]
+
+
 def write_robot_files(out: Path, result: Any) -> list[Path]:
     """base_to_camera.urdf and static_tf.launch.py for a :class:`plsgraph.result.CalibrationResult`."""
     c = result.report["calibration"]
