@@ -553,7 +553,8 @@ def lens_warnings(lens: Any, refinement: Any) -> list[str]:
             f"times the views' scatter, {lens.n_frames} views)" + (f"; with it the calibration would move by {moved}"
                                                                    if moved else "")
             + "; check the camera info's distortion coefficients (a camera info published without them, or another "
-            "lens's)"]
+            "lens's); the output folder's camera_from_board_views.yaml holds the views' for a second run "
+            "(--camera-info)"]
 
 
 def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress,
