@@ -173,7 +173,8 @@ def read_inputs(run: Run) -> Any:
 
 def no_distortion_warning(camera: Any) -> list[str]:
     """A warning when the intrinsics carry no lens distortion at all: right for rectified events, but a camera info
-    published without its calibration's distortion looks the same, and the fit does not show it."""
+    published without its calibration's distortion looks the same, and the fit does not show it. (The board views
+    check it once the front end has run: :func:`lens_check`; the warning is dropped when they agree.)"""
     if camera is None or np.any(np.asarray(camera.dist, dtype=float) != 0.0):
         return []
     return ["the camera intrinsics have no lens distortion (all plumb_bob coefficients 0): right if the events are "
@@ -511,6 +512,7 @@ def run_refinement(run: Run, progress: ProgressFactory,
                      on_solution=None if solution_known is None else lambda sol: solution_known(run, sol))
     run.warn(*res.warnings)
     run.warn(*lens_warnings(run.lens, res))
+    drop_confirmed_no_distortion_warning(run)
     from .gate import path_warnings
 
     run.warn(*path_warnings(res, run.base_track))  # slip one radius and track do not describe (not a problem)
@@ -537,6 +539,16 @@ def lens_check(run: Run) -> Any:
         reraise_interrupt(exc)
         log.warning("the lens distortion could not be checked against the board views: %s", exc)
         return None
+
+
+def drop_confirmed_no_distortion_warning(run: Run) -> None:
+    """The warning of intrinsics without distortion (:func:`no_distortion_warning`) is dropped when the board views
+    were checked and agree with no distortion (rectified events, or a lens without any to speak of)."""
+    lens = run.lens
+    if lens is None or lens.significant or run.camera is None or np.any(np.asarray(run.camera.dist) != 0.0):
+        return
+    said = no_distortion_warning(run.camera)
+    run.warnings[:] = [w for w in run.warnings if w not in said]
 
 
 def lens_warnings(lens: Any, refinement: Any) -> list[str]:

@@ -4,6 +4,7 @@ to the views' distortion (refine.graph.camera_sensitivity) and the gate's flag."
 import dataclasses
 from functools import lru_cache
 
+import cv2
 import numpy as np
 import pytest
 
@@ -155,3 +156,34 @@ def test_the_views_distortion_is_written_as_a_camera_file_for_a_second_run(tmp_p
     assert write_lens_camera(other, SimpleNamespace(run=SimpleNamespace(lens=agreeing, camera=rec.camera,
                                                                         log_path="x"))) == []
     assert write_lens_camera(other, SimpleNamespace(run=None)) == [] and not any(other.iterdir())
+
+
+def test_the_no_distortion_warning_is_dropped_when_the_views_agree_with_no_distortion():
+    """Rectified events: the camera model has no distortion and the views agree; the warning that a camera info
+    without distortion may be wrong is dropped. When they disagree, or were not checked, it stays."""
+    from pathlib import Path
+
+    from plsgraph.options import CalibrationOptions
+    from plsgraph.pipeline import Run, drop_confirmed_no_distortion_warning, no_distortion_warning
+
+    rec, _, det = _drive()
+    flat = _no_distortion(rec.camera)
+    (said,) = no_distortion_warning(flat)
+    straight = det.uv.copy()  # the views as a lens without distortion would give them: undistorted pixels
+    ok = np.all(np.isfinite(straight), axis=2)
+    pts = cv2.undistortPoints(straight[ok].reshape(-1, 1, 2), rec.camera.K, rec.camera.dist, P=rec.camera.K)
+    straight[ok] = pts.reshape(-1, 2)
+    agree = lens.distortion_from_views(straight, det.board_points, flat)
+    disagree = lens.distortion_from_views(det.uv, det.board_points, flat)
+    assert agree is not None and not agree.significant and disagree.significant
+    for check, kept in ((agree, False), (disagree, True), (None, True)):
+        run = Run(Path("x.mcap"), CalibrationOptions(board="acircles_4x11_a2"), camera=flat)
+        run.warn("another warning", said)
+        run.lens = check
+        drop_confirmed_no_distortion_warning(run)
+        assert (said in run.warnings) == kept and "another warning" in run.warnings
+    run = Run(Path("x.mcap"), CalibrationOptions(board="acircles_4x11_a2"), camera=rec.camera)
+    run.warn(said)
+    run.lens = agree
+    drop_confirmed_no_distortion_warning(run)  # a camera model with distortion: not this warning's case
+    assert run.warnings == [said]
