@@ -379,8 +379,9 @@ def lens_problems(ref: Any) -> list[str]:
     far.sort(key=lambda m: -abs(m[1]) / m[2])
     return [f"the board views want another lens distortion (k1 {k[0]:+.3f}, k2 {k[1]:+.3f}) than the camera "
             f"intrinsics', and with it the calibration would move by {', '.join(_move_text(*m) for m in far)}: "
-            "more than its sigmas allow; pass the camera's calibrated distortion with --camera-info (or the views' "
-            "own: camera_from_board_views.yaml in the output folder)"]
+            "more than its sigmas allow; pass the camera's calibrated intrinsics with --camera-info (a focal length a "
+            "few percent off shows partly as distortion too; calibrate writes the views' coefficients to "
+            "camera_from_board_views.yaml in its output folder)"]
 
 
 def problems_of(

@@ -543,10 +543,15 @@ def lens_check(run: Run) -> Any:
 
 def drop_confirmed_no_distortion_warning(run: Run) -> None:
     """The warning of intrinsics without distortion (:func:`no_distortion_warning`) is dropped when the board views
-    were checked and agree with no distortion (rectified events, or a lens without any to speak of)."""
+    were checked and agree with no distortion (rectified events, or a lens without any to speak of): the shift at the
+    board's outer radius, with two of its sigmas, below the check's 0.3 px."""
+    from .calib.lens import MIN_SHIFT_PX
+
     lens = run.lens
-    if lens is None or lens.significant or run.camera is None or np.any(np.asarray(run.camera.dist) != 0.0):
+    if lens is None or run.camera is None or np.any(np.asarray(run.camera.dist) != 0.0):
         return
+    if abs(lens.shift_px) + 2.0 * lens.shift_sigma_px >= MIN_SHIFT_PX:
+        return  # not shown to agree: a check too noisy to tell keeps the warning
     said = no_distortion_warning(run.camera)
     run.warnings[:] = [w for w in run.warnings if w not in said]
 
@@ -559,14 +564,15 @@ def lens_warnings(lens: Any, refinement: Any) -> list[str]:
     from .gate import lens_move_text
 
     moved = lens_move_text(refinement)
+    z = abs(lens.shift_px) / max(lens.shift_sigma_px, 1e-12)
     return [f"the board views want another lens distortion than the camera intrinsics': k1 {lens.views[0]:+.3f}, k2 "
             f"{lens.views[1]:+.3f} against {lens.given[0]:+.3f}, {lens.given[1]:+.3f}, which moves a point at the "
-            f"board's outer image radius by {lens.shift_px:+.2f} px ({abs(lens.shift_px) / lens.shift_sigma_px:.0f} "
-            f"times the views' scatter, {lens.n_frames} views)" + (f"; with it the calibration would move by {moved}"
-                                                                   if moved else "")
+            f"board's outer image radius by {lens.shift_px:+.2f} px ({z:.0f} times the views' scatter, "
+            f"{lens.n_frames} views)" + (f"; with it the calibration would move by {moved}" if moved else "")
             + "; check the camera info's distortion coefficients (a camera info published without them, or another "
-            "lens's); the output folder's camera_from_board_views.yaml holds the views' for a second run "
-            "(--camera-info)"]
+            "lens's; a focal length a few percent off shows partly as distortion too). calibrate writes the views' "
+            "coefficients to camera_from_board_views.yaml in its output folder, for a second run with --camera-info "
+            "into another folder"]
 
 
 def solve(run: Run, refine: bool, progress: ProgressFactory = no_progress,
@@ -664,12 +670,14 @@ def run_recording(
 
 def run_report_keys(run: Run) -> dict:
     """What every report.json holds of a run besides its result (a diagnosis-only one too): the options, what was
-    read, the counts, what was set aside and the stages' times."""
+    read, the camera intrinsics used, the counts, what was set aside and the stages' times."""
     from .report.files import to_jsonable
 
     return to_jsonable({
         "options": run.options.to_dict(),
         "recording_info": run.recording_info,
+        # the intrinsics the run used (from the recording or --camera-info), so the result says what it rests on
+        "camera": run.camera.to_dict() if run.camera is not None else None,
         "counts": {"camera_frames": len(run.camera_track) if run.camera_track is not None else 0,
                    "odometry_samples": len(run.base_track) if run.base_track is not None else 0},
         "discarded": run.discarded,

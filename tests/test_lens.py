@@ -127,6 +127,9 @@ def test_the_gate_reads_the_move_against_the_sigmas():
     (p,) = lens_problems(bad)
     assert "x +" in p and "2.1 sigma" in p and "k1 -0.100" in p
     assert lens_move_text(bad).startswith("x +")
+    units = dict(inside, yaw=3.0 * sig[2], td=3.0 * sig[6])  # radians and seconds, read as degrees and ms
+    (p,) = lens_problems(SimpleNamespace(inflation={"lens_distortion_move": units}, cov_base_axes=cov))
+    assert f"yaw {np.degrees(3.0 * sig[2]):+.2f} deg (3.0 sigma)" in p and f"td {3e3 * sig[6]:+.1f} ms (3.0 sigma)" in p
     assert lens_problems(SimpleNamespace(inflation={}, cov_base_axes=cov)) == []
     assert lens_problems(SimpleNamespace(inflation={"lens_distortion_move": beyond}, cov_base_axes=None)) == []
 
@@ -166,7 +169,8 @@ def test_the_no_distortion_warning_is_dropped_when_the_views_agree_with_no_disto
     from plsgraph.options import CalibrationOptions
     from plsgraph.pipeline import Run, drop_confirmed_no_distortion_warning, no_distortion_warning
 
-    rec, _, det = _drive()
+    rec, _, _ = _drive()
+    det = rec.detections(0.1, seed=15)  # 0.3 px gives a jackknife sigma of 0.17 px here: too noisy to show agreement
     flat = _no_distortion(rec.camera)
     (said,) = no_distortion_warning(flat)
     straight = det.uv.copy()  # the views as a lens without distortion would give them: undistorted pixels
@@ -187,3 +191,54 @@ def test_the_no_distortion_warning_is_dropped_when_the_views_agree_with_no_disto
     run.lens = agree
     drop_confirmed_no_distortion_warning(run)  # a camera model with distortion: not this warning's case
     assert run.warnings == [said]
+
+
+def test_a_view_that_fits_far_worse_is_left_out():
+    """A mislabelled grid (the points' order reversed) in one of the views used: the fit leaves it out and finds what
+    it finds without it."""
+    rec, _, det = _drive()
+    cam = _no_distortion(rec.camera)
+    clean = lens.distortion_from_views(det.uv, det.board_points, cam)
+    uv = det.uv.copy()
+    found = np.all(np.isfinite(uv), axis=2)
+    full = np.flatnonzero(found.all(axis=1))
+    used = full[np.unique(np.linspace(0, full.size - 1, min(lens.MAX_FRAMES, full.size)).round().astype(int))]
+    for i in used[[10, 40]]:
+        uv[i] = uv[i][::-1]
+    bad = lens.distortion_from_views(uv, det.board_points, cam)
+    assert bad.n_frames == clean.n_frames - 2
+    assert bad.shift_px == pytest.approx(clean.shift_px, abs=2 * clean.shift_sigma_px)
+    assert bad.rms_px < 1.5 * clean.rms_px
+
+
+def test_a_result_folder_with_the_views_camera_file_can_be_replaced(tmp_path):
+    """camera_from_board_views.yaml is one of plsgraph's result files: --force replaces a folder holding it."""
+    from plsgraph.report.files import RESULT_FILES, prepare_output_dir
+    from plsgraph.report.robot_files import LENS_CAMERA_NAME
+
+    assert LENS_CAMERA_NAME in RESULT_FILES
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("calibration.yaml", "report.json", LENS_CAMERA_NAME):
+        (out / name).write_text("x: 1\n")
+    prepare_output_dir(out, force=True)  # refused before: "holds files plsgraph did not write"
+
+
+def test_a_check_too_noisy_to_tell_keeps_the_no_distortion_warning():
+    from pathlib import Path
+
+    from plsgraph.options import CalibrationOptions
+    from plsgraph.pipeline import Run, drop_confirmed_no_distortion_warning, no_distortion_warning
+
+    rec, _, _ = _drive()
+    flat = _no_distortion(rec.camera)
+    (said,) = no_distortion_warning(flat)
+    for shift, sigma, kept in ((0.05, 0.02, False), (0.1, 0.15, True), (-0.2, 0.06, True)):
+        check = lens.LensCheck(given=np.zeros(2), views=np.zeros(2), cov=np.eye(2) * 1e-6, radius=0.5,
+                               shift_px=shift, shift_sigma_px=sigma, n_frames=80, rms_px=0.3)
+        assert not check.significant
+        run = Run(Path("x.mcap"), CalibrationOptions(board=BOARD), camera=flat)
+        run.warn(said)
+        run.lens = check
+        drop_confirmed_no_distortion_warning(run)
+        assert (said in run.warnings) == kept, (shift, sigma)

@@ -32,6 +32,9 @@ SEGMENTS = 10
 #: board's outer radii: the views disagree with the camera model (the refinement then measures what it moves).
 SIGNIFICANCE = 3.0
 MIN_SHIFT_PX = 0.3
+#: A view whose reprojection RMS exceeds this many times the median (and OUTLIER_MIN_PX) is left out of the fit.
+OUTLIER_FACTOR = 3.0
+OUTLIER_MIN_PX = 1.0
 #: The radius (percentile of the detections' distances from the principal point) the displacement is compared at.
 RADIUS_PERCENTILE = 95.0
 
@@ -119,6 +122,18 @@ class _Views:
             n += r.size // 2
         return out, float(np.sqrt(sq / max(n, 1)))
 
+    def view_rms(self, k: np.ndarray) -> np.ndarray:
+        """Each view's reprojection RMS (px) at ``k`` with its current pose."""
+        import cv2
+
+        dist = self.dist.copy()
+        dist[:2] = k
+        out = []
+        for o, u, p in zip(self.obj, self.img, self.poses, strict=True):
+            proj = cv2.projectPoints(o.astype(np.float64), p[:3], p[3:], self.K, dist)[0].reshape(-1, 2)
+            out.append(float(np.sqrt(np.mean(np.sum((proj - u.reshape(-1, 2)) ** 2, axis=1)))))
+        return np.array(out)
+
     def solve(self, k0: np.ndarray, iterations: int = 12) -> tuple[np.ndarray, list, float]:
         """k1, k2 at the least-squares fit (started at ``k0``), each view's (S_i, g_i) there, and the RMS (px)."""
         k = np.asarray(k0, dtype=float).copy()
@@ -155,12 +170,20 @@ def distortion_from_views(uv: np.ndarray, board_points: np.ndarray, camera: Came
     obj = [pts[found[i]].astype(np.float32) for i in idx]
     img = [uv[i][found[i]].astype(np.float32) for i in idx]
     # The radius compared at: the detections' outer radii, in the given model's normalised coordinates.
-    allp = np.concatenate(img).reshape(-1, 1, 2).astype(np.float64)
-    norm = cv2.undistortPoints(allp, camera.K, np.asarray(camera.dist, dtype=np.float64)).reshape(-1, 2)
+    norm = camera.undistort_pixels(np.concatenate(img))
     radius = float(np.percentile(np.hypot(norm[:, 0], norm[:, 1]), RADIUS_PERCENTILE))
     given = np.asarray(camera.dist, dtype=float)[:2].copy()
     try:
-        views, parts, rms = _Views(camera, obj, img).solve(given)
+        fit = _Views(camera, obj, img)
+        views, parts, rms = fit.solve(given)
+        # A view that fits far worse than the others (a mislabelled grid, a wrong PnP branch) is left out, once.
+        per_view = fit.view_rms(views)
+        keep = per_view <= max(OUTLIER_FACTOR * float(np.median(per_view)), OUTLIER_MIN_PX)
+        if not keep.all() and keep.sum() >= max(MIN_FRAMES, segments):
+            idx = idx[keep]
+            obj = [o for o, k in zip(obj, keep, strict=True) if k]
+            img = [u for u, k in zip(img, keep, strict=True) if k]
+            views, parts, rms = _Views(camera, obj, img).solve(given)
         S_all = sum(q[0] for q in parts)
         g_all = sum(q[1] for q in parts)
         reps = []

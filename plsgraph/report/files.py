@@ -218,6 +218,7 @@ RESULT_FILES = frozenset({
     "calibration.yaml", "report.json", "report.html", "base_to_camera.urdf", "static_tf.launch.py",
     "summary.json", "summary.md", "trajectories.png", "residuals.png", "time_offset.png", "observability.png",
     "methods.png", "coverage.png", "event_frames.png", "paper_tables.md", "paper_tables.json",
+    "camera_from_board_views.yaml",
 })
 
 
