@@ -279,6 +279,10 @@ def _run_batch_in(inputs: list[Path], out: Path, logs: list[Path], options: Cali
     except KeyboardInterrupt:
         if own:  # no recording starts or finishes after the interrupt: the folders said below are all there is
             _stop_workers(executor)
+            from .report.files import clear_after_killed_run
+
+            for item in items:  # the killed workers' staging folders and locks
+                clear_after_killed_run(item[1])
         done = [Path(item[1]).name for item in items if _written_since(Path(item[1]), started)]
         log.warning("batch interrupted: %s (the recordings being calibrated were stopped; their folders keep what they "
                     "held); no summary is written (run the batch again with --resume to calibrate the rest and write "

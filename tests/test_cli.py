@@ -167,6 +167,32 @@ def test_an_interrupted_batch_leaves_no_summary_of_the_batch_before(tmp_path, mo
     assert any("so far the folders of a are this run's" in r.message for r in caplog.records)
 
 
+def test_an_interrupted_batch_removes_what_its_killed_workers_left(tmp_path, monkeypatch):
+    # A review: Ctrl-C on batch left the killed worker's staging folder and lock file beside the result folder.
+    import plsgraph.refine.batch as rb
+
+    (tmp_path / "in").mkdir()
+    (tmp_path / "in" / "a.mcap").write_bytes(b"not a recording")
+    out = tmp_path / "out"
+    out.mkdir()
+    kept = out / "a"
+    kept.mkdir()
+    (kept / "report.json").write_text('{"earlier": true}')
+
+    def killed_mid_run(items, fn, executor=None, progress=None):  # what a worker killed while writing leaves
+        stage = out / ".a.staging-abcd1234"
+        stage.mkdir()
+        (stage / "calibration.yaml").write_text("half")
+        (out / ".a.plsgraph-lock").write_text("")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rb, "refine_many", killed_mid_run)
+    assert main(["batch", str(tmp_path / "in"), "--board", "acircles_4x11", "--out", str(out), "--jobs", "1",
+                 "--force"]) == 130
+    assert sorted(p.name for p in out.iterdir()) == ["a"]
+    assert (kept / "report.json").read_text() == '{"earlier": true}'
+
+
 SAMPLE = __import__("realdata").SAMPLE
 
 

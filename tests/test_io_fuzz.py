@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import signal
 from contextlib import contextmanager
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -184,6 +185,25 @@ def test_an_empty_folder_is_said_to_be_empty(tmp_path):
     d.mkdir()
     with pytest.raises(RecordingError, match="is an empty folder, not a ROS 2 bag"):
         inspect_recording(d)
+
+
+def test_a_folder_that_is_not_a_bag_is_named_for_what_it_holds(tmp_path):
+    # A review: a folder of recordings (or of notes) got "cannot be opened as a ROS bag ... ros2 bag reindex".
+    sample = Path(__file__).resolve().parents[1] / "data" / "sample" / "rich_sample.mcap"
+    many, one, none = (tmp_path / n for n in ("many", "one", "none"))
+    for d in (many, one, none):
+        d.mkdir()
+    for name in ("a.mcap", "b.mcap"):
+        (many / name).symlink_to(sample)
+    (one / "run_0.mcap").symlink_to(sample)
+    (none / "notes.txt").write_text("drive 3")
+    with pytest.raises(RecordingError, match=r"is a folder of 2 recordings \(a.mcap, b.mcap\), not a ROS 2 bag.*"
+                                             "plsgraph batch"):
+        inspect_recording(many)
+    with pytest.raises(RecordingError, match="is a folder without a recording"):
+        inspect_recording(none)
+    rec = inspect_recording(one, count_events=False)  # a bag folder that lost its metadata.yaml: its MCAP is read
+    assert Path(rec["path"]).name == "run_0.mcap" and any("no metadata.yaml" in w for w in rec["warnings"])
 
 
 @pytest.mark.parametrize("name", ["bag.db3.zstd", "run.mcap.gz", "x.bag.bz2"])

@@ -16,7 +16,7 @@ import yaml
 import plsgraph
 from plsgraph.batch import _batch_item
 from plsgraph.cli.main import main
-from plsgraph.core.board import Board
+from plsgraph.core.board import Board, load_board
 from plsgraph.core.geometry import so3_log
 from plsgraph.errors import InputError, InsufficientDataError, PlsgraphError
 from plsgraph.frontend.pose import camera_track_from_detections
@@ -693,12 +693,47 @@ def test_an_unwritable_out_is_refused_before_the_work(tmp_path):
     ({"square_size": float("nan")}, "square_size must be a finite"),
     ({"cols": 4.5}, "cols has the wrong type: it must be a whole number"),
     ({"pattern": "hexagons"}, "unknown pattern 'hexagons'"),
+    ({"square_size": 50.0, "circle_diameter": 40.0}, "lengths are in metres"),  # written in mm
+    ({"square_size": 5.0, "circle_diameter": 4.0}, "lengths are in metres"),  # in cm
+    ({"spacing": 0.05}, "unknown key spacing"),
+    ({"tag_size": 0.05}, "unknown key tag_size for pattern asymmetric_circles"),
 ])
 def test_bad_board_definitions_are_named(over, expect):
     d = {"pattern": "asymmetric_circles", "cols": 4, "rows": 11, "square_size": 0.05, "circle_diameter": 0.03}
     d.update(over)
     with pytest.raises(InputError, match=expect):
         Board.from_dict(d)
+
+
+def test_a_misspelt_aprilgrid_key_is_refused_not_left_at_its_default():
+    d = {"target_type": "aprilgrid", "pattern": "aprilgrid", "tagCols": 6, "tagRows": 6, "tagSize": 0.088,
+         "tagSpacing": 0.3}
+    with pytest.raises(InputError, match="unknown key tag_border_bit .*tag_border_bits"):
+        Board.from_dict(dict(d, tag_border_bit=1))
+    with pytest.raises(InputError, match="lengths are in metres"):
+        Board.from_dict(dict(d, tagSize=88))  # mm
+    assert Board.from_dict(dict(d, codeOffset=0, description="lab board")).n_points == 144
+
+
+def test_kalibr_circlegrid_files_are_read(tmp_path):
+    ours = load_board("acircles_4x11_a2")
+    f = tmp_path / "circlegrid.yaml"
+    f.write_text("target_type: 'circlegrid'\ntargetCols: 4\ntargetRows: 11\nspacingMeters: 0.05\n"
+                 "asymmetricGrid: True\ncircle_diameter: 0.04\n")
+    b = Board.from_yaml(f)
+    assert (b.pattern, b.cols, b.rows, b.circle_diameter) == ("asymmetric_circles", 4, 11, 0.04)
+    np.testing.assert_array_equal(b.points, ours.points)  # Kalibr's layout is the same
+    for text, expect in [
+        ("asymmetricGrid: True\n", "circle_diameter: <metres>"),
+        ("asymmetricGrid: False\ncircle_diameter: 0.04\n", "asymmetric circle grids only"),
+        ("asymmetricGrid: True\ncircle_diameter: 0.04\nspacing: 1\n", "unknown key spacing"),
+    ]:
+        f.write_text("target_type: circlegrid\ntargetCols: 4\ntargetRows: 11\nspacingMeters: 0.05\n" + text)
+        with pytest.raises(InputError, match=expect):
+            Board.from_yaml(f)
+    f.write_text("target_type: checkerboard\ntargetCols: 6\ntargetRows: 7\nrowSpacingMeters: 0.06\n")
+    with pytest.raises(InputError, match="'checkerboard' is not a target plsgraph detects"):
+        Board.from_yaml(f)
 
 
 @pytest.mark.parametrize("bits, expect", [(0, "must be 1, 2 or 3"), (1.5, "whole number"), ("two", "whole number")])

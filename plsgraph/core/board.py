@@ -3,6 +3,11 @@
 Asymmetric circle grid, OpenCV convention: ``cols`` circles per row (patternSize width), ``rows``
 rows; circle (row i, col j) sits at ((2 j + i mod 2) s, i s, 0) with s = ``square_size``. Points are
 ordered row-major, point index = i * cols + j, the order cv2.findCirclesGrid returns.
+
+Kalibr's target files are read as well: ``aprilgrid`` as it is, ``circlegrid`` with ``asymmetricGrid: True``
+(Kalibr places its circles the same way, ``spacingMeters`` being s) and a ``circle_diameter`` added, which Kalibr's
+file does not hold. A key that none of these formats has is refused, so that a misspelt key does not silently
+leave its default in place.
 """
 
 from __future__ import annotations
@@ -21,6 +26,21 @@ PATTERNS = ("asymmetric_circles", "aprilgrid")
 
 #: More points per side than any printable target has (a typo such as 1000000 would exhaust the memory).
 MAX_SIDE = 100
+
+#: Largest circle spacing / diameter (m) and AprilGrid tag (m) taken as metres: beyond, the file's lengths are
+#: almost surely in centimetres or millimetres (a 4 x 11 grid at 0.3 m spacing is already 2.1 x 3.3 m). The tag's
+#: limit admits the bundled board whose tag size is unknown and given as 1 (poses in tag sizes).
+MAX_SPACING_M = 0.3
+MAX_TAG_M = 1.0
+
+#: The keys a board file may hold, per pattern (plsgraph's own and Kalibr's), and keys any file may carry.
+_KEYS = {
+    "asymmetric_circles": {"cols", "rows", "square_size", "circle_diameter"},
+    "aprilgrid": {"cols", "rows", "tag_size", "tag_spacing", "tag_family", "tag_border_bits",
+                  "tagCols", "tagRows", "tagSize", "tagSpacing", "codeOffset"},
+}
+_ANY_KEYS = {"pattern", "target_type", "name", "description", "comment", "notes"}
+_KALIBR_CIRCLES = {"targetCols", "targetRows", "spacingMeters", "asymmetricGrid", "circle_diameter"}
 
 
 @dataclass(frozen=True)
@@ -56,6 +76,12 @@ class Board:
         if self.pattern == "asymmetric_circles":
             if self.square_size <= 0 or self.circle_diameter <= 0:
                 raise InputError("board: asymmetric_circles needs positive square_size and circle_diameter")
+            if max(self.square_size, self.circle_diameter) > MAX_SPACING_M:
+                raise InputError(
+                    f"board: square_size {self.square_size:g} and circle_diameter {self.circle_diameter:g} are "
+                    f"read as metres, which makes circles {2 * self.square_size:g} m apart; a board's lengths are "
+                    f"in metres (0.05, not 5 cm or 50 mm): check the board file"
+                )
             if self.circle_diameter >= np.sqrt(2) * self.square_size:
                 raise InputError(
                     f"board: circle_diameter {self.circle_diameter} m makes neighbouring circles touch "
@@ -63,6 +89,9 @@ class Board:
                 )
         elif self.tag_size <= 0 or self.tag_spacing < 0:
             raise InputError("board: aprilgrid needs positive tag_size and non-negative tag_spacing")
+        elif self.tag_size > MAX_TAG_M:
+            raise InputError(f"board: tag_size {self.tag_size:g} is read as metres; a board's lengths are in metres "
+                             "(0.088, not 8.8 cm or 88 mm): check the board file")
         elif (isinstance(self.tag_border_bits, bool) or not isinstance(self.tag_border_bits, int | np.integer)
               or self.tag_border_bits not in (1, 2, 3)):
             raise InputError(f"board: tag_border_bits must be 1, 2 or 3 (cells of black border around each tag; "
@@ -113,6 +142,11 @@ class Board:
         pattern = d["pattern"]
         if pattern not in PATTERNS:  # before the fields: another pattern's fields are not ours to ask for
             raise InputError(f"board: unknown pattern {pattern!r}; use one of {', '.join(PATTERNS)}")
+        unknown = sorted(str(k) for k in d if k not in _KEYS[pattern] | _ANY_KEYS)
+        if unknown:
+            raise InputError(
+                f"board: unknown key{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} for pattern {pattern}; "
+                f"a board file of this pattern takes {', '.join(sorted(_KEYS[pattern]))} (lengths in metres)")
         for k in ("cols", "rows", "tagCols", "tagRows"):
             v = d.get(k)
             if v is not None and (isinstance(v, bool) or not (isinstance(v, int) or (isinstance(v, float)
@@ -148,7 +182,31 @@ class Board:
         d = read_yaml_mapping(path, "board file")
         if d.get("target_type") == "aprilgrid":  # a Kalibr target file
             d = dict(d, pattern="aprilgrid")
+        elif d.get("target_type") == "circlegrid":
+            d = _from_kalibr_circlegrid(d)
+        elif "target_type" in d and "pattern" not in d:
+            raise InputError(f"board file {path}: Kalibr target_type {d['target_type']!r} is not a target plsgraph "
+                             "detects; it takes an asymmetric circle grid or an AprilGrid")
         return cls.from_dict(d, name=path.stem)
+
+
+def _from_kalibr_circlegrid(d: dict) -> dict:
+    """A Kalibr ``circlegrid`` target file as plsgraph's asymmetric_circles keys (the same point layout)."""
+    unknown = sorted(str(k) for k in d if k not in _KALIBR_CIRCLES | _ANY_KEYS)
+    if unknown:
+        raise InputError(f"board: unknown key{'s' if len(unknown) > 1 else ''} {', '.join(unknown)} in a Kalibr "
+                         f"circlegrid file; it takes {', '.join(sorted(_KALIBR_CIRCLES))}")
+    if d.get("asymmetricGrid") is not True:
+        raise InputError("board: a symmetric circle grid (Kalibr circlegrid without asymmetricGrid: True) has no "
+                         "unique orientation; plsgraph detects asymmetric circle grids only")
+    missing = [k for k in ("targetCols", "targetRows", "spacingMeters") if k not in d]
+    if missing:
+        raise InputError(f"board: the Kalibr circlegrid file lacks {', '.join(missing)}")
+    if "circle_diameter" not in d:
+        raise InputError("board: a Kalibr circlegrid file does not give the circles' size; add "
+                         "circle_diameter: <metres> (measured on the print) to it")
+    return {"pattern": "asymmetric_circles", "cols": d["targetCols"], "rows": d["targetRows"],
+            "square_size": d["spacingMeters"], "circle_diameter": d["circle_diameter"]}
 
 
 def _whole(v: object, key: str) -> int:

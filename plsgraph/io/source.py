@@ -26,6 +26,8 @@ def open_source(path: str | Path) -> Source:
     if p.is_dir() and not any(p.iterdir()):
         raise RecordingError(f"{p} is an empty folder, not a ROS 2 bag (a bag folder holds metadata.yaml and its "
                              ".db3 or .mcap files)")
+    if p.is_dir() and not (p / "metadata.yaml").exists() and not any(p.glob("*.db3")):
+        return _folder_without_bag(p)
     if p.is_dir() or p.suffix in (".bag", ".db3"):
         from .db3_reader import Db3Source, bare_db3_files
 
@@ -109,6 +111,31 @@ def _db3_if_metadata_disagrees(p: Path, src: Source) -> Source:
                  f"(e.g. {said[differ[0]].msgtype} against {theirs[differ[0]]}); read the .db3 files directly, with "
                  "their own types")
     return own
+
+
+#: What a folder that is not a ROS 2 bag may hold that plsgraph reads as a recording.
+_RECORDING_SUFFIXES = (".mcap", ".bag", ".raw", ".aedat4", ".aedat")
+
+
+def _folder_without_bag(p: Path) -> Source:
+    """A folder with neither metadata.yaml nor .db3 files: the one MCAP a bag folder kept when it lost its
+    metadata is read (with a warning); a folder of several recordings or of none is refused, saying which."""
+    recs = sorted(f for f in p.iterdir() if f.is_file() and f.suffix in _RECORDING_SUFFIXES)
+    if len(recs) == 1 and recs[0].suffix == ".mcap":
+        from .mcap_reader import McapSource
+
+        src = McapSource(recs[0])
+        src.log.warn(f"{p} has no metadata.yaml; read the one recording in it, {recs[0].name}")
+        return src
+    if recs:
+        names = ", ".join(f.name for f in recs[:4]) + (", ..." if len(recs) > 4 else "")
+        raise RecordingError(
+            f"{p} is a folder of {len(recs)} recording{'s' if len(recs) > 1 else ''} ({names}), not a ROS 2 bag (a bag "
+            "folder holds metadata.yaml); give one recording, or calibrate them all with 'plsgraph batch'"
+            + ("; if they are the split files of one bag, restore its metadata.yaml ('ros2 bag reindex' on a copy)"
+               if sum(f.stem.rsplit("_", 1)[-1].isdigit() for f in recs) > 1 else ""))
+    raise RecordingError(f"{p} is a folder without a recording: no metadata.yaml (a ROS 2 bag) and no .db3, .mcap, "
+                         ".bag, .raw or .aedat4 file in it")
 
 
 def _head(p: Path) -> bytes:

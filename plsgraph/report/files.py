@@ -333,6 +333,17 @@ class OutputLock:
             self.fd = None
 
 
+def clear_after_killed_run(out: str | Path) -> None:
+    """What a run on ``out`` that was killed (a batch's worker stopped on an interrupt) left beside it, removed: its
+    staging folder and its lock file, and an earlier result caught mid-swap put back. Skipped when another run holds
+    the folder's lock now."""
+    try:
+        with OutputLock(out) as lock:
+            staged_output(lock.out)._clear_leftovers(lock.out.absolute().parent)
+    except (InputError, OSError):
+        pass
+
+
 #: The --out folder whose result was swapped in while an interrupt was held back (:class:`staged_output`): the
 #: interrupt then arrives with the result written, which the command's message says.
 JUST_WRITTEN: list[Path] = []
