@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Callable
 from concurrent.futures import Executor
@@ -37,6 +38,10 @@ def find_recordings(inputs: list[Path]) -> list[Path]:
             raise InputError(f"{p} does not exist")
     if not found:
         raise InputError(f"no recordings ({', '.join(RECORDING_SUFFIXES)}) in {', '.join(map(str, inputs))}")
+    unique: dict[Path, Path] = {}
+    for p in found:  # the same file given twice (overlapping globs, a folder and a file in it): calibrated once
+        unique.setdefault(Path(os.path.normpath(p.absolute())), p)
+    found = list(unique.values())
     names = [p.stem for p in found]
     if len(set(names)) != len(names):
         same = sorted({n for n in names if names.count(n) > 1})

@@ -413,7 +413,21 @@ def problems_of(
 
 
 def problems_of_run(run: Any, T_base_cam: np.ndarray | None = None) -> list[str]:
-    """:func:`problems_of` on a :class:`plsgraph.pipeline.Run` (what every command asks)."""
-    return problems_of(run.closed_form, run.refinement, base_track=run.base_track, camera_track=run.camera_track,
-                       T_base_cam=T_base_cam, allow_upside_down=run.options.mount.upside_down_camera,
-                       input_problems=run.input_problems)
+    """:func:`problems_of` on a :class:`plsgraph.pipeline.Run` (what every command asks). When there are problems and
+    the front end ran slower or with longer windows than the accuracy was measured with, the first problem says so:
+    calibrating again at the defaults comes before recording again."""
+    problems = problems_of(run.closed_form, run.refinement, base_track=run.base_track, camera_track=run.camera_track,
+                           T_base_cam=T_base_cam, allow_upside_down=run.options.mount.upside_down_camera,
+                           input_problems=run.input_problems)
+    if problems:
+        from .pipeline import detection_rate_warnings
+
+        fe = run.options.frontend
+        info = getattr(run.camera_track, "info", None) or {}
+        off = detection_rate_warnings(str(info.get("kind", fe.surface)), fe.rate_hz,
+                                      float(info.get("window_s", 1.0 / fe.rate_hz)))
+        if off:
+            problems.insert(0, f"this run's front end was set away from its defaults ({'; '.join(off)}): calibrate "
+                               "again with the default --rate and --window before judging the recording by the "
+                               "problems below")
+    return problems

@@ -55,7 +55,7 @@ def test_offset_outside_range_is_flagged():
     rec, base, cam = setup("rich", td=0.3, seed=3)
     res = estimate_time_offset(cam, base, td_range=(-0.1, 0.1))
     assert res.at_range_edge and not res.ok
-    assert any("widen td_range" in w for w in res.warnings)
+    assert any("widen --td-range (td_range" in w for w in res.warnings)
 
 
 def test_streams_without_overlap_raise():

@@ -76,7 +76,7 @@ def test_spin_in_place_is_degenerate_but_gives_the_tilt():
 def test_offset_outside_range_is_flagged():
     rec, base, cam = tracks("rich", seed=4, td=0.35, duration=15.0)
     res = calibrate_closed_form(cam, base, td_range=(-0.2, 0.2), compare=False)
-    assert res.degenerate and any("widen td_range" in r for r in res.degenerate_reasons)
+    assert res.degenerate and any("widen --td-range (td_range" in r for r in res.degenerate_reasons)
     assert not res.observable["td"]
 
 

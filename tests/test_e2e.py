@@ -191,6 +191,31 @@ def test_detection_rate_warnings_name_the_lower_rate_and_the_longer_window():
     assert detection_rate_warnings("time_surface", 10.0, 0.15) == []  # decaying surfaces: their own look-back
 
 
+def test_a_flagged_result_at_a_lower_rate_says_first_to_calibrate_again_at_the_defaults(monkeypatch):
+    # A review: at --rate 5 the first problem said the recording determines yaw poorly ("drive longer"); the rate's
+    # warning came further down, after the advice to record again.
+    from types import SimpleNamespace
+
+    import plsgraph.gate as gate
+    from plsgraph.options import CalibrationOptions, FrontendOptions
+
+    monkeypatch.setattr(gate, "problems_of", lambda *a, **k: ["the recording determines yaw only to about 3.5 deg"])
+
+    def run(rate, window=None):
+        opts = CalibrationOptions(frontend=FrontendOptions(rate_hz=rate, window_s=window))
+        track = SimpleNamespace(info={"kind": "count", "window_s": window or 1.0 / rate})
+        return SimpleNamespace(options=opts, camera_track=track, closed_form=None, refinement=None, base_track=None,
+                               input_problems=[])
+
+    slow = gate.problems_of_run(run(5.0))
+    assert len(slow) == 2 and "calibrate again with the default --rate" in slow[0] and "5 Hz" in slow[0]
+    assert "yaw" in slow[1]
+    assert "200 ms of events" in gate.problems_of_run(run(30.0, 0.2))[0]
+    assert gate.problems_of_run(run(30.0)) == ["the recording determines yaw only to about 3.5 deg"]
+    monkeypatch.setattr(gate, "problems_of", lambda *a, **k: [])
+    assert gate.problems_of_run(run(5.0)) == []  # not flagged: the warnings say it
+
+
 def test_a_lower_detection_rate_is_said_in_the_result(recording, calibrated, tmp_path):
     """--rate 20 (50 ms windows) was measured less accurate, with results beyond their sigmas on independent test
     recordings: the result says so; the default run does not."""

@@ -495,8 +495,11 @@ def calibrate_closed_form(
         td_est = to_res.td
         warnings += to_res.warnings
         if to_res.at_range_edge:
-            reasons.append(f"time offset at the border of the search range {td_range}: widen td_range "
-                           "(at most 10 s; clocks further apart: --clock-align always or --clock-offset)")
+            lo, hi = td_range
+            reasons.append(f"time offset at the border of the search range [{lo:g}, {hi:g}] s: the offset may lie "
+                           "outside it, where neither the search nor the refinement looked for a better one; widen "
+                           "--td-range (td_range; at most 10 s; clocks further apart: --clock-align always or "
+                           "--clock-offset)")
         elif not to_res.ok:
             reasons.append("time offset poorly determined (weak or ambiguous correlation peak)")
     else:

@@ -638,7 +638,8 @@ def hand_eye(
     except cv2.error as exc:  # OpenCV raises on degenerate systems (e.g. Andreff under planar motion)
         raise DegenerateMotionError(
             f"hand_eye({method}): OpenCV failed ({str(exc).strip().splitlines()[-1]}); the motion does not "
-            "determine X. Add rotations about different axes or use the velocity-based PLS solver (method='pls')"
+            "determine X. Add rotations about different axes or use the velocity-based PLS solver (method='pls'; "
+            "--method pls on the command line)"
         ) from exc
     finally:
         if quiet is not None:
@@ -648,7 +649,7 @@ def hand_eye(
     if not (np.all(np.isfinite(R_c)) and np.all(np.isfinite(t_c))):
         raise DegenerateMotionError(
             f"hand_eye({method}): OpenCV returned NaN; the motion does not determine X. Add rotations about "
-            "different axes or use the velocity-based PLS solver (method='pls')"
+            "different axes or use the velocity-based PLS solver (method='pls'; --method pls on the command line)"
         )
     R, s = _nearest_rotation(R_c)
     if ea.rank < 2:

@@ -480,7 +480,8 @@ def estimate_time_offset(
     if edge:
         warnings.append(
             f"time offset {td:+.4f} s lies on the border of the search range [{lo}, {hi}] s: the true offset may be "
-            "outside it; widen td_range (at most 10 s; clocks further apart: --clock-align always or --clock-offset)"
+            "outside it; widen --td-range (td_range; at most 10 s; clocks further apart: --clock-align always or "
+            "--clock-offset)"
         )
     if score < min_score:
         warnings.append(f"weak peak: {method} score {score:.2f} < {min_score}; the time offset is poorly determined")
@@ -489,7 +490,7 @@ def estimate_time_offset(
             f"the time offset's best shift in [{lo}, {hi}] s matches the camera's "
             f"{'speeds' if used == 'linear' else 'turns'} to the odometry's with a "
             f"correlation of only {score:.2f} (a recording whose clocks are within the range gives 0.95 or more): the "
-            "clocks may differ by more than the range (widen td_range, --td-range), or the odometry does not follow "
+            "clocks may differ by more than the range (widen --td-range, td_range), or the odometry does not follow "
             "the robot's motion"
         )
     if ratio > max_second_peak_ratio:

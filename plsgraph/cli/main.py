@@ -385,7 +385,12 @@ def main(argv: list[str] | None = None) -> int:
     from ..core.logs import warnings_once
 
     parser = _build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        if args.command in ("inspect", "calibrate", "diagnose", "compare") and any(Path(e).exists() for e in extra):
+            parser.error(f"{args.command} takes one recording, and got more ({', '.join(extra)}); to calibrate "
+                         "several, one after another or in parallel, use 'plsgraph batch'")
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
     from .progress import end_bar_line
 

@@ -75,7 +75,7 @@ def read_truth(path: str | Path) -> dict:
     p = Path(path)
     tp = p if p.name.endswith(".truth.yaml") else truth_path(p)
     if not tp.exists():
-        raise InputError(f"truth file {tp} does not exist" if tp == p else
+        raise InputError(f"truth file {p} does not exist" if tp == p or not p.exists() else
                          f"no ground truth beside {p} (expected {tp})")
     with open(tp) as f:
         return yaml.safe_load(f) or {}

@@ -340,12 +340,14 @@ def reproduce_paper(
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise InputError(f"seed (--seed) must be a whole number >= 0, got {seed!r}")
     out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"output path {out} exists and is not a folder; choose another --out")
     md_path, json_path = out / "paper_tables.md", out / "paper_tables.json"
     existing = [p for p in (md_path, json_path) if p.exists()]
     if existing and not overwrite:
         raise InputError(
-            f"{', '.join(str(p) for p in existing)} already exist; pass overwrite=True (--force) or choose another "
-            "directory"
+            f"{', '.join(str(p) for p in existing)} already exist; pass --force (overwrite=True) to replace them or "
+            "choose another --out"
         )
     protocol = protocol or Protocol()
     n = min(int(trials), 20) if quick else int(trials)
