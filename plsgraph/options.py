@@ -262,7 +262,10 @@ class CalibrationOptions:
     def to_dict(self) -> dict[str, Any]:
         """The options as report.json records them; file paths absolute (a report read elsewhere still names the
         files)."""
-        out: dict[str, Any] = {"board": self.board,
+        board = self.board  # a bundled board's name as it is, a board file's path absolute
+        if Path(board).is_file():
+            board = str(Path(board).absolute())
+        out: dict[str, Any] = {"board": board,
                                "truth": None if self.truth is None else str(Path(self.truth).absolute())}
         for sec in self.SECTIONS:
             obj = getattr(self, sec)

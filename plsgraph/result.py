@@ -111,7 +111,7 @@ class Diagnosis:
     observable_closed_form: dict[str, bool] = field(default_factory=dict)
     observability: tuple[dict, ...] = ()
     degenerate_reasons: tuple[str, ...] = ()
-    camera_frames: int = 0
+    camera_frames: int | None = 0  # None: the run stopped before the board was searched for
     odometry_samples: int = 0
     warnings: tuple[str, ...] = ()  # what the run said along the way (as calibrate's report.json "warnings")
 

@@ -1079,3 +1079,12 @@ def test_the_swap_puts_every_signal_handler_back_however_it_ends(tmp_path, monke
         write_result_folder(tmp_path / "out", lambda stage: (stage / "calibration.yaml").write_text("new\n") and {})
     assert {s: signal.getsignal(s) for s in files.HELD_SIGNALS} == before
     assert not (tmp_path / "out").exists()
+
+
+def test_report_options_name_a_board_file_by_its_absolute_path(tmp_path, monkeypatch):
+    # A review: report.json kept a board file's relative path while the recording's and the truth's were absolute.
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "b.yaml").write_text("pattern: asymmetric_circles\ncols: 4\nrows: 11\nsquare_size: 0.05\n"
+                                     "circle_diameter: 0.04\n")
+    assert CalibrationOptions(board="b.yaml").to_dict()["board"] == str(tmp_path / "b.yaml")
+    assert CalibrationOptions(board="acircles_4x11_a2").to_dict()["board"] == "acircles_4x11_a2"

@@ -253,3 +253,41 @@ def test_a_camera_on_its_side_has_no_euler_sigmas_and_its_report_is_still_writte
     assert c["rpy_sigma_deg"] == [None, None, None]  # NaN -> null
     html = _summary_table(c)
     assert html.count("<td>-</td>") >= 3 or html.count(">-<") >= 3
+
+
+def test_matplotlib_keeps_its_cache_in_one_folder_when_home_is_read_only(tmp_path, monkeypatch):
+    # A review: with a read-only HOME every run warned and left a fresh /tmp/matplotlib-* folder behind.
+    import os
+    import tempfile
+
+    from plsgraph.report.figures import _matplotlib_config_dir
+
+    home = tmp_path / "home"
+    home.mkdir()
+    monkeypatch.setenv("MPLCONFIGDIR", "")  # recorded as it was, and so put back after the test
+    monkeypatch.delenv("MPLCONFIGDIR")
+    monkeypatch.delenv("XDG_CONFIG_HOME", raising=False)
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    _matplotlib_config_dir()
+    assert "MPLCONFIGDIR" not in os.environ  # a HOME it can write: matplotlib's own folder
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda p, m: False if str(p).startswith(str(home)) else real_access(p, m))
+    _matplotlib_config_dir()
+    shared = tmp_path / "tmp" / f"plsgraph-matplotlib-{os.getuid()}"
+    assert os.environ["MPLCONFIGDIR"] == str(shared) and shared.is_dir()
+    _matplotlib_config_dir()  # set: left as it is
+    assert os.environ["MPLCONFIGDIR"] == str(shared)
+
+
+def test_a_diagnosis_that_stopped_before_the_board_search_does_not_say_zero_frames():
+    # A review: "camera frames with the board: 0" where the front end never ran (the events were too short).
+    from plsgraph.report.text import diagnosis_text
+    from plsgraph.result import Diagnosis
+
+    stopped = diagnosis_text(Diagnosis("r.mcap", False, ("the events span only 1.00 s",), (), camera_frames=None,
+                                       odometry_samples=3050))
+    assert "camera frames with the board: not searched for" in stopped and "odometry samples: 3050" in stopped
+    found_none = diagnosis_text(Diagnosis("r.mcap", False, ("no board",), (), camera_frames=0, odometry_samples=9))
+    assert "camera frames with the board: 0" in found_none

@@ -22,7 +22,33 @@ from .files import html_report, html_table, status_colour, write_text
 log = logging.getLogger(__name__)
 
 
+def _matplotlib_config_dir() -> None:
+    """Where matplotlib keeps its font cache when its own folder (under HOME) cannot be written (a read-only HOME, a
+    service account): one folder per user in the system's temp folder, reused by every run, instead of matplotlib's
+    fresh temporary folder per process, left behind each time with a warning."""
+    import os
+    import tempfile
+
+    if "MPLCONFIGDIR" in os.environ:
+        return
+    base = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
+    own = os.path.join(base, "matplotlib")
+    probe = own if os.path.isdir(own) else base
+    while not os.path.isdir(probe) and os.path.dirname(probe) != probe:  # matplotlib would create it: can it?
+        probe = os.path.dirname(probe)
+    if os.access(probe, os.W_OK | os.X_OK):
+        return
+    shared = os.path.join(tempfile.gettempdir(), f"plsgraph-matplotlib-{os.getuid()}")
+    try:
+        os.makedirs(shared, mode=0o700, exist_ok=True)
+    except OSError:
+        return
+    if os.access(shared, os.W_OK | os.X_OK):
+        os.environ["MPLCONFIGDIR"] = shared
+
+
 def _plt():
+    _matplotlib_config_dir()
     import matplotlib
 
     matplotlib.use("Agg")

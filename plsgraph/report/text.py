@@ -93,7 +93,9 @@ def diagnosis_text(d: Any) -> str:
     """A :class:`plsgraph.result.Diagnosis` for people."""
     lines = [f"recording {d.recording}"]
     if d.camera_frames or d.odometry_samples:
-        lines += [f"camera frames with the board: {d.camera_frames}", f"odometry samples: {d.odometry_samples}"]
+        frames = ("not searched for (the run stopped before the board search: see the problem)"
+                  if d.camera_frames is None else d.camera_frames)
+        lines += [f"camera frames with the board: {frames}", f"odometry samples: {d.odometry_samples}"]
     if d.excitation:
         lines.append("excitation (closed form):")
         lines += [f"  {k:<28} {v:.4g}" for k, v in d.excitation.items()]
