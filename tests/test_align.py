@@ -169,3 +169,14 @@ def test_a_poor_peak_inside_the_range_says_the_offset_may_lie_outside_it():
     wide = estimate_time_offset(cam, base, td_range=(-1.0, 1.0))
     assert abs(wide.td - 0.8) < 3e-3 and wide.score > 0.99
     assert not any("correlation of only" in w for w in wide.warnings)
+
+
+def test_a_range_too_narrow_for_a_peak_is_said_to_be_so_not_a_lack_of_overlap():
+    # A review: --td-range 0.005 gave "the camera and odometry recordings do not overlap long enough" in the wheel
+    # order's warning.
+    from plsgraph.calib.clock import alignment_from_curve
+
+    with pytest.raises(InsufficientDataError, match="only 1 clock offset.*too narrow a range"):
+        alignment_from_curve(np.array([0.0]), np.array([0.9]), np.array([10.0]), 100.0, ("speed",))
+    with pytest.raises(InsufficientDataError, match="do not overlap long enough"):
+        alignment_from_curve(np.zeros(0), np.zeros(0), np.zeros(0), 100.0, ("speed",))

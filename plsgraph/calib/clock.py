@@ -218,7 +218,9 @@ def alignment_from_curve(offsets: np.ndarray, values: np.ndarray, overlap_s: np.
     if offsets.size < 3:
         raise InsufficientDataError(
             "the camera and odometry recordings do not overlap long enough at any clock offset "
-            f"(need {MIN_OVERLAP_S:.0f} s and half of the shorter one)"
+            f"(need {MIN_OVERLAP_S:.0f} s and half of the shorter one)" if offsets.size == 0 else
+            f"only {offsets.size} clock offset(s) in the range searched at {rate:g} Hz: too narrow a range to find a "
+            "correlation peak in"
         )
     i = int(np.argmax(values))
     off = float(offsets[i])

@@ -497,9 +497,9 @@ def calibrate_closed_form(
         if to_res.at_range_edge:
             lo, hi = td_range
             reasons.append(f"time offset at the border of the search range [{lo:g}, {hi:g}] s: the offset may lie "
-                           "outside it, where neither the search nor the refinement looked for a better one; widen "
-                           "--td-range (td_range; at most 10 s; clocks further apart: --clock-align always or "
-                           "--clock-offset)")
+                           "outside it, and the search could not confirm its peak (a refinement may move past the "
+                           "border); widen --td-range (td_range; at most 10 s; clocks further apart: --clock-align "
+                           "always or --clock-offset)")
         elif not to_res.ok:
             reasons.append("time offset poorly determined (weak or ambiguous correlation peak)")
     else:

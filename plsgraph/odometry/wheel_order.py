@@ -162,6 +162,7 @@ def check_wheel_order(
     tracks: dict[str, BaseTrack] = {}
     aligns: dict[str, ClockAlignment] = {}
     scores: dict[str, float] = {}
+    why = ""
     for pair in PAIRS:  # both members of a pair have the same magnitudes: score the first, reuse for the second
         first = pair[0]
         tracks[first] = wheels.base_track(first)
@@ -171,11 +172,12 @@ def check_wheel_order(
         except PlsgraphError as exc:
             log.info("wheel hypothesis %s: %s", first, exc)
             scores[first] = scores[pair[1]] = float("nan")
+            why = str(exc)
     a, b = scores["as_given"], scores["left_reversed"]
     if not np.isfinite(a) and not np.isfinite(b):
         return WheelOrderCheck("as_given", False, scores, float("nan"), float("nan"), float("nan"), float("nan"),
-                               "the wheel order could not be checked: the camera and odometry do not overlap in a "
-                               "usable way", None, tracks.get("as_given"))
+                               "the wheel order could not be checked: the camera's and the odometry's motions could "
+                               f"not be aligned ({why})", None, tracks.get("as_given"))
     best_pair = PAIRS[0] if (np.nan_to_num(a, nan=-1.0) >= np.nan_to_num(b, nan=-1.0)) else PAIRS[1]
     margin = float(abs(np.nan_to_num(a, nan=-1.0) - np.nan_to_num(b, nan=-1.0)))
     lead = best_pair[0]
