@@ -4,4 +4,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
 .venv/bin/ruff check plsgraph factors tests scripts
-.venv/bin/python -m pytest "$@"
+# One pytest worker per processor (pytest-xdist; PYTEST_WORKERS=0 runs the suite in this process alone).
+.venv/bin/python -m pytest -n "${PYTEST_WORKERS:-auto}" "$@"
