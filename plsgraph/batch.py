@@ -21,14 +21,23 @@ RECORDING_SUFFIXES = (".mcap", ".bag", ".db3")
 EVENT_ONLY_SUFFIXES = (".raw", ".aedat4")
 
 
+def is_bag_folder(p: Path) -> bool:
+    """A ROS 2 bag folder (its metadata.yaml beside its .db3 or .mcap files): one recording, named after the folder,
+    its NAME.options.yaml and NAME.truth.yaml beside the folder."""
+    return p.is_dir() and (p / "metadata.yaml").is_file()
+
+
 def find_recordings(inputs: list[Path]) -> list[Path]:
-    """The recordings named, or held by the folders named; two with one name are refused (their folders
-    would collide)."""
+    """The recordings named, or held by the folders named (a ROS 2 bag folder is one recording, whether named or
+    held); two with one name are refused (their folders would collide)."""
     found: list[Path] = []
     for p in inputs:
         p = Path(p)
-        if p.is_dir():
-            found += sorted(q for q in p.iterdir() if q.suffix in RECORDING_SUFFIXES and q.is_file())
+        if is_bag_folder(p):
+            found.append(p)
+        elif p.is_dir():
+            found += sorted(q for q in p.iterdir()
+                            if (q.suffix in RECORDING_SUFFIXES and q.is_file()) or is_bag_folder(q))
         elif p.is_file():
             if p.suffix in EVENT_ONLY_SUFFIXES:
                 raise InputError(f"{p} holds events only: its odometry comes from a second file, which batch does not "
@@ -37,7 +46,8 @@ def find_recordings(inputs: list[Path]) -> list[Path]:
         else:
             raise InputError(f"{p} does not exist")
     if not found:
-        raise InputError(f"no recordings ({', '.join(RECORDING_SUFFIXES)}) in {', '.join(map(str, inputs))}")
+        raise InputError(f"no recordings ({', '.join(RECORDING_SUFFIXES)} files or ROS 2 bag folders) in "
+                         f"{', '.join(map(str, inputs))}")
     unique: dict[Path, Path] = {}
     for p in found:  # the same file given twice (overlapping globs, a folder and a file in it): calibrated once
         unique.setdefault(Path(os.path.normpath(p.absolute())), p)
@@ -181,7 +191,8 @@ def skipped_in_folders(inputs: list[Path]) -> list[str]:
         if not p.is_dir():
             continue
         events = sorted(q.name for q in p.iterdir() if q.suffix in EVENT_ONLY_SUFFIXES and q.is_file())
-        nested = sorted(str(q.relative_to(p)) for q in p.glob("*/*") if q.suffix in RECORDING_SUFFIXES and q.is_file())
+        nested = sorted(str(q.relative_to(p)) for q in p.glob("*/*")
+                        if q.suffix in RECORDING_SUFFIXES and q.is_file() and not is_bag_folder(q.parent))
         if events:
             notes.append(f"not calibrated: {', '.join(events)} in {p} (events only: calibrate each with --odometry)")
         if nested:
@@ -202,6 +213,9 @@ def _check_shared_inputs(options: CalibrationOptions) -> None:
         path, _ = split_camera_choice(options.inputs.camera_info)
         if not path.is_file():
             raise InputError(f"camera file {path} does not exist")
+    odo = options.inputs.odometry_file
+    if odo is not None and not Path(odo).exists():
+        raise InputError(f"odometry file {odo} does not exist")
 
 
 def run_batch(
@@ -363,6 +377,10 @@ def recording_options(recording: Path, options: CalibrationOptions) -> Calibrati
     if not f.is_file():
         return options
     settings = read_yaml_mapping(f, "recording options file")
+    try:
+        settings = CalibrationOptions._canonical_names(options, settings)  # the command line's names as well
+    except InputError as exc:
+        raise InputError(f"{f}: {exc}") from None
     if "board" in settings:
         raise InputError(f"{f}: the board is the batch's (--board), not a recording's")
     for key in PATH_SETTINGS:  # relative to the options file's folder, made absolute (a Dask worker's folder differs)

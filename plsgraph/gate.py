@@ -300,7 +300,13 @@ def _distance_scale_problems(scale: float, radius: float | None) -> list[str]:
 def _odometry_problems(s_v: float, s_w: float, radius: float | None = None, track: float | None = None) -> list[str]:
     """Estimated odometry scales that no plausible robot explains (``radius``/``track``: the effective values)."""
     problems = _distance_scale_problems(s_v, radius)
-    ratio = s_v / s_w if s_w > 0 else float("inf")  # effective / nominal track width
+    if not s_w > 0:
+        problems.append(
+            f"the camera turns against the wheel odometry (turn-rate scale {s_w:.3f}): the events and the wheels "
+            "are not of one robot's drive (another camera's or another recording's topic: --events-topic, "
+            "--joints-topic), or the wheels' signs are wrong (--wheel-order)")
+        return problems
+    ratio = s_v / s_w  # effective / nominal track width
     if not TRACK_RATIO_RANGE[0] <= ratio <= TRACK_RATIO_RANGE[1]:
         problems.append(
             f"the effective track width comes out {ratio:.2f} x the nominal one (plausible: "

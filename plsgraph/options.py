@@ -235,11 +235,45 @@ class CalibrationOptions:
 
     SECTIONS = ("inputs", "odometry", "frontend", "closed_form", "refine", "mount")
 
+    #: The command line's names for settings whose option names differ (``--rate`` is ``rate_hz``), taken as well.
+    ALIASES = {"rate": "rate_hz", "window": "window_s", "tau": "tau_s", "odometry": "odometry_file"}
+    #: ``--events-topic`` and its kind: a role of ``topics``.
+    TOPIC_FLAGS = {"events_topic": "events", "joints_topic": "joints", "odom_topic": "odometry"}
+
+    @classmethod
+    def _canonical_names(cls, base: CalibrationOptions, kwargs: dict[str, Any]) -> dict[str, Any]:
+        """``kwargs`` under the option names: dashes as underscores, the command line's names (ALIASES) and its topic
+        flags (into ``topics``). A name said twice, in two spellings, is refused."""
+        out: dict[str, Any] = {}
+        roles: dict[str, Any] = {}
+        for k, v in kwargs.items():
+            name = k.replace("-", "_") if isinstance(k, str) else k
+            if name in cls.TOPIC_FLAGS:
+                roles[cls.TOPIC_FLAGS[name]] = v
+                continue
+            name = cls.ALIASES.get(name, name)
+            if name in out:
+                raise InputError(f"calibration option {name} is given twice (as {k} and another spelling)")
+            out[name] = v
+        if roles:
+            topics = out.get("topics", dict(base.inputs.topics))
+            if not isinstance(topics, dict):
+                raise InputError(f"topics must map roles (events, joints, odometry) to topic names, got {topics!r}")
+            out["topics"] = {**topics, **roles}
+        return out
+
+    @classmethod
+    def option_names(cls) -> list[str]:
+        """Every name :meth:`build` takes (its aliases aside)."""
+        base = cls()
+        return sorted({"board", "truth"} | {f.name for sec in cls.SECTIONS for f in fields(getattr(base, sec))})
+
     @classmethod
     def build(cls, base: CalibrationOptions | None = None, **kwargs: Any) -> CalibrationOptions:
         """Options from flat keyword arguments (``wheel_radius=0.1, surface="polarity", ...``): each name goes to
         the section that has it; unknown names are an error."""
         base = base or cls()
+        kwargs = cls._canonical_names(base, kwargs)
         top = {k: kwargs.pop(k) for k in ("board", "truth") if k in kwargs}
         # The mount said here replaces the base's (a recording's options file over the batch's flags), unless this
         # call says both (a contradiction MountOptions refuses).
@@ -254,7 +288,16 @@ class CalibrationOptions:
             if mine:
                 sections[sec] = replace(obj, **mine)
         if kwargs:
-            raise InputError(f"unknown calibration option(s): {', '.join(sorted(kwargs))}")
+            import difflib
+
+            known = cls.option_names()
+            hints = []
+            for k in sorted(kwargs):
+                near = difflib.get_close_matches(k, [*known, *cls.ALIASES, *cls.TOPIC_FLAGS], n=1, cutoff=0.6)
+                hints.append(f"{k} (did you mean {near[0]}?)" if near else k)
+            raise InputError(f"unknown calibration option(s): {', '.join(hints)}; the names are calibrate's options "
+                             f"with underscores (rate, window, tau, events_topic, ... are taken too): "
+                             f"{', '.join(known)}")
         if "truth" in top and top["truth"] is not None:
             top["truth"] = Path(top["truth"])
         return replace(base, **top, **sections)

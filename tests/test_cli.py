@@ -464,6 +464,7 @@ def test_batch_options_files_paths_and_checks_and_an_interrupted_batchs_earlier_
     assert not (tmp_path / "o").exists()
     capsys.readouterr()
     opts_file.write_text("truth: sub/t.yaml\nodometry_file: sub/odo.mcap\n")
+    (tmp_path / "sub" / "odo.mcap").write_bytes(b"x")  # a missing odometry file is refused (test below)
     got = recording_options(rec, base)
     assert Path(got.truth) == tmp_path / "sub" / "t.yaml" and got.inputs.odometry_file == tmp_path / "sub" / "odo.mcap"
     opts_file.write_text("topics: {joints: 5}\n")
@@ -712,3 +713,49 @@ def test_focal_sigma_is_checked_and_reaches_the_refinement(monkeypatch):
     args = cli._build_parser().parse_args(["calibrate", "rec.mcap", "--board", "acircles_4x11_a2", "--out", "o",
                                           "--focal-sigma", "0.01"])
     assert cli._options(args).refine.focal_sigma == 0.01
+
+
+def test_batch_takes_a_ros2_bag_folder_as_one_recording_with_its_own_files_beside_it(tmp_path):
+    # A review: batch found no recording in a folder of bag folders; given a bag folder, it calibrated each of its
+    # split .db3 files as a recording of its own (each reading the whole bag) and dropped the options and truth files
+    # beside the folder.
+    from plsgraph.batch import find_recordings, recording_options, skipped_in_folders
+    from plsgraph.options import CalibrationOptions
+
+    fleet = tmp_path / "fleet"
+    bag = fleet / "robot2"
+    bag.mkdir(parents=True)
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    for k in range(2):
+        (bag / f"robot2_{k}.db3").write_bytes(b"x")
+    (fleet / "robot1.mcap").write_bytes(b"x")
+    (fleet / "robot2.options.yaml").write_text("camera_height: 0.25\n")
+    assert find_recordings([fleet]) == [fleet / "robot1.mcap", bag]
+    assert find_recordings([bag]) == [bag]
+    assert skipped_in_folders([fleet]) == []  # the bag's .db3 files are the bag's, not skipped recordings
+    assert recording_options(bag, CalibrationOptions()).refine.camera_height == 0.25
+
+
+def test_an_options_file_takes_the_command_lines_names_and_suggests_the_nearest(tmp_path):
+    # A review: rate, events_topic, wheel-radius (calibrate's flags) were refused as unknown without a hint; a missing
+    # odometry file was found only after the other recordings had been calibrated.
+    from plsgraph.batch import recording_options
+    from plsgraph.errors import InputError
+    from plsgraph.options import CalibrationOptions
+
+    rec = tmp_path / "r3.mcap"
+    rec.write_bytes(b"x")
+    opts = tmp_path / "r3.options.yaml"
+    opts.write_text("rate: 20\nwheel-radius: 0.1\nevents_topic: /rear/events\ntopics: {joints: /js}\n")
+    o = recording_options(rec, CalibrationOptions(board="acircles_4x11_a2"))
+    assert (o.frontend.rate_hz, o.odometry.wheel_radius) == (20, 0.1)
+    assert o.inputs.topics == {"joints": "/js", "events": "/rear/events"}
+    opts.write_text("wheel_raduis: 0.1\n")
+    with pytest.raises(InputError, match=r"wheel_raduis \(did you mean wheel_radius\?\).*rate_hz"):
+        recording_options(rec, CalibrationOptions(board="acircles_4x11_a2"))
+    opts.write_text("rate: 20\nrate_hz: 25\n")
+    with pytest.raises(InputError, match="given twice"):
+        recording_options(rec, CalibrationOptions(board="acircles_4x11_a2"))
+    opts.write_text("odometry: nosuch.mcap\n")
+    with pytest.raises(InputError, match=f"odometry file {tmp_path / 'nosuch.mcap'} does not exist"):
+        recording_options(rec, CalibrationOptions(board="acircles_4x11_a2"))

@@ -1,5 +1,7 @@
 """The closed-form calibration (plsgraph.calib.closed_form) on simulated tracks: rotation, translation, td, verdicts."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -160,6 +162,11 @@ def test_odometry_scale_errors_are_estimated_and_corrected():
     assert res.odometry_scale["track_width_m"] == pytest.approx(0.44, rel=0.01)
     assert res.odometry_scale["wheel_radius_m"] == pytest.approx(0.101, rel=0.01)
     assert any("track width" in w for w in res.warnings)
+    # The odometry turns 0.44 / 0.37 x 0.098 / 0.101 = 1.154 times as fast as the camera, and drives 0.970 times as
+    # fast: the warning's ratios are the camera's over the odometry's (a review found them said the other way round).
+    (said,) = [w for w in res.warnings if "of what the odometry reports" in w]
+    speed, turn = map(float, re.search(r"camera's speed is x([0-9.]+) and its turn rate x([0-9.]+)", said).groups())
+    assert speed == pytest.approx(0.101 / 0.098, rel=0.01) and turn == pytest.approx(1 / 1.154, rel=0.01)
     assert rotation_error_deg(res.R_base_cam, rec.R_base_cam) < 0.5
     assert np.all(np.abs(res.t_xy - rec.T_base_cam[:2, 3]) < 0.005)
     # Without the estimation the translation is biased by the wrong turn rate.

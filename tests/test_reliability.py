@@ -1088,3 +1088,13 @@ def test_report_options_name_a_board_file_by_its_absolute_path(tmp_path, monkeyp
                                      "circle_diameter: 0.04\n")
     assert CalibrationOptions(board="b.yaml").to_dict()["board"] == str(tmp_path / "b.yaml")
     assert CalibrationOptions(board="acircles_4x11_a2").to_dict()["board"] == "acircles_4x11_a2"
+
+
+def test_a_camera_turning_against_the_wheels_is_named_not_an_infinite_track():
+    # A review: events of another camera's drive gave "the effective track width comes out inf x the nominal one".
+    from plsgraph.gate import _odometry_problems
+
+    (said,) = _odometry_problems(1.0, -0.4)
+    assert "turns against the wheel odometry" in said and "inf" not in said and "--events-topic" in said
+    assert "track width comes out 3.33 x" in _odometry_problems(1.0, 0.3)[0]
+    assert _odometry_problems(1.0, 0.8) == []

@@ -293,7 +293,7 @@ def _scale_warnings(s_v: float, s_w: float, info: dict) -> list[str]:
         return []
     rep = _scale_report(s_v, s_w, info)
     msg = (
-        f"the odometry's speed is x{s_v:.3f} and its turn rate x{s_w:.3f} of what the camera sees; "
+        f"the camera's speed is x{s_v:.3f} and its turn rate x{s_w:.3f} of what the odometry reports; "
         "the translation was computed from the corrected odometry"
     )
     if "track_width_m" in rep:
@@ -303,10 +303,10 @@ def _scale_warnings(s_v: float, s_w: float, info: dict) -> list[str]:
         if s_w < 1 - SCALE_WARN:
             msg += " (skid-steer robots turn less than their geometric track width predicts)"
     if abs(s_v - 1) > SCALE_WARN:
-        msg += (f". The distances differ by {100 * (s_v - 1):+.1f} %: tyres (pressure, wear) or a wrong "
-                "--wheel-radius, or a board printed at another size than its YAML says (e.g. scaled to fit the "
-                "page), which looks the same and which the radius's sigma does not hold: measure the printed circle "
-                "spacing once")
+        msg += (f". The camera's distances differ from the odometry's by {100 * (s_v - 1):+.1f} %: tyres (pressure, "
+                "wear) or a wrong --wheel-radius, or a board printed at another size than its YAML says (e.g. scaled "
+                "to fit the page), which looks the same and which the radius's sigma does not hold: measure the "
+                "printed circle spacing once")
     return [msg]
 
 
