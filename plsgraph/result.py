@@ -37,6 +37,18 @@ def odometry_section(run: Run) -> dict | None:
     """calibration.yaml's ``odometry``: the effective wheel radius and track width the refinement estimated."""
     ref = run.refinement
     o = None if ref is None or not ref.converged else getattr(ref, "odometry", None)
+    if o and "wheel_radius_m" not in o and "speed_scale" in o:
+        # nav_msgs/Odometry: no wheel radius or track to name, the scales the data put on its distances and turns.
+        return {
+            "wheel_radius_m": None, "track_width_m": None, "wheel_radius_sigma_m": None, "track_width_sigma_m": None,
+            "speed_scale": o["speed_scale"], "speed_scale_sigma": o.get("speed_scale_sigma"),
+            "turn_rate_scale": o["turn_scale"], "turn_rate_scale_sigma": o.get("turn_scale_sigma"),
+            "status": {{"wheel_radius": "speed_scale", "track_width": "turn_rate_scale"}.get(k, k): v
+                       for k, v in dict(o.get("status", {})).items()},
+            "note": "the odometry messages' speeds and turn rates times these scales are what the camera sees (the "
+                    "messages carry no wheel radius or track width: correct the odometry source's own parameters "
+                    "by them, e.g. a turn_rate_scale of 0.67 is a track width 1.5 x the one it uses)",
+        }
     if not o or "wheel_radius_m" not in o:
         return None
     floor = o.get("wheel_radius_model_sigma_rel") or 0.0
@@ -217,6 +229,9 @@ def robot_sections(run: Run) -> dict[str, Any]:
         sec = {**refined, "source": "refinement (jointly with T_base_cam and td)",
                "closed_form_wheel_radius_m": sec["effective_wheel_radius_m"],
                "closed_form_track_width_m": sec["effective_track_width_m"], "base_source": sec["base_source"]}
+    elif str(sec["base_source"] or "").startswith("nav_msgs"):  # no wheels: the nominal geometry is not its own
+        sec = {"wheel_radius_m": None, "track_width_m": None, "wheel_radius_sigma_m": None,
+               "track_width_sigma_m": None, **sec}
     else:
         sec = {"wheel_radius_m": sec["effective_wheel_radius_m"] or odo.wheel_radius,
                "track_width_m": sec["effective_track_width_m"] or odo.track_width,

@@ -291,3 +291,29 @@ def test_a_diagnosis_that_stopped_before_the_board_search_does_not_say_zero_fram
     assert "camera frames with the board: not searched for" in stopped and "odometry samples: 3050" in stopped
     found_none = diagnosis_text(Diagnosis("r.mcap", False, ("no board",), (), camera_frames=0, odometry_samples=9))
     assert "camera frames with the board: 0" in found_none
+
+
+def test_odometry_messages_get_their_scales_reported_not_the_nominal_wheels():
+    # A review: with nav_msgs/Odometry the summary said "effective wheel radius 0.0980 m, track width 0.370 m" (the
+    # nominal values) and calibration.yaml that the refinement kept them, while it had estimated a turn scale of 0.676.
+    from types import SimpleNamespace
+
+    from plsgraph.options import CalibrationOptions
+    from plsgraph.report.text import calibration_text
+    from plsgraph.result import robot_sections
+
+    ref = SimpleNamespace(converged=True, inflation={}, odometry={
+        "speed_scale": 0.998, "turn_scale": 0.676, "speed_scale_sigma": 0.004, "turn_scale_sigma": 0.031,
+        "status": {"wheel_radius": "observable", "track_width": "observable"}})
+    run = SimpleNamespace(options=CalibrationOptions(), refinement=ref, lens=None,
+                          closed_form=SimpleNamespace(odometry_scale={"speed": 0.99, "turn_rate": 0.67}),
+                          recording_info={"base_source": "nav_msgs/Odometry"}, clock_offset_s=0.0)
+    odo = robot_sections(run)["odometry"]
+    assert odo["wheel_radius_m"] is None and odo["track_width_m"] is None
+    assert (odo["turn_rate_scale"], odo["turn_rate_scale_sigma"]) == (0.676, 0.031)
+    assert odo["status"] == {"speed_scale": "observable", "turn_rate_scale": "observable"}
+    assert "refinement" in odo["source"]
+    c = {"source": "refinement", "T_base_cam": np.eye(4).tolist(), "rpy_deg": [0, 0, 0], "translation_m": [0, 0, 0],
+         "time_offset_s": 0.0, "odometry": odo, "observability": []}
+    text = calibration_text({"recording": "r.mcap", "calibration": c, "ok": True, "problems": [], "warnings": []})
+    assert "x0.676 +- 0.031 its turn rate" in text and "wheel radius" not in text

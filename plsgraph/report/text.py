@@ -54,6 +54,13 @@ def calibration_text(report: dict) -> str:
                      f"{pm(odo['track_width_m'], odo.get('track_width_sigma_m'), 3)} m (nominal "
                      f"{odo.get('wheel_radius_nominal_m', odo.get('nominal_wheel_radius_m'))} m, "
                      f"{odo.get('track_width_nominal_m', odo.get('nominal_track_width_m'))} m)")
+    elif odo.get("turn_rate_scale") is not None:  # nav_msgs/Odometry: its scales, not a wheel geometry
+        def sc(k):
+            sig = odo.get(f"{k}_sigma")
+            return f"x{odo[k]:.3f}" + ("" if sig is None else f" +- {sig:.3f}")
+
+        lines.append(f"odometry       the camera sees {sc('speed_scale')} the odometry's speed and "
+                     f"{sc('turn_rate_scale')} its turn rate (nav_msgs/Odometry: no wheel geometry to estimate)")
     wo = c.get("wheel_order") or {}
     if wo.get("corrected"):
         lines.append(f"wheels         CORRECTED: {wo['description']} (see warnings)")
