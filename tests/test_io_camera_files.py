@@ -126,8 +126,14 @@ def test_kalibr_choice_by_topic_name_and_default(tmp_path, caplog):
     assert (f.camera.width, f.camera.height) == (346, 260)
     # Exact topic match.
     assert read_camera_file(p, events_topic="/rgb/image_raw").name == "cam0"
-    # Explicit choice: FILE:camN (or FILE:N) wins over the topic.
-    assert read_camera_file(f"{p}:cam0", events_topic="/dvs/events").name == "cam0"
+    # Explicit choice: FILE:camN (or FILE:N) wins over the topic; when another camera's topic is the events', a
+    # warning says so (a review: cam0 of a stereo partner chosen by mistake passed with y 3.5 sigma off).
+    other = read_camera_file(f"{p}:cam0", events_topic="/dvs/events")
+    assert other.name == "cam0"
+    (said,) = other.warnings
+    assert "cam0 was chosen, but its rostopic /rgb/image_raw" in said and "cam1's (/dvs/image_raw) is" in said
+    assert read_camera_file(f"{p}:cam1", events_topic="/dvs/events").warnings == ()
+    assert read_camera_file(f"{p}:cam0", events_topic="/prophesee/events").warnings == ()  # nothing matches
     assert read_camera_file(f"{p}:1").name == "cam1"
     assert split_camera_choice(f"{p}:cam1") == (p, "cam1")
     with pytest.raises(InputError, match="no camera 'cam7'.*cam0, cam1"):

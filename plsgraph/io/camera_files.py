@@ -229,21 +229,22 @@ def _opencv(path: Path) -> CameraModel:
 
 def _pick_kalibr(path: Path, cams: dict, choice: str | None, events_topic: str | None) -> tuple[str, list[str]]:
     names = sorted(cams, key=lambda k: int(k[3:]))
+    topics = {k: str(v.get("rostopic", "")) if isinstance(v, dict) else "" for k, v in cams.items()}
+    matching = _matching_cameras(names, topics, events_topic)
     if choice is not None:
         if choice not in cams:
             raise InputError(f"camera file {path} has no camera {choice!r}; it has {', '.join(names)}")
+        if len(matching) == 1 and matching[0] != choice and topics[choice]:
+            other = matching[0]
+            return choice, [f"camera file {path}: {choice} was chosen, but its rostopic {topics[choice]} is not the "
+                            f"events topic's ({events_topic}) and {other}'s ({topics[other]}) is: check that {choice} "
+                            f"is the camera that recorded the events (another camera's intrinsics move the lever arm "
+                            f"by centimetres within its sigma)"]
         return choice, []
     if len(names) == 1:
         return names[0], []
-    topics = {k: str(v.get("rostopic", "")) if isinstance(v, dict) else "" for k, v in cams.items()}
-    if events_topic:
-        exact = [k for k in names if topics[k] == events_topic]
-        if len(exact) == 1:
-            return exact[0], []
-        ns = dirname(events_topic.rstrip("/"))
-        same_ns = [k for k in names if ns not in ("", "/") and dirname(topics[k].rstrip("/")) == ns]
-        if len(same_ns) == 1:
-            return same_ns[0], []
+    if len(matching) == 1:
+        return matching[0], []
     listing = ", ".join(f"{k} ({topics[k] or 'no rostopic'})" for k in names)
     why = (f"none matches the events topic {events_topic}" if events_topic else
            "the events have no topic to match (an event-camera file)")
@@ -251,6 +252,17 @@ def _pick_kalibr(path: Path, cams: dict, choice: str | None, events_topic: str |
     # moved the lever arm by 10 cm within a 1 cm sigma): which camera saw the events is the user's to say.
     raise InputError(f"camera file {path} has {len(names)} cameras: {listing}; {why}, so which one saw the events "
                      f"is not known: choose it with --camera-info {path}:camN")
+
+
+def _matching_cameras(names: list[str], topics: dict[str, str], events_topic: str | None) -> list[str]:
+    """The cameras whose rostopic is the events topic; failing one, those in its namespace."""
+    if not events_topic:
+        return []
+    exact = [k for k in names if topics[k] == events_topic]
+    if len(exact) == 1:
+        return exact
+    ns = dirname(events_topic.rstrip("/"))
+    return [k for k in names if ns not in ("", "/") and dirname(topics[k].rstrip("/")) == ns]
 
 
 def _kalibr(path: Path, name: str, cam) -> CameraModel:
