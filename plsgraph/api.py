@@ -147,10 +147,13 @@ def diagnose(
     problems = problems_of_run(run) + verdicts  # the gate calibrate uses: both agree on one recording
     obs = observability_rows(run)
     good = not problems
+    clock = run.recording_info.get("clock") or {}
     return Diagnosis(str(recording), good, tuple(problems), tuple(motion_advice(cf, obs, problems)),
                      dict(cf.excitation),
                      dict(cf.observable), tuple(obs), tuple(cf.degenerate_reasons), **counts,
-                     warnings=tuple(run.warnings))
+                     warnings=tuple(run.warnings),
+                     clock_alignment={k: clock[k] for k in ("coarse", "rule", "offset_s", "score",
+                                                            "second_peak_ratio", "separation") if k in clock})
 
 
 def compare(

@@ -126,6 +126,7 @@ class Diagnosis:
     camera_frames: int | None = 0  # None: the run stopped before the board was searched for
     odometry_samples: int = 0
     warnings: tuple[str, ...] = ()  # what the run said along the way (as calibrate's report.json "warnings")
+    clock_alignment: dict = field(default_factory=dict)  # how the two clocks were put together (calibrate's too)
 
     def to_dict(self) -> dict:
         return to_jsonable({
@@ -133,7 +134,7 @@ class Diagnosis:
             "excitation": self.excitation, "observable_closed_form": self.observable_closed_form,
             "observability": list(self.observability), "degenerate_reasons": list(self.degenerate_reasons),
             "camera_frames": self.camera_frames, "odometry_samples": self.odometry_samples,
-            "warnings": list(self.warnings),
+            "warnings": list(self.warnings), "clock_alignment": self.clock_alignment,
         })
 
 

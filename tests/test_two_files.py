@@ -85,6 +85,19 @@ def test_two_files_recover_the_clock_difference(pair, calibrated):
     assert "the clocks differ" in summary["text"]
 
 
+def test_diagnose_says_how_the_clocks_were_aligned(pair, calibrated):
+    # A review: diagnose of a two-clock pair said "good enough" with nothing on the coarse alignment it relied on.
+    from plsgraph.api import diagnose
+    from plsgraph.report.text import diagnosis_text
+
+    out, summary = calibrated
+    d = diagnose(pair / "events.mcap", board="acircles_4x11_a2", odometry_file=pair / "odometry.mcap")
+    c = yaml.safe_load((out / "calibration.yaml").read_text())["clock_alignment"]
+    assert d.clock_alignment["coarse"] and d.clock_alignment["offset_s"] == pytest.approx(c["offset_s"], abs=1e-6)
+    assert "clocks: coarse alignment 3725" in diagnosis_text(d)
+    assert d.to_dict()["clock_alignment"]["score"] == pytest.approx(c["score"])
+
+
 def test_robot_files_carry_the_result(calibrated):
     out, _ = calibrated
     c = yaml.safe_load((out / "calibration.yaml").read_text())

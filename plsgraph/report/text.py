@@ -103,6 +103,11 @@ def diagnosis_text(d: Any) -> str:
         frames = ("not searched for (the run stopped before the board search: see the problem)"
                   if d.camera_frames is None else d.camera_frames)
         lines += [f"camera frames with the board: {frames}", f"odometry samples: {d.odometry_samples}"]
+    clock = getattr(d, "clock_alignment", None) or {}
+    if clock.get("coarse"):
+        nan = float("nan")
+        lines.append(f"clocks: coarse alignment {clock['offset_s']:.3f} s (correlation {clock.get('score', nan):.2f}, "
+                     f"second peak ratio {clock.get('second_peak_ratio', nan):.2f}); {clock.get('rule', '')}")
     if d.excitation:
         lines.append("excitation (closed form):")
         lines += [f"  {k:<28} {v:.4g}" for k, v in d.excitation.items()]
