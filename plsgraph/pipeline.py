@@ -371,7 +371,8 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
     def too_short(first: int, last: int) -> InsufficientDataError | None:
         if (last - first) * 1e-9 >= MIN_EVENT_SPAN_S:
             return None
-        damaged = _damaged(run) or any("truncated or corrupt" in w or "cut short" in w for w in src.log.warnings)
+        damaged = _damaged(run) or any("truncated or corrupt" in w or "cut short" in w or "is incomplete" in w
+                                       for w in src.log.warnings)
         exc = InsufficientDataError(
             f"the events ({topic}) span only {(last - first) * 1e-9:.2f} s; a calibration needs the robot driving "
             f"and turning in front of the board for longer than that (at least {MIN_EVENT_SPAN_S:g} s; the accuracy "
@@ -441,7 +442,7 @@ def build_camera_track(run: Run, progress: ProgressFactory) -> CameraTrack:
 def _damaged(run: Run) -> bool:
     """Whether reading the recording lost messages (a file cut short or damaged)."""
     return bool(run.discarded.get("lost_while_reading")) or any(
-        "truncated or corrupt" in w or "cut short" in w for w in run.warnings)
+        "truncated or corrupt" in w or "cut short" in w or "is incomplete" in w for w in run.warnings)
 
 
 def run_closed_form(run: Run) -> Any:

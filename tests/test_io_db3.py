@@ -7,6 +7,7 @@ import sqlite3
 
 import numpy as np
 import pytest
+import yaml
 from recordings import random_streams
 
 from plsgraph.errors import RecordingError
@@ -159,6 +160,29 @@ def test_a_bag_folder_with_a_damaged_metadata_file_is_read_from_its_db3_files(tm
         rec = read_recording(given)
         assert any("metadata.yaml could not be used" in w and "\n" not in w for w in rec.warnings)
         _same_recording(rec, read_recording(mcap))
+
+
+def test_a_bag_copied_in_part_is_said_to_be_incomplete(tmp_path):
+    # A review: a split bag whose second .db3 was missing calibrated on half the data, with only "metadata.yaml could
+    # not be used (Some database files are missing ...)".
+    from rosbags.rosbag2 import Writer
+
+    mcap = _mcap(tmp_path)
+    src = McapSource(mcap)
+    msgs = list(src.iter_raw())
+    bag = tmp_path / "split"
+    with Writer(bag, version=8) as w:
+        conns = {tp: w.add_connection(tp, info.msgtype, typestore=typestore()) for tp, info in src.topics().items()}
+        for m in msgs:
+            w.write(conns[m.topic], m.log_time_ns, bytes(m.data))
+    meta = bag / "metadata.yaml"
+    (db3,) = bag.glob("*.db3")
+    info = yaml.safe_load(meta.read_text())
+    info["rosbag2_bagfile_information"]["relative_file_paths"].append("split_1.db3")  # listed, never copied
+    meta.write_text(yaml.safe_dump(info))
+    rec = read_recording(bag)
+    (said,) = [w for w in rec.warnings if "is incomplete" in w]
+    assert "lists split_1.db3, which is not there" in said and db3.name in said
 
 
 def test_a_metadata_file_that_names_a_topics_type_otherwise_than_the_db3_is_not_trusted(tmp_path):

@@ -46,6 +46,13 @@ def open_source(path: str | Path) -> Source:
             if not files:
                 raise
             src = Db3Source(files, name=p)
+            missing = _listed_but_missing(folder)
+            if missing:
+                src.log.warn(
+                    f"the bag {folder} is incomplete: its metadata.yaml lists {', '.join(missing)}, which "
+                    f"{'is' if len(missing) == 1 else 'are'} not there; only {', '.join(f.name for f in files)} "
+                    "could be read, so part of the recording is missing (copy the whole bag folder)")
+                return src
             why = (str(exc.__cause__ or exc).strip().splitlines() or ["unreadable"])[0]
             src.log.warn(f"{folder.name}/metadata.yaml could not be used ({why}); read its .db3 files directly "
                          "(topics and types from their own tables)")
@@ -111,6 +118,20 @@ def _db3_if_metadata_disagrees(p: Path, src: Source) -> Source:
                  f"(e.g. {said[differ[0]].msgtype} against {theirs[differ[0]]}); read the .db3 files directly, with "
                  "their own types")
     return own
+
+
+def _listed_but_missing(folder: Path) -> list[str]:
+    """The files a bag folder's metadata.yaml lists that are not in the folder (a bag copied in part)."""
+    import yaml
+
+    try:
+        meta = yaml.safe_load((folder / "metadata.yaml").read_text())
+        listed = meta["rosbag2_bagfile_information"]["relative_file_paths"]
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        return []
+    if not isinstance(listed, list):
+        return []
+    return [str(f) for f in listed if isinstance(f, str) and not (folder / f).exists()]
 
 
 #: What a folder that is not a ROS 2 bag may hold that plsgraph reads as a recording.
