@@ -219,7 +219,7 @@ def test_a_recording_without_camera_info_says_so_without_pointing_at_warnings_it
     assert "has no sensor_msgs/CameraInfo topic" in msg and "--camera-info" in msg
     assert "see the warnings" not in msg and "odometry file" not in msg
     # A topic whose every message is unusable: named once, with what the reader said of it (it said
-    # "/event_camera/camera_info: /event_camera/camera_info: none of ...").
+    # "/dvs/camera_info: /dvs/camera_info: none of ...").
     bad = CameraModel(346, 260, np.array([[320.5, 0, 171.2], [0, 321.0, 129.9], [0, 0, 1]]), [0, 0, 0, 0, 0])
     object.__setattr__(bad, "K", np.array([[np.nan, 0, 171.2], [0, 321.0, 129.9], [0, 0, 1]]))  # past its checks
     q = tmp_path / "nancam.mcap"
@@ -227,7 +227,7 @@ def test_a_recording_without_camera_info_says_so_without_pointing_at_warnings_it
     with pytest.raises(InputError) as e:
         read_inputs(Run(q, CalibrationOptions(board="acircles_4x11")))
     msg = str(e.value)
-    assert msg.count("/event_camera/camera_info") == 1 and "none of its" in msg, msg
+    assert msg.count("/dvs/camera_info") == 1 and "none of its" in msg, msg
 
 
 
@@ -428,3 +428,20 @@ def test_an_event_topic_of_a_type_plsgraph_does_not_read_is_named(tmp_path):
     assert "--odometry FILE" in str(e.value)  # an odometry-only file: the two-file form is named
     with pytest.raises(RecordingError, match=r"has type my_msgs/msg/Events, not an event type plsgraph reads"):
         pick_topic(open_source(p), EVENT_TYPES, "/camera/events", "event")
+
+
+def test_the_camera_info_of_the_events_camera_is_taken_and_another_cameras_is_warned_of(tmp_path):
+    # A review: events of a second camera (/rear_dvs/events) were calibrated with the first camera's CameraInfo
+    # (/event_camera/camera_info) without a word.
+    ev, js, od, cam = _sim(n=3000, seconds=0.5)
+    p = tmp_path / "rear.mcap"
+    write_recording(p, ev, js, None, cam, event_format="dvs",
+                    topics={"dvs": "/rear_dvs/events", "camera_info": "/front/camera_info"})
+    rec = read_recording(p)
+    assert rec.used_topics["camera_info"] == "/front/camera_info"
+    assert any("camera info /front/camera_info is not in the namespace of the events topic /rear_dvs/events" in w
+               for w in rec.warnings)
+    plain = tmp_path / "plain.mcap"
+    write_recording(plain, ev, js, None, cam, event_format="dvs")
+    rec = read_recording(plain)
+    assert rec.used_topics["camera_info"] == "/dvs/camera_info" and not any("namespace" in w for w in rec.warnings)

@@ -169,6 +169,26 @@ _ROLES = {
 }
 
 
+def _namespace(topic: str) -> str:
+    return topic.rstrip("/").rsplit("/", 1)[0]
+
+
+def _camera_info_of(src, events_topic: str) -> str:
+    """The camera info topic of the events' camera: the one in the events topic's namespace when there is one (a robot
+    with two event cameras), else the only or the busiest one, with a warning when it is another camera's namespace."""
+    topics = src.topics()
+    cands = sorted(t for t, i in topics.items() if i.msgtype == CAMERA_INFO_TYPE)
+    ns = _namespace(events_topic)
+    same = [t for t in cands if ns and _namespace(t) == ns]
+    if len(same) == 1:
+        return same[0]
+    picked = pick_topic(src, (CAMERA_INFO_TYPE,), None, "camera info")
+    if ns and _namespace(picked) and _namespace(picked) != ns:
+        src.log.warn(f"{src.path.name}: the camera info {picked} is not in the namespace of the events topic "
+                     f"{events_topic}: check that it is this camera's, or give its intrinsics with --camera-info")
+    return picked
+
+
 _TYPE = {"joints": JOINT_STATE_TYPE, "odometry": ODOMETRY_TYPE, "imu": IMU_TYPE, "camera_info": CAMERA_INFO_TYPE}
 
 
@@ -387,6 +407,8 @@ def read_recording(
             continue
         if role in topics:
             used[role] = pick_topic(src, types, topics[role], what)
+        elif role == "camera_info" and used.get("events") and any(i.msgtype in types for i in all_topics.values()):
+            used[role] = _camera_info_of(src, used["events"])
         elif any(i.msgtype in types for i in all_topics.values()):
             used[role] = pick_topic(src, types, None, what)
     if not used:

@@ -252,6 +252,10 @@ def write_recording(
         raise InputError("packet_ns must be positive")
     names = dict(DEFAULT_TOPICS)
     names.update(topics or {})
+    if "camera_info" not in (topics or {}):  # beside the events, as a camera's driver publishes it
+        ns = names["dvs" if event_format == "dvs" else "packet"].rstrip("/").rsplit("/", 1)[0]
+        if ns:
+            names["camera_info"] = f"{ns}/camera_info"
     from mcap.writer import CompressionType, Writer
 
     warnings: list[str] = []
