@@ -164,3 +164,38 @@ def test_a_thread_of_an_unguarded_script_sees_the_scripts_top_level_call(tmp_pat
     assert "seen True True" in unguarded.stdout, unguarded.stderr
     guarded = _run(tmp_path, body.replace("{call}", "if __name__ == '__main__':\n            print('seen', *check())"))
     assert "seen False False" in guarded.stdout, guarded.stderr
+
+
+def test_pool_workers_leave_ctrl_c_to_their_parent(tmp_path):
+    """A review: Ctrl-C on a batch printed a KeyboardInterrupt traceback from each worker waiting for work (a terminal's
+    Ctrl-C reaches every process of the group; the command stops its pools itself)."""
+    import os
+    import signal
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(textwrap.dedent("""
+        import multiprocessing as mp, time
+        from concurrent.futures import ProcessPoolExecutor
+        from plsgraph.core.processes import worker_initializer
+
+        if __name__ == "__main__":
+            init, args = worker_initializer()
+            pool = ProcessPoolExecutor(2, mp_context=mp.get_context("spawn"), initializer=init, initargs=args)
+            for f in [pool.submit(time.sleep, 0.2) for _ in range(2)]:
+                f.result()
+            print(" ".join(str(p) for p in pool._processes), flush=True)
+            input()  # until the test says
+            print(sum(f.result() for f in [pool.submit(abs, -3) for _ in range(4)]), flush=True)
+    """))
+    proc = subprocess.Popen([sys.executable, str(script)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    try:
+        workers = [int(p) for p in proc.stdout.readline().split()]
+        for pid in workers:  # idle, waiting for work
+            os.kill(pid, signal.SIGINT)
+        time.sleep(1.0)
+        out, err = proc.communicate("\n", timeout=30)
+        assert out.strip() == "12" and "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    finally:
+        proc.kill()

@@ -125,9 +125,23 @@ def end_with_parent(parent_pid: int | None = None, poll_s: float = 0.5) -> None:
     threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
 
 
+def pool_worker_start(parent_pid: int) -> None:
+    """A pool worker's initializer: it ends with its parent (:func:`end_with_parent`) and leaves Ctrl-C to it. A
+    terminal's Ctrl-C reaches every process of the command's group; the command stops its pools itself (shutting them
+    down, or killing a batch's workers), and a worker waiting for work printed a KeyboardInterrupt traceback."""
+    import signal
+
+    end_with_parent(parent_pid)
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except (ValueError, OSError):  # not the main thread: leave it
+        pass
+
+
 def worker_initializer() -> tuple[Any, tuple]:
-    """(initializer, initargs) for a process pool whose workers end with this process (:func:`end_with_parent`)."""
-    return end_with_parent, (os.getpid(),)
+    """(initializer, initargs) for a process pool whose workers end with this process and leave Ctrl-C to it
+    (:func:`pool_worker_start`)."""
+    return pool_worker_start, (os.getpid(),)
 
 
 def interrupt_behind(exc: BaseException) -> BaseException | None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import os
+import sys
 import time
 import traceback
 from collections.abc import Callable, Mapping, Sequence
@@ -79,6 +80,12 @@ def default_executor(n_items: int, max_workers: int | None = None) -> Executor:
 
     workers = max_workers or min(n_items, os.cpu_count() or 1)
     init, args = worker_initializer()  # a batch killed by its pid alone takes its workers with it
+    # A batch stopped by Ctrl-C kills its workers (stop_workers); the semaphores of their own front-end pools are
+    # then released by multiprocessing's resource tracker, which says so with a warning meant for a leaking program.
+    # The option reaches the tracker, a process of its own started with this interpreter's -W options.
+    quiet = "ignore:resource_tracker:UserWarning"
+    if quiet not in sys.warnoptions:
+        sys.warnoptions.append(quiet)
     return ProcessPoolExecutor(max_workers=max(1, workers), mp_context=multiprocessing.get_context("spawn"),
                                initializer=init, initargs=args)
 
