@@ -283,7 +283,7 @@ def _run_batch_in(inputs: list[Path], out: Path, logs: list[Path], options: Cali
         items.append((str(p), str(out / p.stem), own, force))
     own = executor is None
     if own:
-        executor = default_executor(len(items), jobs)
+        executor = default_executor(len(items), jobs, ignore_interrupt=True)  # stopped below on an interrupt
     started = time.time()
     try:
         results = refine_many(items, _batch_item, executor=executor, progress=progress)

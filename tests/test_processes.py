@@ -180,7 +180,7 @@ def test_pool_workers_leave_ctrl_c_to_their_parent(tmp_path):
         from plsgraph.core.processes import worker_initializer
 
         if __name__ == "__main__":
-            init, args = worker_initializer()
+            init, args = worker_initializer(ignore_interrupt=True)  # as a batch's pool
             pool = ProcessPoolExecutor(2, mp_context=mp.get_context("spawn"), initializer=init, initargs=args)
             for f in [pool.submit(time.sleep, 0.2) for _ in range(2)]:
                 f.result()
@@ -197,5 +197,51 @@ def test_pool_workers_leave_ctrl_c_to_their_parent(tmp_path):
         time.sleep(1.0)
         out, err = proc.communicate("\n", timeout=30)
         assert out.strip() == "12" and "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    finally:
+        proc.kill()
+
+
+def test_a_pool_that_is_shut_down_on_ctrl_c_stops_its_running_tasks_at_once(tmp_path):
+    """A review: with every pool worker ignoring Ctrl-C, a pool shut down on an interrupt (the front end's, an API
+    refine_many's) waited for its running tasks (12 s of 15 s). Only a batch's pool, which its parent kills on an
+    interrupt, leaves Ctrl-C to the parent; a pool whose parent ignores Ctrl-C (a batch's worker) does so too."""
+    import os
+    import signal
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(textwrap.dedent("""
+        import multiprocessing as mp, signal, sys, time
+        from concurrent.futures import ProcessPoolExecutor
+        from plsgraph.core.processes import worker_initializer
+
+        if __name__ == "__main__":
+            print(worker_initializer()[1][1], flush=True)  # by default: as this process (Ctrl-C not ignored)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+            print(worker_initializer()[1][1], flush=True)  # this process ignores it: so do its workers
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+            init, args = worker_initializer()
+            pool = ProcessPoolExecutor(2, mp_context=mp.get_context("spawn"), initializer=init, initargs=args)
+            try:
+                futs = [pool.submit(time.sleep, 20) for _ in range(2)]
+                time.sleep(0.5)
+                print("running", flush=True)
+                [f.result() for f in futs]
+            except KeyboardInterrupt:
+                t0 = time.monotonic()
+                pool.shutdown(wait=True, cancel_futures=True)
+                print(f"stopped {time.monotonic() - t0:.1f}", flush=True)
+    """))
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=tmp_path, start_new_session=True)
+    try:
+        assert proc.stdout.readline().strip() == "False" and proc.stdout.readline().strip() == "True"
+        deadline = time.monotonic() + 60
+        while proc.stdout.readline().strip() != "running" and time.monotonic() < deadline:
+            pass
+        time.sleep(2.0)  # the workers are in their tasks
+        os.killpg(proc.pid, signal.SIGINT)  # a terminal's Ctrl-C: the whole group
+        out, _ = proc.communicate(timeout=30)
+        assert out.startswith("stopped") and float(out.split()[1]) < 5.0, out
     finally:
         proc.kill()

@@ -125,23 +125,33 @@ def end_with_parent(parent_pid: int | None = None, poll_s: float = 0.5) -> None:
     threading.Thread(target=watch, name="end-with-parent", daemon=True).start()
 
 
-def pool_worker_start(parent_pid: int) -> None:
-    """A pool worker's initializer: it ends with its parent (:func:`end_with_parent`) and leaves Ctrl-C to it. A
-    terminal's Ctrl-C reaches every process of the command's group; the command stops its pools itself (shutting them
-    down, or killing a batch's workers), and a worker waiting for work printed a KeyboardInterrupt traceback."""
+def pool_worker_start(parent_pid: int, ignore_interrupt: bool = False) -> None:
+    """A pool worker's initializer: it ends with its parent (:func:`end_with_parent`); with ``ignore_interrupt`` it
+    also leaves Ctrl-C to the parent, for a pool its parent kills on an interrupt (a batch's): a terminal's Ctrl-C
+    reaches every process of the group, and a worker waiting for work printed a KeyboardInterrupt traceback. Pools
+    that are shut down instead (which waits for running tasks) keep Ctrl-C, so that their tasks stop at once."""
     import signal
 
     end_with_parent(parent_pid)
-    try:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-    except (ValueError, OSError):  # not the main thread: leave it
-        pass
+    if ignore_interrupt:
+        try:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        except (ValueError, OSError):  # not the main thread: leave it
+            pass
 
 
-def worker_initializer() -> tuple[Any, tuple]:
-    """(initializer, initargs) for a process pool whose workers end with this process and leave Ctrl-C to it
-    (:func:`pool_worker_start`)."""
-    return pool_worker_start, (os.getpid(),)
+def worker_initializer(ignore_interrupt: bool | None = None) -> tuple[Any, tuple]:
+    """(initializer, initargs) for a process pool whose workers end with this process (:func:`pool_worker_start`).
+    ``ignore_interrupt``: the workers leave Ctrl-C to this process; by default they do so when this process ignores it
+    itself (a batch's worker, whose front end's workers would otherwise print tracebacks on a batch's Ctrl-C)."""
+    import signal
+
+    if ignore_interrupt is None:
+        try:
+            ignore_interrupt = signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+        except (ValueError, OSError):
+            ignore_interrupt = False
+    return pool_worker_start, (os.getpid(), bool(ignore_interrupt))
 
 
 def interrupt_behind(exc: BaseException) -> BaseException | None:

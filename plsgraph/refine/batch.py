@@ -65,10 +65,11 @@ def _run_one(fn: Callable[[Any, int], Any], item: Any, seed: int) -> tuple:
         return False, None, type(exc).__name__, str(exc), traceback.format_exc(), time.perf_counter() - t0
 
 
-def default_executor(n_items: int, max_workers: int | None = None) -> Executor:
+def default_executor(n_items: int, max_workers: int | None = None, ignore_interrupt: bool = False) -> Executor:
     """A ProcessPoolExecutor with the "spawn" start method (safe with threads and GTSAM in the parent); one thread of
     this process instead when called at a script's unguarded top level, where a spawned worker would run the script
-    again (:func:`plsgraph.core.processes.spawn_would_rerun_main`)."""
+    again (:func:`plsgraph.core.processes.spawn_would_rerun_main`). ``ignore_interrupt``: the workers leave Ctrl-C to
+    this process, which must then stop them itself on an interrupt (:func:`stop_workers`), as a batch does."""
     from concurrent.futures import ThreadPoolExecutor
 
     from ..core.processes import spawn_would_rerun_main, warn_in_process
@@ -79,7 +80,7 @@ def default_executor(n_items: int, max_workers: int | None = None) -> Executor:
     from ..core.processes import worker_initializer
 
     workers = max_workers or min(n_items, os.cpu_count() or 1)
-    init, args = worker_initializer()  # a batch killed by its pid alone takes its workers with it
+    init, args = worker_initializer(ignore_interrupt)  # a batch killed by its pid alone takes its workers with it
     # A batch stopped by Ctrl-C kills its workers (stop_workers); the semaphores of their own front-end pools are
     # then released by multiprocessing's resource tracker, which says so with a warning meant for a leaking program.
     # The option reaches the tracker, a process of its own started with this interpreter's -W options.
@@ -173,7 +174,7 @@ def rerun_broken(items: Sequence[Any], results: list[BatchItemResult], fn: Calla
     for k, r in enumerate(results):
         if r.ok or r.error_type != "BrokenProcessPool":
             continue
-        alone = default_executor(1, 1)
+        alone = default_executor(1, 1, ignore_interrupt=True)  # stopped below on an interrupt
         try:
             ok, value, etype, msg, tb, secs = alone.submit(_run_one, fn, items[k], r.seed).result()
             out[k] = BatchItemResult(r.index, r.name, r.seed, ok, value, etype, msg, tb, secs)
