@@ -35,7 +35,7 @@ log = logging.getLogger(__name__)
 MIN_SPAN_OVERLAP = 0.5
 
 
-def read_events_file(path: Path, topics: dict[str, str] | None) -> Any:
+def read_events_file(path: Path, topics: dict[str, str] | None, events_topic: str | None = None) -> Any:
     """The first file's robot topics when it has any; an events-only file (AEDAT4, .raw) gives an empty record."""
     from .io.messages import CAMERA_INFO_TYPE, IMU_TYPE, JOINT_STATE_TYPE, ODOMETRY_TYPE
     from .io.recording import Recording, read_recording
@@ -46,7 +46,7 @@ def read_events_file(path: Path, topics: dict[str, str] | None) -> Any:
     robot = (JOINT_STATE_TYPE, ODOMETRY_TYPE, IMU_TYPE, CAMERA_INFO_TYPE)
     if not topics and not any(i.msgtype in robot for i in all_topics.values()):
         return Recording(Path(path), all_topics)
-    return read_recording(src, topics=topics, with_events=False)
+    return read_recording(src, topics=topics, with_events=False, events_topic=events_topic)
 
 
 def _kinds(topics: dict) -> tuple[bool, bool]:

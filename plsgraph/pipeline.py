@@ -145,11 +145,12 @@ def read_inputs(run: Run) -> Any:
     topics = {k: v for k, v in opts.inputs.topics.items() if k != "events"} or None
     with _Timer(run, "read"):
         if opts.inputs.odometry_file is None:
-            rec = read_recording(run.log_path, topics=topics, with_events=False)
+            rec = read_recording(run.log_path, topics=topics, with_events=False,
+                                 events_topic=opts.inputs.topics.get("events"))
         else:  # events from the first file, the robot from the second
             from .pairing import merge_odometry_file, read_events_file
 
-            rec = merge_odometry_file(run, read_events_file(run.log_path, None))
+            rec = merge_odometry_file(run, read_events_file(run.log_path, None, opts.inputs.topics.get("events")))
     run.warn(*rec.warnings)
     if rec.lost:
         run.discarded["lost_while_reading"] = dict(rec.lost)

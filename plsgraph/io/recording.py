@@ -173,6 +173,12 @@ def _namespace(topic: str) -> str:
     return topic.rstrip("/").rsplit("/", 1)[0]
 
 
+def _busiest_events(all_topics: dict) -> str | None:
+    """The event topic with the most messages (the one the pipeline streams when none is named), if any."""
+    cands = [(-(i.messages or 0), t) for t, i in all_topics.items() if i.msgtype in EVENT_TYPES]
+    return min(cands)[1] if cands else None
+
+
 def _camera_info_of(src, events_topic: str) -> str:
     """The camera info topic of the events' camera: the one in the events topic's namespace when there is one (a robot
     with two event cameras), else the only or the busiest one, with a warning when it is another camera's namespace."""
@@ -388,8 +394,12 @@ def read_recording(
     path: str | Path | Source,
     topics: dict[str, str] | None = None,
     with_events: bool = True,
+    events_topic: str | None = None,
 ) -> Recording:
     """Read the events, wheel joints, odometry, IMU and camera info of a recording in one pass.
+
+    The camera info taken is the events camera's: in the namespace of the events topic (the one read, else
+    ``events_topic``, else the busiest event topic) when several are recorded.
 
     ``topics`` overrides auto-detection per role: keys ``events``, ``joints``, ``odometry``, ``imu``,
     ``camera_info``. A role given explicitly must exist (else RecordingError listing the file's topics); a
@@ -407,8 +417,9 @@ def read_recording(
             continue
         if role in topics:
             used[role] = pick_topic(src, types, topics[role], what)
-        elif role == "camera_info" and used.get("events") and any(i.msgtype in types for i in all_topics.values()):
-            used[role] = _camera_info_of(src, used["events"])
+        elif role == "camera_info" and any(i.msgtype in types for i in all_topics.values()) and (
+                used.get("events") or events_topic or _busiest_events(all_topics)):
+            used[role] = _camera_info_of(src, used.get("events") or events_topic or _busiest_events(all_topics))
         elif any(i.msgtype in types for i in all_topics.values()):
             used[role] = pick_topic(src, types, None, what)
     if not used:
