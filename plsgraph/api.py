@@ -128,7 +128,9 @@ def diagnose(
 
         advice = (DAMAGED_ADVICE if _damaged(run) else getattr(exc, "advice", None) or
                   (FRONTEND_ADVICE if getattr(exc, "frontend_info", None) is not None else MOTION_ADVICE_DEFAULT))
-        counts = {"camera_frames": len(run.camera_track) if run.camera_track is not None else None,
+        searched = run.camera_track is not None or getattr(exc, "frontend_info", None) is not None
+        counts = {"camera_frames": (len(run.camera_track) if run.camera_track is not None else 0) if searched
+                  else None,  # None: the run stopped before the board was searched for
                   "odometry_samples": len(run.base_track) if run.base_track is not None else 0}
         return Diagnosis(str(recording), False, (str(exc),), (advice,), **counts, warnings=tuple(run.warnings))
     counts = {"camera_frames": len(run.camera_track), "odometry_samples": len(run.base_track)}

@@ -759,3 +759,13 @@ def test_an_options_file_takes_the_command_lines_names_and_suggests_the_nearest(
     opts.write_text("odometry: nosuch.mcap\n")
     with pytest.raises(InputError, match=f"odometry file {tmp_path / 'nosuch.mcap'} does not exist"):
         recording_options(rec, CalibrationOptions(board="acircles_4x11_a2"))
+
+
+def test_a_diagnosis_whose_board_search_found_nothing_says_zero_frames():
+    # A review of the "not searched for" line: a front end that ran and found no board must still say 0.
+    from plsgraph.api import diagnose
+    from plsgraph.report.text import diagnosis_text
+
+    d = diagnose(SAMPLE, board="aprilgrid_6x6")
+    assert not d.ok and d.camera_frames == 0 and "no board detected" in d.problems[0]
+    assert "camera frames with the board: 0" in diagnosis_text(d)

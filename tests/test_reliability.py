@@ -1098,3 +1098,36 @@ def test_a_camera_turning_against_the_wheels_is_named_not_an_infinite_track():
     assert "turns against the wheel odometry" in said and "inf" not in said and "--events-topic" in said
     assert "track width comes out 3.33 x" in _odometry_problems(1.0, 0.3)[0]
     assert _odometry_problems(1.0, 0.8) == []
+
+
+def test_a_killed_runs_leftovers_are_cleared_once_its_forked_child_lets_the_lock_go(tmp_path):
+    # A review: the refinement's forked helper of a killed batch worker inherits the folder's lock for a moment, and
+    # the cleanup after an interrupt gave up at once, leaving the staging folder.
+    import subprocess
+    import sys
+    import time
+
+    from plsgraph.report.files import clear_after_killed_run
+
+    out = tmp_path / "a"
+    stage = tmp_path / ".a.staging-abcd1234"
+    stage.mkdir()
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import sys, time; from plsgraph.report.files import OutputLock\n"
+        f"with OutputLock({str(out)!r}):\n    print('held', flush=True); time.sleep(1.0)\n")],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        t0 = time.monotonic()
+        assert clear_after_killed_run(out, wait_s=10.0)
+        assert 0.3 < time.monotonic() - t0 < 9.0 and not stage.exists()
+        holder.wait(timeout=10)
+        stage.mkdir()
+        holder = subprocess.Popen([sys.executable, "-c", (
+            "import time; from plsgraph.report.files import OutputLock\n"
+            f"with OutputLock({str(out)!r}):\n    print('held', flush=True); time.sleep(5)\n")],
+            stdout=subprocess.PIPE, text=True)
+        assert holder.stdout.readline().strip() == "held"
+        assert not clear_after_killed_run(out, wait_s=0.5) and stage.exists()  # a live run's folder: left alone
+    finally:
+        holder.kill()

@@ -333,15 +333,25 @@ class OutputLock:
             self.fd = None
 
 
-def clear_after_killed_run(out: str | Path) -> None:
+def clear_after_killed_run(out: str | Path, wait_s: float = 3.0) -> bool:
     """What a run on ``out`` that was killed (a batch's worker stopped on an interrupt) left beside it, removed: its
-    staging folder and its lock file, and an earlier result caught mid-swap put back. Skipped when another run holds
-    the folder's lock now."""
-    try:
-        with OutputLock(out) as lock:
-            staged_output(lock.out)._clear_leftovers(lock.out.absolute().parent)
-    except (InputError, OSError):
-        pass
+    staging folder and its lock file, and an earlier result caught mid-swap put back. Only under the folder's lock,
+    waited for up to ``wait_s`` (a process the killed run forked holds it until it notices, within a second or so);
+    False when another process still holds it (its leftovers are then cleared by the next run on the folder)."""
+    import time
+
+    deadline = time.monotonic() + wait_s
+    while True:
+        try:
+            with OutputLock(out) as lock:
+                staged_output(lock.out)._clear_leftovers(lock.out.absolute().parent)
+            return True
+        except InputError:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.2)
+        except OSError:
+            return False
 
 
 #: The --out folder whose result was swapped in while an interrupt was held back (:class:`staged_output`): the
