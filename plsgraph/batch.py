@@ -24,7 +24,14 @@ EVENT_ONLY_SUFFIXES = (".raw", ".aedat4")
 def is_bag_folder(p: Path) -> bool:
     """A ROS 2 bag folder (its metadata.yaml beside its .db3 or .mcap files): one recording, named after the folder,
     its NAME.options.yaml and NAME.truth.yaml beside the folder."""
-    return p.is_dir() and (p / "metadata.yaml").is_file()
+    meta = p / "metadata.yaml"
+    if not (p.is_dir() and meta.is_file()):
+        return False
+    try:  # a dataset's own metadata.yaml beside its recordings is not a bag's
+        with open(meta, errors="replace") as f:
+            return "rosbag2_bagfile_information" in f.read(65536)
+    except OSError:
+        return False
 
 
 def find_recordings(inputs: list[Path]) -> list[Path]:

@@ -730,6 +730,12 @@ def test_batch_takes_a_ros2_bag_folder_as_one_recording_with_its_own_files_besid
         (bag / f"robot2_{k}.db3").write_bytes(b"x")
     (fleet / "robot1.mcap").write_bytes(b"x")
     (fleet / "robot2.options.yaml").write_text("camera_height: 0.25\n")
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  version: 8\n")
+    data = tmp_path / "dataset"  # a dataset's own metadata.yaml beside its recordings: not a bag
+    data.mkdir()
+    (data / "metadata.yaml").write_text("robot: jackal\n")
+    (data / "run1.mcap").write_bytes(b"x")
+    assert find_recordings([data]) == [data / "run1.mcap"]
     assert find_recordings([fleet]) == [fleet / "robot1.mcap", bag]
     assert find_recordings([bag]) == [bag]
     assert skipped_in_folders([fleet]) == []  # the bag's .db3 files are the bag's, not skipped recordings

@@ -213,3 +213,22 @@ def test_a_compressed_recording_file_is_said_to_be_compressed(tmp_path, name):
     p.write_bytes(b"\x28\xb5\x2f\xfd" + bytes(64))
     with pytest.raises(RecordingError, match="is a compressed file .*decompress it first"):
         inspect_recording(p)
+
+
+def test_an_mcap_bag_copied_in_part_is_said_to_be_incomplete(tmp_path):
+    # A review: a ROS 2 bag with MCAP storage whose second split file was not copied got "cannot be opened ... run
+    # 'ros2 bag reindex'".
+    import yaml
+
+    sample = Path(__file__).resolve().parents[1] / "data" / "sample" / "rich_sample.mcap"
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "bag_0.mcap").symlink_to(sample)
+    meta = {"rosbag2_bagfile_information": {
+        "version": 8, "storage_identifier": "mcap", "relative_file_paths": ["bag_0.mcap", "bag_1.mcap"],
+        "duration": {"nanoseconds": 10}, "starting_time": {"nanoseconds_since_epoch": 0}, "message_count": 1,
+        "topics_with_message_count": [], "compression_format": "", "compression_mode": "",
+        "files": [], "custom_data": {}, "ros_distro": "humble"}}
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    with pytest.raises(RecordingError, match="bag .* is incomplete: its metadata.yaml lists bag_1.mcap"):
+        inspect_recording(bag, count_events=False)

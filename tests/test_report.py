@@ -267,6 +267,7 @@ def test_matplotlib_keeps_its_cache_in_one_folder_when_home_is_read_only(tmp_pat
     monkeypatch.setenv("MPLCONFIGDIR", "")  # recorded as it was, and so put back after the test
     monkeypatch.delenv("MPLCONFIGDIR")
     monkeypatch.delenv("XDG_CONFIG_HOME", raising=False)
+    monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
     monkeypatch.setenv("HOME", str(home))
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
     (tmp_path / "tmp").mkdir()
@@ -279,6 +280,18 @@ def test_matplotlib_keeps_its_cache_in_one_folder_when_home_is_read_only(tmp_pat
     assert os.environ["MPLCONFIGDIR"] == str(shared) and shared.is_dir()
     _matplotlib_config_dir()  # set: left as it is
     assert os.environ["MPLCONFIGDIR"] == str(shared)
+    # A cache folder it cannot write, the config one writable: the same (the font cache goes to the cache folder).
+    monkeypatch.delenv("MPLCONFIGDIR")
+    (home / ".cache").mkdir()
+    monkeypatch.setattr(os, "access", lambda p, m: False if "cache" in str(p) else real_access(p, m))
+    _matplotlib_config_dir()
+    assert os.environ["MPLCONFIGDIR"] == str(shared)
+    # A shared folder others may write (or another user's): not used.
+    monkeypatch.delenv("MPLCONFIGDIR")
+    shared.chmod(0o777)
+    _matplotlib_config_dir()
+    assert "MPLCONFIGDIR" not in os.environ
+    shared.chmod(0o700)
 
 
 def test_a_diagnosis_that_stopped_before_the_board_search_does_not_say_zero_frames():

@@ -219,8 +219,8 @@ def alignment_from_curve(offsets: np.ndarray, values: np.ndarray, overlap_s: np.
         raise InsufficientDataError(
             "the camera and odometry recordings do not overlap long enough at any clock offset "
             f"(need {MIN_OVERLAP_S:.0f} s and half of the shorter one)" if offsets.size == 0 else
-            f"only {offsets.size} clock offset(s) in the range searched at {rate:g} Hz: too narrow a range to find a "
-            "correlation peak in"
+            f"only {offsets.size} clock offset(s) left to compare at {rate:g} Hz (the range searched, or the overlap "
+            "the recordings need, leaves too few to find a correlation peak in)"
         )
     i = int(np.argmax(values))
     off = float(offsets[i])

@@ -44,6 +44,12 @@ def open_source(path: str | Path) -> Source:
             folder = p if p.is_dir() else p.parent
             files = sorted(folder.glob("*.db3")) if (folder / "metadata.yaml").exists() else []
             if not files:
+                missing = _listed_but_missing(folder) if (folder / "metadata.yaml").exists() else []
+                if missing:  # an MCAP-storage bag copied in part
+                    raise RecordingError(
+                        f"the bag {folder} is incomplete: its metadata.yaml lists {', '.join(missing)}, which "
+                        f"{'is' if len(missing) == 1 else 'are'} not there; copy the whole bag folder (or give one "
+                        "of its .mcap files itself to read only that part)") from None
                 raise
             src = Db3Source(files, name=p)
             missing = _listed_but_missing(folder)

@@ -27,23 +27,32 @@ def _matplotlib_config_dir() -> None:
     service account): one folder per user in the system's temp folder, reused by every run, instead of matplotlib's
     fresh temporary folder per process, left behind each time with a warning."""
     import os
+    import stat
     import tempfile
 
     if "MPLCONFIGDIR" in os.environ:
         return
-    base = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
-    own = os.path.join(base, "matplotlib")
-    probe = own if os.path.isdir(own) else base
-    while not os.path.isdir(probe) and os.path.dirname(probe) != probe:  # matplotlib would create it: can it?
-        probe = os.path.dirname(probe)
-    if os.access(probe, os.W_OK | os.X_OK):
+
+    def writable(base: str) -> bool:  # matplotlib's folder under base, or the nearest folder it would be made in
+        probe = os.path.join(base, "matplotlib")
+        while not os.path.isdir(probe) and os.path.dirname(probe) != probe:
+            probe = os.path.dirname(probe)
+        return os.access(probe, os.W_OK | os.X_OK)
+
+    home = os.path.expanduser("~")
+    config = os.environ.get("XDG_CONFIG_HOME") or os.path.join(home, ".config")
+    cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(home, ".cache")  # the font cache goes there
+    if writable(config) and writable(cache):
         return
     shared = os.path.join(tempfile.gettempdir(), f"plsgraph-matplotlib-{os.getuid()}")
     try:
         os.makedirs(shared, mode=0o700, exist_ok=True)
+        st = os.lstat(shared)
     except OSError:
         return
-    if os.access(shared, os.W_OK | os.X_OK):
+    # Only a folder of this user's that nobody else can write (the name is predictable: another user could have made
+    # it first, with a matplotlibrc of theirs in it).
+    if stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid() and not st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
         os.environ["MPLCONFIGDIR"] = shared
 
 
