@@ -52,9 +52,10 @@ def damaged_copies(tmp_path, data: bytes, seed: int, n: int, suffix: str):
         yield p, how
 
 
-def copy_mcap(src, dst, copies=lambda topic: 1) -> None:
+def copy_mcap(src, dst, copies=lambda topic: 1, also: dict[str, str] | None = None) -> None:
     """Write the MCAP ``src`` again as ``dst`` with each message of a topic written ``copies(topic)`` times (0 leaves
-    the topic's messages out; its channel stays registered only if some message is kept)."""
+    the topic's messages out; its channel stays registered only if some message is kept). ``also`` maps a topic to a
+    second topic its messages are written to as well (e.g. a second camera's camera info)."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
@@ -66,7 +67,11 @@ def copy_mcap(src, dst, copies=lambda topic: 1) -> None:
         schemas = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
         chans = {cid: w.register_channel(c.topic, c.message_encoding, schemas[c.schema_id], c.metadata)
                  for cid, c in summary.channels.items() if copies(c.topic) > 0}
+        extra = {c.topic: w.register_channel(also[c.topic], c.message_encoding, schemas[c.schema_id], c.metadata)
+                 for c in summary.channels.values() if c.topic in (also or {})}
         for _s, channel, msg in reader.iter_messages():
             for _ in range(copies(channel.topic) if channel.id in chans else 0):
                 w.add_message(chans[channel.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
+            if channel.topic in extra:
+                w.add_message(extra[channel.topic], msg.log_time, msg.data, msg.publish_time, msg.sequence)
         w.finish()

@@ -449,25 +449,10 @@ def test_the_camera_info_of_the_events_camera_is_taken_and_another_cameras_is_wa
     assert read_inputs(run).used_topics["camera_info"] == "/front/camera_info"
     assert any("is not in the namespace of the events topic /rear_dvs/events" in w for w in run.warnings)
     # Two cameras' infos, the rear one's in the events' namespace: that one is taken, without a warning.
-    from mcap.reader import make_reader
-    from mcap.writer import Writer
+    from recordings import copy_mcap
 
     two = tmp_path / "two.mcap"
-    with open(p, "rb") as f_in, open(two, "wb") as f_out:
-        reader = make_reader(f_in)
-        summary = reader.get_summary()
-        w = Writer(f_out)
-        w.start()
-        schemas = {sid: w.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
-        chans = {cid: w.register_channel(c.topic, c.message_encoding, schemas[c.schema_id], c.metadata)
-                 for cid, c in summary.channels.items()}
-        info = next(c for c in summary.channels.values() if c.topic == "/front/camera_info")
-        rear = w.register_channel("/rear_dvs/camera_info", info.message_encoding, schemas[info.schema_id])
-        for _s, channel, msg in reader.iter_messages():
-            w.add_message(chans[channel.id], msg.log_time, msg.data, msg.publish_time)
-            if channel.topic == "/front/camera_info":
-                w.add_message(rear, msg.log_time, msg.data, msg.publish_time)
-        w.finish()
+    copy_mcap(p, two, also={"/front/camera_info": "/rear_dvs/camera_info"})
     rec = read_recording(two, with_events=False)
     assert rec.used_topics["camera_info"] == "/rear_dvs/camera_info"
     assert not any("namespace" in w or "several camera info" in w for w in rec.warnings)
