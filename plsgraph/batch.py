@@ -34,6 +34,13 @@ def is_bag_folder(p: Path) -> bool:
         return False
 
 
+def recording_name(p: str | Path) -> str:
+    """A recording's name in the batch (its result folder, its NAME.options.yaml and NAME.truth.yaml): a file's name
+    without its suffix, a bag folder's whole name (``run.v2`` stays ``run.v2``)."""
+    p = Path(p)
+    return p.name if p.is_dir() else p.stem
+
+
 def find_recordings(inputs: list[Path]) -> list[Path]:
     """The recordings named, or held by the folders named (a ROS 2 bag folder is one recording, whether named or
     held); two with one name are refused (their folders would collide)."""
@@ -59,10 +66,10 @@ def find_recordings(inputs: list[Path]) -> list[Path]:
     for p in found:  # the same file given twice (overlapping globs, a folder and a file in it): calibrated once
         unique.setdefault(Path(os.path.normpath(p.absolute())), p)
     found = list(unique.values())
-    names = [p.stem for p in found]
+    names = [recording_name(p) for p in found]
     if len(set(names)) != len(names):
         same = sorted({n for n in names if names.count(n) > 1})
-        paths = [str(p) for p in found if p.stem in same]
+        paths = [str(p) for p in found if recording_name(p) in same]
         raise InputError(f"recordings share a name ({', '.join(same)}: {', '.join(paths)}); their output folders "
                          "would collide: rename or move one of them")
     return found
@@ -259,8 +266,8 @@ def run_batch(
         done: list[Path] = []
         if resume:  # the recordings with a result already: listed from their folders, not calibrated again
             # A failure's folder (no calibration, no diagnosis: a broken file, a full disk) is tried again.
-            done = [p for p in logs if (out / p.stem / "report.json").is_file()
-                    and _row_from_folder({"recording": str(p)}, out / p.stem)["status"] != "failed"]
+            done = [p for p in logs if (out / recording_name(p) / "report.json").is_file()
+                    and _row_from_folder({"recording": str(p)}, out / recording_name(p))["status"] != "failed"]
             logs = [p for p in logs if p not in done]
         return _run_batch_in(inputs, out, logs, options, force or resume, jobs, executor, prune, progress, done)
 
@@ -283,11 +290,11 @@ def _run_batch_in(inputs: list[Path], out: Path, logs: list[Path], options: Cali
     (out / "summary.md").unlink(missing_ok=True)
     items = []
     for p in logs:
-        truth = p.with_name(p.stem + ".truth.yaml")
+        truth = p.with_name(recording_name(p) + ".truth.yaml")
         own = recording_options(p, options)
         if own.truth is None or own is options:  # a truth its options file names stands; else NAME.truth.yaml
             own = replace(own, truth=truth if truth.exists() else None)
-        items.append((str(p), str(out / p.stem), own, force))
+        items.append((str(p), str(out / recording_name(p)), own, force))
     own = executor is None
     if own:
         executor = default_executor(len(items), jobs, ignore_interrupt=True)  # stopped below on an interrupt
@@ -321,19 +328,19 @@ def _run_batch_in(inputs: list[Path], out: Path, logs: list[Path], options: Cali
             executor.shutdown(wait=True, cancel_futures=True)  # after an interrupt: the rest never start
     rows = [_as_row(r, item) for r, item in zip(results, items, strict=True)]
     for row, item in zip(rows, items, strict=True):
-        own = Path(item[0]).with_name(Path(item[0]).stem + OPTIONS_SUFFIX)
+        own = Path(item[0]).with_name(recording_name(item[0]) + OPTIONS_SUFFIX)
         row["options_file"] = str(own.absolute()) if own.is_file() else None
     notes = []
     if done:  # --resume: the recordings that had a result, as their folders hold it
         for p in done:
-            base = earlier.get(p.stem) or _row(str(p), str(out / p.stem), "ok", {}, [], [])
-            rows.append({**_row_from_folder({**base, "recording": str(p.absolute())}, out / p.stem),
+            base = earlier.get(recording_name(p)) or _row(str(p), str(out / recording_name(p)), "ok", {}, [], [])
+            rows.append({**_row_from_folder({**base, "recording": str(p.absolute())}, out / recording_name(p)),
                          "earlier_run": True})
         notes.append(f"--resume: {len(done)} recording(s) already had a result and were not calibrated again "
-                     f"(listed as earlier runs): {', '.join(p.stem for p in done)}")
+                     f"(listed as earlier runs): {', '.join(recording_name(p) for p in done)}")
         rows.sort(key=lambda r: Path(str(r["recording"])).name)
     ok = all(r["status"] == "ok" for r in rows)  # the recordings given, those --resume found done among them
-    given = {Path(item[1]).name for item in items} | {p.stem for p in done or []}
+    given = {Path(item[1]).name for item in items} | {recording_name(p) for p in done or []}
     others = {name: row for name, row in earlier.items() if name not in given}
     if force and prune:
         stale = _remove_stale_results(out, set(others))
@@ -380,7 +387,7 @@ def recording_options(recording: Path, options: CalibrationOptions) -> Calibrati
     that file's folder. An unknown name or a bad value is an :class:`InputError` naming the file."""
     from .core.resources import read_yaml_mapping
 
-    f = Path(recording).with_name(Path(recording).stem + OPTIONS_SUFFIX)
+    f = Path(recording).with_name(recording_name(recording) + OPTIONS_SUFFIX)
     if not f.is_file():
         return options
     settings = read_yaml_mapping(f, "recording options file")
@@ -464,7 +471,7 @@ def _earlier_batch_rows(out: Path) -> dict[str, dict]:
         except (OSError, ValueError, AttributeError, TypeError):
             continue
         try:
-            return {Path(str(r["recording"])).stem: {**blank, **r} for r in rows
+            return {recording_name(str(r["recording"])): {**blank, **r} for r in rows
                     if isinstance(r, dict) and r.get("recording")}
         except (TypeError, AttributeError):
             return {}

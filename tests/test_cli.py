@@ -719,7 +719,7 @@ def test_batch_takes_a_ros2_bag_folder_as_one_recording_with_its_own_files_besid
     # A review: batch found no recording in a folder of bag folders; given a bag folder, it calibrated each of its
     # split .db3 files as a recording of its own (each reading the whole bag) and dropped the options and truth files
     # beside the folder.
-    from plsgraph.batch import find_recordings, recording_options, skipped_in_folders
+    from plsgraph.batch import find_recordings, recording_name, recording_options, skipped_in_folders
     from plsgraph.options import CalibrationOptions
 
     fleet = tmp_path / "fleet"
@@ -740,6 +740,12 @@ def test_batch_takes_a_ros2_bag_folder_as_one_recording_with_its_own_files_besid
     assert find_recordings([bag]) == [bag]
     assert skipped_in_folders([fleet]) == []  # the bag's .db3 files are the bag's, not skipped recordings
     assert recording_options(bag, CalibrationOptions()).refine.camera_height == 0.25
+    dotted = fleet / "run.v2"  # a bag folder's whole name is its name
+    dotted.mkdir()
+    (dotted / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  version: 8\n")
+    (fleet / "run.v2.options.yaml").write_text("camera_height: 0.3\n")
+    assert recording_name(dotted) == "run.v2" and recording_name(fleet / "robot1.mcap") == "robot1"
+    assert recording_options(dotted, CalibrationOptions()).refine.camera_height == 0.3
 
 
 def test_an_options_file_takes_the_command_lines_names_and_suggests_the_nearest(tmp_path):
