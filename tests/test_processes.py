@@ -216,6 +216,8 @@ def test_a_pool_that_is_shut_down_on_ctrl_c_stops_its_running_tasks_at_once(tmp_
         from plsgraph.core.processes import worker_initializer
 
         if __name__ == "__main__":
+            # As from a terminal (a background job of a script, as CI may run the suite, starts with Ctrl-C ignored).
+            signal.signal(signal.SIGINT, signal.default_int_handler)
             print(worker_initializer()[1][1], flush=True)  # by default: as this process (Ctrl-C not ignored)
             signal.signal(signal.SIGINT, signal.SIG_IGN)
             print(worker_initializer()[1][1], flush=True)  # this process ignores it: so do its workers
